@@ -1,0 +1,148 @@
+"""Browser tests: Playwright drives Debian's Chromium against a real ``streamlit run``.
+
+* ``app_server`` starts ``python -m streamlit run app.py`` on a free loopback port for the session
+  and yields its base URL. With ``NAVLAB_E2E_URL`` set (e.g. ``http://127.0.0.1:8503`` for a
+  container started by ``KEEP=1 ../shared/tools/verify-docker.sh .``) it uses that server instead.
+* ``base_url`` is the same URL, so ``page.goto("/?seed=42")`` works in tests.
+* Every test under tests/e2e is marked ``e2e`` and is skipped when /usr/bin/chromium is missing
+  (``apt-get install -y chromium``; ``playwright install`` cannot download browsers here).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+E2E_DIR = Path(__file__).resolve().parent
+ARTIFACTS_DIR = E2E_DIR / "_artifacts"
+CHROMIUM = Path("/usr/bin/chromium")
+HEALTH_TIMEOUT_S = 60.0
+
+# Without the background-networking flags Chromium floods this machine's closed network.
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-dev-shm-usage",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselection sees the items
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    skip = pytest.mark.skip(reason=f"{CHROMIUM} not found: apt-get install -y chromium")
+    for item in items:
+        if E2E_DIR in Path(item.path).parents:
+            item.add_marker(pytest.mark.e2e)
+            if not CHROMIUM.exists():
+                item.add_marker(skip)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _health(url: str) -> str | None:
+    """Body of ``url``/_stcore/health, or None while it does not answer."""
+    # bypass any proxy settings: the server is on loopback
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    try:
+        with opener.open(f"{url}/_stcore/health", timeout=2) as r:
+            return r.read().decode().strip()
+    except (urllib.error.URLError, OSError):
+        return None
+
+
+def _wait_healthy(url: str, proc: subprocess.Popen | None, log: Path | None) -> None:
+    deadline = time.monotonic() + HEALTH_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if _health(url) == "ok":
+            return
+        if proc is not None and proc.poll() is not None:
+            tail = log.read_text(errors="replace")[-3000:] if log else ""
+            pytest.fail(
+                f"streamlit exited with code {proc.returncode} before it was healthy:\n{tail}"
+            )
+        time.sleep(0.25)
+    pytest.fail(f"{url}/_stcore/health did not answer 'ok' within {HEALTH_TIMEOUT_S:.0f} s")
+
+
+@pytest.fixture(scope="session")
+def artifacts_dir() -> Path:
+    """Folder for screenshots and logs a human may look at (gitignored)."""
+    ARTIFACTS_DIR.mkdir(parents=True, exist_ok=True)
+    return ARTIFACTS_DIR
+
+
+@pytest.fixture(scope="session")
+def app_server(artifacts_dir: Path) -> Iterator[str]:
+    """Base URL of a healthy navlab server, without a trailing slash."""
+    external = os.environ.get("NAVLAB_E2E_URL", "").strip()
+    if external:
+        url = external.rstrip("/")
+        _wait_healthy(url, None, None)
+        yield url
+        return
+
+    if not (ROOT / "app.py").exists():
+        pytest.fail(f"{ROOT / 'app.py'} not found: nothing to serve")
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    cmd = [
+        sys.executable,
+        "-m",
+        "streamlit",
+        "run",
+        "app.py",
+        "--server.address=127.0.0.1",
+        f"--server.port={port}",
+        "--server.headless=true",
+        "--browser.gatherUsageStats=false",
+        "--server.fileWatcherType=none",
+    ]
+    log = artifacts_dir / "streamlit-server.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen(
+            cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT
+        )
+    try:
+        _wait_healthy(url, proc, log)
+        yield url
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="session")
+def base_url(app_server: str) -> str:
+    """pytest-playwright passes this to every browser context: relative ``page.goto`` works."""
+    return app_server
+
+
+@pytest.fixture(scope="session")
+def browser_type_launch_args(browser_type_launch_args: dict) -> dict:
+    """Launch Debian's Chromium (no downloaded browsers) with flags for this closed network."""
+    return {
+        **browser_type_launch_args,
+        "executable_path": str(CHROMIUM),
+        "args": [*browser_type_launch_args.get("args", []), *CHROMIUM_ARGS],
+    }
