@@ -1,0 +1,5 @@
+"""``python -m navlab``."""
+
+from navlab.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,233 @@
+"""Command-line interface: ``python -m navlab list|run|reproduce|app``.
+
+Exit codes: 0 success; 2 a problem with the arguments, the configuration or an input file (one
+line on stderr saying what to change); 1 an unexpected internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from navlab.errors import NavlabError
+
+log = logging.getLogger(__name__)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2, no usage dump
+        raise NavlabError(f"{message} (see 'python -m navlab {self.prog.split()[-1]} --help')")
+
+
+def _list(what: str) -> pd.DataFrame:
+    from navlab.filters.base import registry
+    from navlab.noise import OUTLIERS, SCHEDULES
+    from navlab.scenarios.base import scenario_registry
+
+    if what == "filters":
+        rows = [
+            (k, c.label, c.family, ("reconstruction" if c.reconstruction else ""), c.summary)
+            for k, c in registry().items()
+        ]
+        return pd.DataFrame(rows, columns=["key", "label", "family", "note", "summary"])
+    if what == "scenarios":
+        rows = [(k, c.label, c.paper, c.summary) for k, c in scenario_registry().items()]
+        return pd.DataFrame(rows, columns=["key", "label", "paper", "summary"])
+    if what == "schedules":
+        return pd.DataFrame([(k, c.summary) for k, c in SCHEDULES.items()], columns=["key", "summary"])
+    if what == "outliers":
+        return pd.DataFrame([(k, c.summary) for k, c in OUTLIERS.items()], columns=["key", "summary"])
+    if what == "reproductions":
+        from navlab.reproduce import REPRODUCTIONS
+
+        return pd.DataFrame(
+            [(k, r.title) for k, r in REPRODUCTIONS.items()], columns=["key", "title"]
+        )
+    raise NavlabError(f"nothing called '{what}' to list")
+
+
+def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
+    if fmt == "json":
+        records = json.loads(df.to_json(orient="records", double_precision=15))
+        text = json.dumps(records, indent=1, ensure_ascii=False) + "\n"
+    elif fmt == "csv":
+        text = df.to_csv(index=False)
+    else:
+        with pd.option_context("display.width", 200, "display.max_columns", 50,
+                               "display.max_colwidth", 80, "display.max_rows", 10000):
+            text = df.to_string(index=False) + "\n"
+    if out:
+        try:
+            Path(out).write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise NavlabError(f"cannot write --out {out}: {exc.strerror}") from None
+        print(f"wrote {out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+
+
+def _spec_from_args(a: argparse.Namespace):
+    from navlab.experiment import ExperimentSpec
+
+    base: dict[str, Any] = {}
+    if a.config:
+        try:
+            text = Path(a.config).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise NavlabError(f"cannot read --config {a.config}: {exc.strerror}") from None
+        base = ExperimentSpec.from_json(text).to_dict()
+    overrides = {
+        "scenario": a.scenario,
+        "filters": a.filters,
+        "runs": a.runs,
+        "seed": a.seed,
+        "epochs": a.epochs,
+        "noise_schedule": a.noise_schedule,
+        "outliers": a.outliers,
+        "contamination": a.contamination,
+        "outlier_scale": a.outlier_scale,
+    }
+    base.update({k: v for k, v in overrides.items() if v is not None})
+    for item in a.set or []:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise NavlabError(f"--set takes GROUP.NAME=VALUE (e.g. kf.alpha=0.05), got {item!r}")
+        lhs, rhs = item.split("=", 1)
+        group, name = lhs.split(".", 1)
+        try:
+            value = json.loads(rhs)
+        except json.JSONDecodeError:
+            value = rhs
+        target = {"noise": "noise_params", "outliers": "outlier_params", "scenario": "scenario_params"}
+        if group in target:
+            base.setdefault(target[group], {})[name] = value
+        else:
+            base.setdefault("filter_params", {}).setdefault(group, {})[name] = value
+    if "scenario" in base and a.scenario and not a.filters and not a.config:
+        from navlab.scenarios.base import get_scenario_class
+
+        base["filters"] = list(get_scenario_class(base["scenario"]).default_filters)
+    return ExperimentSpec.from_dict(base)
+
+
+def _run(a: argparse.Namespace) -> int:
+    from navlab.experiment import run_experiment
+
+    spec = _spec_from_args(a)
+    progress = None
+    if sys.stderr.isatty() and not a.quiet:
+        def progress(done: int, total: int) -> None:
+            print(f"\r{done}/{total} runs", end="" if done < total else "\n", file=sys.stderr)
+    res = run_experiment(spec, on_progress=progress, chunk_runs=max(1, spec.runs // 10))
+    df = res.metrics()
+    if a.format == "table":
+        from navlab.metrics import headline_table
+
+        wide = headline_table(res).reset_index().rename(columns={"label": "filter"})
+        _emit(wide.round(4), "table", a.out)
+    else:
+        _emit(df, a.format, a.out)
+    if a.save_spec:
+        Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
+    return 0
+
+
+def _reproduce(a: argparse.Namespace) -> int:
+    from navlab.reproduce import REPRODUCTIONS
+
+    if a.name not in REPRODUCTIONS:
+        raise NavlabError(
+            f"unknown reproduction '{a.name}'; known: {', '.join(REPRODUCTIONS) or '(none yet)'}"
+        )
+    rep = REPRODUCTIONS[a.name]
+    outdir = Path(a.outdir) if a.outdir else None
+    df = rep.run(runs=a.runs, seed=a.seed, outdir=outdir)
+    _emit(df, a.format, a.out)
+    return 0
+
+
+def _app(a: argparse.Namespace) -> int:
+    app = Path(__file__).resolve().parent.parent / "app.py"
+    if not app.exists():
+        raise NavlabError(f"app.py not found next to the navlab package ({app})")
+    cmd = [sys.executable, "-m", "streamlit", "run", str(app), *a.streamlit_args]
+    return subprocess.call(cmd)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
+    p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+
+    pl = sub.add_parser("list", help="list filters, scenarios, schedules, outliers, reproductions")
+    pl.add_argument("what", choices=["filters", "scenarios", "schedules", "outliers", "reproductions"])
+    pl.add_argument("--format", choices=["table", "json", "csv"], default="table")
+
+    pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
+    pr.add_argument("--config", help="experiment spec JSON (flags given here override it)")
+    pr.add_argument("--scenario", help="scenario key (default cv2d)")
+    pr.add_argument("--filters", type=lambda s: [x.strip() for x in s.split(",") if x.strip()],
+                    help="comma-separated filter keys")
+    pr.add_argument("--runs", type=int, help="Monte Carlo runs")
+    pr.add_argument("--seed", type=int, help="base seed")
+    pr.add_argument("--epochs", type=int, help="number of epochs (default: the scenario's)")
+    pr.add_argument("--noise-schedule", help="true R(t) schedule key")
+    pr.add_argument("--outliers", help="outlier model key")
+    pr.add_argument("--contamination", type=float, help="outlier ratio α (mixture)")
+    pr.add_argument("--outlier-scale", type=float, help="outlier scale κ (in σ)")
+    pr.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE",
+                    help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V")
+    pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    pr.add_argument("--out", help="write the output to this file instead of stdout")
+    pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+
+    pp = sub.add_parser("reproduce", help="reproduce a paper's experiment (paper vs navlab)")
+    pp.add_argument("name", help="hakf, irakf, nnmfukf or vbekf")
+    pp.add_argument("--runs", type=int, default=None, help="Monte Carlo runs (default: the paper's)")
+    pp.add_argument("--seed", type=int, default=1)
+    pp.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    pp.add_argument("--out", help="write the table to this file")
+    pp.add_argument("--outdir", help="directory for per-epoch RMSE curves (CSV)")
+
+    pa = sub.add_parser("app", help="start the Streamlit app")
+    pa.add_argument("streamlit_args", nargs=argparse.REMAINDER)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        a = build_parser().parse_args(argv)
+        if a.cmd == "list":
+            _emit(_list(a.what), a.format, None)
+            return 0
+        if a.cmd == "run":
+            return _run(a)
+        if a.cmd == "reproduce":
+            return _reproduce(a)
+        if a.cmd == "app":
+            return _app(a)
+        return 2
+    except NavlabError as exc:
+        print(f"navlab: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("navlab: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal error: one line unless --debug
+        if debug or os.environ.get("NAVLAB_DEBUG"):
+            raise
+        print(f"navlab: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
+              file=sys.stderr)
+        return 1

@@ -1,0 +1,225 @@
+"""The filter interface, the system-model interface and the filter registry.
+
+One shared time loop (:func:`navlab.experiment.run_filters`) drives every filter. A filter is a
+stateless object holding its frozen hyper-parameters; everything that changes per run lives in a
+state object (a NamedTuple with at least ``x`` (B, n) and ``P`` ((n, n) or (B, n, n))) that the
+filter returns from :meth:`Filter.init`, :meth:`Filter.predict` and :meth:`Filter.update`.
+
+Epoch convention (every scenario): k = 0 is the initial epoch (truth x_0, estimate x̂_0, P_0, no
+measurement); for k = 1 … K the loop calls ``predict`` (transition k−1 → k) then ``update`` with z_k.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple, Protocol
+
+import numpy as np
+
+from navlab import params as P_
+from navlab.errors import NavlabError
+from navlab.filters.linalg import Array, mv
+
+
+class Model(Protocol):
+    """What a filter may ask of a scenario's (nominal) system model at epoch k.
+
+    Matrices may be shared (n, n) or per run (B, n, n); filters must broadcast.
+    """
+
+    n: int
+    m: int
+    R0: Array  # (m, m) nominal measurement-noise covariance the filters assume
+    linear: bool
+
+    def F(self, k: int) -> Array: ...  # transition k-1 -> k (Jacobian of f for nonlinear models)
+    def Q(self, k: int) -> Array: ...  # process noise over k-1 -> k
+    def f(self, x: Array, k: int) -> Array: ...  # (B, n) -> (B, n)
+    def H(self, x: Array, k: int) -> Array: ...  # Jacobian of h at x: (m, n) or (B, m, n)
+    def h(self, x: Array, k: int) -> Array: ...  # (B, n) -> (B, m)
+
+
+@dataclass(frozen=True, eq=False)
+class LinearModel:
+    """Linear Gaussian model. ``F``, ``Q``, ``H`` are constant (2-D) or per epoch (3-D, index k)."""
+
+    F_: Array
+    Q_: Array
+    H_: Array
+    R0: Array
+    linear: bool = True
+
+    @property
+    def n(self) -> int:
+        return int(self.F_.shape[-1])
+
+    @property
+    def m(self) -> int:
+        return int(self.H_.shape[-2])
+
+    def F(self, k: int) -> Array:
+        return self.F_ if self.F_.ndim == 2 else self.F_[k]
+
+    def Q(self, k: int) -> Array:
+        return self.Q_ if self.Q_.ndim == 2 else self.Q_[k]
+
+    def f(self, x: Array, k: int) -> Array:
+        return mv(self.F(k), x)
+
+    def H(self, x: Array | None, k: int) -> Array:
+        return self.H_ if self.H_.ndim == 2 else self.H_[k]
+
+    def h(self, x: Array, k: int) -> Array:
+        return mv(self.H(x, k), x)
+
+
+@dataclass(frozen=True)
+class SideInfo:
+    """What the simulator knows at epoch k (only the oracle filter reads it).
+
+    R_true : (B, m) variance actually used to draw v_k (mixture component included).
+    bias : (B, m) known additive outlier mean (0 if none).
+    outlier : (B, m) bool, channel contaminated by the outlier model at k.
+    Q_extra : (n, n) process-noise anomaly, or None.
+    """
+
+    R_true: Array
+    bias: Array
+    outlier: Array
+    Q_extra: Array | None = None
+
+
+@dataclass
+class StepOut:
+    """Per-step report of one filter (ALGORITHMS.md §0.2 rule 5). Shared arrays may be unbatched.
+
+    Attributes
+    ----------
+    x, P : posterior mean (B, n) and covariance ((n, n) or (B, n, n)).
+    innov : innovation ν = z − h(x⁻), (B, m) (0 on missing channels).
+    S : innovation covariance the filter used, (m, m) or (B, m, m).
+    R_used : effective R in the gain, (m, m) or (B, m, m).
+    R_hat : the filter's adaptive estimate of R, or None if it does not estimate R.
+    weights : (B, m) per-channel weights, 1 = untouched (None: all ones).
+    flags : (B, m) per-channel codes of §0.3 (None: all zeros).
+    stats : extra per-run diagnostics, arrays (B,) or (B, m) (NIS, fading factors, λ, …).
+    """
+
+    x: Array
+    P: Array
+    innov: Array
+    S: Array
+    R_used: Array
+    R_hat: Array | None = None
+    weights: Array | None = None
+    flags: Array | None = None
+    stats: dict[str, Array] = field(default_factory=dict)
+
+
+class KFState(NamedTuple):
+    """The minimal per-run state: mean (B, n) and covariance ((n, n) or (B, n, n))."""
+
+    x: Array
+    P: Array
+
+
+# Per-channel flag codes (ALGORITHMS.md §0.3)
+ACCEPTED, DOWNWEIGHTED, REJECTED, REJECTED_AUX, REPLACED, EPOCH_ANOMALY, NUMERICAL_FIX = (
+    0, 1, 2, 3, 4, 5, 9,
+)
+FLAG_NAMES = {
+    0: "accepted", 1: "down-weighted", 2: "rejected", 3: "rejected (aux. detector)",
+    4: "replaced by prediction", 5: "epoch anomaly", 9: "numerical fix",
+}
+
+
+class Filter:
+    """Base class: subclass, set the class attributes, implement init/predict/update, register.
+
+    Class attributes
+    ----------------
+    key : registry key, kebab-case (``"huber-kf"``).
+    label : display name.
+    family : "baseline", "robust", "adaptive", "robust-adaptive", "nonlinear", "oracle".
+    paper : short citation of the paper it implements ("" for textbook filters).
+    spec_section : the section of ALGORITHMS.md it follows.
+    reconstruction : True where the original could not be retrieved (shown in the app).
+    estimates_R : True if it reports an R̂.
+    linear_only : True if it needs a linear model (uses F, H; ignores f, h).
+    Params : frozen dataclass of hyper-parameters declared with :func:`navlab.params.param`.
+    """
+
+    key: ClassVar[str] = ""
+    label: ClassVar[str] = ""
+    family: ClassVar[str] = "baseline"
+    paper: ClassVar[str] = ""
+    spec_section: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    reconstruction: ClassVar[bool] = False
+    estimates_R: ClassVar[bool] = False
+    linear_only: ClassVar[bool] = False
+    Params: ClassVar[type] = P_.NoParams
+
+    def __init__(self, params: Any = None, **kwargs: Any) -> None:
+        if params is None or isinstance(params, dict):
+            params = P_.build(self.Params, {**(params or {}), **kwargs}, f"filter '{self.key}'")
+        self.params = params
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.params})"
+
+    # The three hooks -----------------------------------------------------------------------
+    def init(self, model: Model, x0: Array, P0: Array) -> Any:
+        """Initial state from x̂_0 (B, n) and P_0 ((n, n) or (B, n, n))."""
+        return KFState(np.array(x0, dtype=float), np.array(P0, dtype=float))
+
+    def predict(self, model: Model, state: Any, k: int) -> Any:
+        """Time update k−1 → k (default: the KF/EKF prediction)."""
+        from navlab.filters.linalg import sym
+
+        F = model.F(k)
+        x = model.f(state.x, k)
+        P = sym(F @ state.P @ np.swapaxes(F, -1, -2) + model.Q(k))
+        return state._replace(x=x, P=P)
+
+    def update(
+        self, model: Model, state: Any, k: int, z: Array, side: SideInfo
+    ) -> tuple[Any, StepOut]:
+        """Measurement update with z_k (B, m) (NaN = channel unavailable)."""
+        raise NotImplementedError
+
+
+_REGISTRY: dict[str, type[Filter]] = {}
+
+
+def register(cls: type[Filter]) -> type[Filter]:
+    """Class decorator adding a filter to the registry under ``cls.key``."""
+    if not cls.key or cls.key != cls.key.lower() or " " in cls.key or "_" in cls.key:
+        raise ValueError(f"filter key must be kebab-case, got {cls.key!r}")
+    if cls.key in _REGISTRY and _REGISTRY[cls.key] is not cls:
+        raise ValueError(f"filter key {cls.key!r} registered twice")
+    if not dataclasses.is_dataclass(cls.Params):
+        raise TypeError(f"{cls.__name__}.Params must be a dataclass")
+    _REGISTRY[cls.key] = cls
+    return cls
+
+
+def registry() -> dict[str, type[Filter]]:
+    """All registered filters, by key (importing every filter family first)."""
+    import navlab.filters  # noqa: F401  (registers the families)
+
+    return dict(_REGISTRY)
+
+
+def get_filter_class(key: str) -> type[Filter]:
+    """The filter class registered as ``key``; NavlabError naming the known keys otherwise."""
+    reg = registry()
+    if key not in reg:
+        raise NavlabError(f"unknown filter '{key}'; known filters: {', '.join(sorted(reg))}")
+    return reg[key]
+
+
+def make_filter(key: str, params: dict[str, Any] | None = None) -> Filter:
+    """Instantiate a registered filter with validated parameters."""
+    return get_filter_class(key)(params or {})

@@ -1,0 +1,113 @@
+"""Batched linear-algebra kernels shared by every filter.
+
+Shapes: a leading batch axis B (Monte Carlo runs) where a quantity differs between runs, none
+where it is shared: ``x`` is (B, n); ``P`` is (n, n) while it is the same in every run (the plain
+KF with a common P0) and (B, n, n) once it depends on the data. Everything here broadcasts, so a
+filter written with these helpers handles both without branches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+def mT(A: Array) -> Array:
+    """Transpose of the last two axes."""
+    return np.swapaxes(A, -1, -2)
+
+
+def mv(A: Array, x: Array) -> Array:
+    """Matrix-vector product ``A x`` for A (n, k) or (B, n, k) and x (B, k) -> (B, n)."""
+    if A.ndim == 2:
+        return x @ A.T
+    return (A @ x[..., None])[..., 0]
+
+
+def sym(P: Array) -> Array:
+    """Symmetrise ``(P + Pᵀ)/2`` (ALGORITHMS.md §0.2 rule 1)."""
+    return 0.5 * (P + mT(P))
+
+
+def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
+    """Solve ``S X = Y`` for symmetric positive-definite S (batched).
+
+    Returns ``(X, fixed)`` where ``fixed`` (B,) or () is True where S was singular and
+    ``1e-12·trace(S)/m·I`` had to be added (§0.2 rule 3; flag 9). A LU solve is used: for SPD S
+    it is the same solution as Cholesky and numpy batches it natively.
+    """
+    try:
+        return np.linalg.solve(S, Y), np.zeros(S.shape[:-2], dtype=bool)
+    except np.linalg.LinAlgError:
+        m = S.shape[-1]
+        jitter = 1e-12 * np.trace(S, axis1=-2, axis2=-1)[..., None, None] / m
+        jitter = np.maximum(jitter, 1e-300) * np.eye(m)
+        try:
+            cond = np.linalg.cond(S)
+            fixed = ~np.isfinite(cond) | (cond > 1e14)
+        except np.linalg.LinAlgError:
+            fixed = np.ones(S.shape[:-2], dtype=bool)
+        return np.linalg.solve(S + jitter, Y), fixed
+
+
+def gain(P: Array, H: Array, S: Array) -> tuple[Array, Array]:
+    """Kalman gain ``K = P Hᵀ S⁻¹`` via a solve with S (never an explicit inverse)."""
+    PHt = P @ mT(H)
+    Kt, fixed = solve_sym(S, mT(PHt))
+    return mT(Kt), fixed
+
+
+def joseph(P: Array, K: Array, H: Array, R: Array) -> Array:
+    """Joseph-form covariance update ``(I−KH) P (I−KH)ᵀ + K R Kᵀ``, symmetrised.
+
+    Valid for any gain K (zeroed columns, re-scaled innovations), not only the optimal one.
+    """
+    n = P.shape[-1]
+    IKH = np.eye(n) - K @ H
+    return sym(IKH @ P @ mT(IKH) + K @ R @ mT(K))
+
+
+def quad(v: Array, S: Array) -> Array:
+    """Quadratic form ``vᵀ S⁻¹ v`` for v (B, m), S (m, m) or (B, m, m) -> (B,)."""
+    if S.ndim == 2:
+        return np.einsum("bi,bi->b", v, np.linalg.solve(S, v.T).T)
+    return np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
+
+
+def diag(A: Array) -> Array:
+    """Diagonal of the last two axes."""
+    return np.diagonal(A, axis1=-2, axis2=-1)
+
+
+def mask_missing(z: Array, nu: Array, H: Array, R: Array) -> tuple[Array, Array, Array, Array]:
+    """Drop unavailable channels (NaN in ``z``) exactly.
+
+    A missing channel i gets a zero innovation, a zero row in H and a unit, uncorrelated R_ii, so
+    its gain column is exactly zero and S stays invertible. With every channel present the inputs
+    come back unchanged (and unbatched).
+
+    Returns
+    -------
+    ok : (B, m) bool, channel available.
+    nu, H, R : masked copies (batched where masking was needed).
+    """
+    ok = np.isfinite(z)
+    if ok.all():
+        return ok, nu, H, R
+    B, m = z.shape
+    nu = np.where(ok, nu, 0.0)
+    H = np.broadcast_to(H, (B, *H.shape[-2:])) * ok[..., None]
+    okk = ok[:, :, None] & ok[:, None, :]
+    R = np.where(okk, np.broadcast_to(R, (B, m, m)), 0.0) + np.eye(m) * (~ok)[:, None, :]
+    return ok, nu, H, R
+
+
+def eigh_clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
+    """Clamp the eigenvalues of symmetric R (batched) into [lo, hi]; returns (R', clamped (B,))."""
+    R = sym(R)
+    w, V = np.linalg.eigh(R)
+    clamped = np.any((w < lo) | (w > hi), axis=-1)
+    w = np.clip(w, lo, hi)
+    return (V * w[..., None, :]) @ mT(V), clamped

@@ -1,0 +1,478 @@
+"""Batched strapdown INS mechanisation in the local-level ENU frame, and its error model.
+
+Frames and units
+----------------
+* navigation frame ``n`` = ENU; body frame ``b`` = the IMU's own axes (whatever they are:
+  the mechanisation never assumes RFU; the attitude angle helpers in `navlab.ins.earth`
+  assume RFU, so rotate with a body-to-vehicle matrix first if you want car angles);
+* position: geodetic latitude / longitude [rad] and ellipsoidal height [m];
+* velocity ``v_enu_mps`` [m/s]; attitude ``C_bn`` = ``C_b^n`` (3x3);
+* IMU samples: specific force ``f_b_mps2`` [m/s^2] and angular rate ``w_b_radps`` [rad/s].
+
+Every state array carries a leading batch axis ``B``: a filter owns B independent INS
+solutions (Monte Carlo runs, or filter variants) that are all advanced by ONE Python loop
+over IMU samples.
+
+Error-state sign convention (ALGORITHMS.md section 8.0, PSINS)
+-------------------------------------------------------------
+error = INS - truth. The 15-state error vector is
+
+``x = [phi (3, ENU, rad), dv (3, ENU, m/s), dp (3, metres N, E, U), eps (3, gyro bias,
+body, rad/s), nabla (3, accel bias, body, m/s^2)]``
+
+with ``C_b^n(INS) = (I - [phi x]) C_b^n(true)``, ``v(INS) = v(true) + dv``,
+``dp_N = (lat_INS - lat_true) R_Mh``, ``dp_E = (lon_INS - lon_true) R_Nh cos L``,
+``dp_U = h_INS - h_true`` and ``w_meas = w_true + eps``, ``f_meas = f_true + nabla``.
+`apply_correction` removes an estimated error from the INS (closed loop) and adds the
+estimated sensor errors to the running bias estimates, after which the filter must reset
+those states to zero.
+
+Note on position order: the §8.0 state orders position as (N, E, U) metres, while the
+velocity and attitude blocks are (E, N, U).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from navlab.errors import NavlabError
+from navlab.ins.earth import (
+    GAMMA_E_MPS2 as _GE,
+    GAMMA_P_MPS2 as _GP,
+    OMEGA_IE_RADPS as _WIE,
+    WGS84_A_M as _A,
+    WGS84_B_M as _B,
+    WGS84_E2 as _E2,
+    WGS84_F as _F,
+    WGS84_GM_M3PS2 as _GM,
+    earth_rate_enu,
+    normal_gravity,
+    orthonormalize,
+    radii,
+    rotvec_to_dcm,
+    skew,
+    transport_rate_enu,
+)
+
+__all__ = [
+    "InsState",
+    "ImuBlock",
+    "init_state",
+    "mechanise_step",
+    "propagate_block",
+    "apply_correction",
+    "error_model_FG",
+    "discretise",
+]
+
+
+@dataclass(frozen=True)
+class InsState:
+    """B strapdown navigation solutions (all arrays have leading axis B).
+
+    Attributes
+    ----------
+    lat_rad, lon_rad, h_m : numpy.ndarray
+        Geodetic latitude, longitude [rad] and ellipsoidal height [m], shape (B,).
+    v_enu_mps : numpy.ndarray
+        Velocity east, north, up [m/s], shape (B, 3).
+    C_bn : numpy.ndarray
+        Attitude ``C_b^n`` (body to ENU), shape (B, 3, 3).
+    bias_g_radps : numpy.ndarray
+        Current gyro bias estimate [rad/s] subtracted from every gyro sample, (B, 3).
+    bias_a_mps2 : numpy.ndarray
+        Current accelerometer bias estimate [m/s^2] subtracted from every sample, (B, 3).
+    t_s : float
+        Time of the solution [s] (common to the batch).
+    """
+
+    lat_rad: np.ndarray
+    lon_rad: np.ndarray
+    h_m: np.ndarray
+    v_enu_mps: np.ndarray
+    C_bn: np.ndarray
+    bias_g_radps: np.ndarray
+    bias_a_mps2: np.ndarray
+    t_s: float = 0.0
+
+    @property
+    def B(self) -> int:
+        """Batch size."""
+        return int(self.lat_rad.shape[0])
+
+
+@dataclass(frozen=True)
+class ImuBlock:
+    """What happened over one block of IMU samples (between two aiding epochs).
+
+    Attributes
+    ----------
+    dt_s : float
+        Block length [s].
+    n_samples : int
+        IMU samples integrated.
+    f_b_mean_mps2, w_b_mean_radps : numpy.ndarray
+        Bias-corrected mean specific force [m/s^2] and angular rate [rad/s] in body, (B, 3).
+    f_n_mean_mps2 : numpy.ndarray
+        Mean specific force rotated to ENU [m/s^2], (B, 3): the ``f^n`` of the error-state F.
+    """
+
+    dt_s: float
+    n_samples: int
+    f_b_mean_mps2: np.ndarray
+    w_b_mean_radps: np.ndarray
+    f_n_mean_mps2: np.ndarray
+
+
+def _batch(a, B, shape, name):
+    a = np.asarray(a, dtype=float)
+    out = np.broadcast_to(a, (B,) + shape).copy() if a.shape != (B,) + shape else a.copy()
+    if not np.all(np.isfinite(out)):
+        raise NavlabError(f"INS initial {name} contains NaN/inf; give finite values.")
+    return out
+
+
+def init_state(lat_rad, lon_rad, h_m, v_enu_mps, C_bn, B=1, bias_g_radps=0.0, bias_a_mps2=0.0, t_s=0.0):
+    """Build an `InsState` for B solutions, broadcasting scalars / single vectors over B.
+
+    Parameters
+    ----------
+    lat_rad, lon_rad, h_m : float or array_like (B,)
+        Initial position [rad, rad, m].
+    v_enu_mps : array_like (3,) or (B, 3)
+        Initial ENU velocity [m/s].
+    C_bn : array_like (3, 3) or (B, 3, 3)
+        Initial attitude ``C_b^n``.
+    B : int
+        Batch size (ignored if a batched argument fixes it).
+    bias_g_radps, bias_a_mps2 : array_like, optional
+        Initial sensor bias estimates [rad/s], [m/s^2].
+    t_s : float
+        Initial time [s].
+
+    Returns
+    -------
+    InsState
+    """
+    for a in (lat_rad, lon_rad, h_m):
+        if np.ndim(a) == 1:
+            B = len(a)
+    if np.ndim(C_bn) == 3:
+        B = np.shape(C_bn)[0]
+    return InsState(
+        lat_rad=_batch(lat_rad, B, (), "latitude"),
+        lon_rad=_batch(lon_rad, B, (), "longitude"),
+        h_m=_batch(h_m, B, (), "height"),
+        v_enu_mps=_batch(v_enu_mps, B, (3,), "velocity"),
+        C_bn=_batch(C_bn, B, (3, 3), "attitude"),
+        bias_g_radps=_batch(bias_g_radps, B, (3,), "gyro bias"),
+        bias_a_mps2=_batch(bias_a_mps2, B, (3,), "accelerometer bias"),
+        t_s=float(t_s),
+    )
+
+
+_LEVI = np.zeros((3, 9))
+for _i, _j, _k, _sgn in ((0, 1, 2, 1), (1, 2, 0, 1), (2, 0, 1, 1), (0, 2, 1, -1), (2, 1, 0, -1), (1, 0, 2, -1)):
+    _LEVI[_k, 3 * _i + _j] = -_sgn  # [phi x]_ij = -eps_ijk phi_k
+_I3 = np.eye(3)
+
+
+def _expm_so3(phi):
+    """``exp([phi x])`` for (B, 3) rotation vectors; Taylor series below 0.1 rad (error < 1e-16)."""
+    a2 = np.einsum("bi,bi->b", phi, phi)[:, None, None]
+    if a2.max(initial=0.0) < 1e-2:
+        s1 = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0))
+        s2 = 0.5 - a2 / 24.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0))
+        S = (phi @ _LEVI).reshape(-1, 3, 3)
+        return (_I3 - s2 * a2 * _I3) + s1 * S + s2 * (phi[:, :, None] * phi[:, None, :])
+    return rotvec_to_dcm(phi)
+
+
+_GK = (_B * _GP) / (_A * _GE) - 1.0
+_GM_ = _WIE**2 * _A**2 * _B / _GM
+
+
+def _step(lat, lon, h, v, C, f, w, dt):
+    """One mechanisation step on raw arrays; returns (lat, lon, h, v, C, f_n)."""
+    sL = np.sin(lat)
+    cL = np.cos(lat)
+    s2L = sL * sL
+    w2 = 1.0 - _E2 * s2L
+    sw = np.sqrt(w2)
+    R_Nh = _A / sw + h
+    R_Mh = _A * (1.0 - _E2) / (w2 * sw) + h
+    vE, vN = v[:, 0], v[:, 1]
+    # omega_in^n = omega_ie^n + omega_en^n, and 2 omega_ie + omega_en (Coriolis + transport)
+    en_y = vE / R_Nh
+    w_in = np.stack([-vN / R_Mh, _WIE * cL + en_y, (_WIE + en_y / cL) * sL], axis=-1)
+    w_cor = w_in + np.stack([0.0 * cL, _WIE * cL, _WIE * sL], axis=-1)
+    # attitude: C(k+1) = exp(-[w_in dt x]) C exp([w_ib dt x]); |w_in dt| < 1e-5 rad -> first order
+    C_new = (C - ((w_in * dt) @ _LEVI).reshape(-1, 3, 3) @ C) @ _expm_so3(w * dt)
+    f_n = ((C + C_new) @ f[:, :, None])[:, :, 0] * 0.5
+    g = _GE * (1.0 + _GK * s2L) / sw * (
+        1.0 - 2.0 / _A * (1.0 + _F + _GM_ - 2.0 * _F * s2L) * h + 3.0 / _A**2 * h * h
+    )
+    a = f_n - ((w_cor @ _LEVI).reshape(-1, 3, 3) @ v[:, :, None])[:, :, 0]
+    a[:, 2] -= g
+    v_new = v + a * dt
+    v_mid = 0.5 * (v + v_new)
+    return (
+        lat + v_mid[:, 1] / R_Mh * dt,
+        lon + v_mid[:, 0] / (R_Nh * cL) * dt,
+        h + v_mid[:, 2] * dt,
+        v_new,
+        C_new,
+        f_n,
+    )
+
+
+def mechanise_step(state: InsState, f_b_mps2, w_b_radps, dt_s: float, return_fn: bool = False):
+    """Advance all B solutions by one IMU sample (rectangular rate integration).
+
+    Attitude: ``C(k+1) = exp(-[w_in^n dt x]) C(k) exp([w_ib^b dt x])`` (Earth rate and
+    transport rate included); velocity: ``v_dot = C_b^n f^b - (2 w_ie^n + w_en^n) x v + g^n``
+    with WGS-84 normal gravity, ``f^n`` from the mid-interval attitude; position by the
+    trapezoid rule in lat/lon/h.
+
+    Parameters
+    ----------
+    state : InsState
+    f_b_mps2, w_b_radps : array_like (3,) or (B, 3)
+        Raw IMU sample (biases in ``state`` are subtracted here) [m/s^2], [rad/s].
+    dt_s : float
+        Sample interval [s] (> 0).
+    return_fn : bool
+        Also return ``f^n`` [m/s^2], shape (B, 3).
+
+    Returns
+    -------
+    InsState, or (InsState, numpy.ndarray) if ``return_fn``.
+    """
+    B = state.B
+    f = np.broadcast_to(np.asarray(f_b_mps2, dtype=float) - state.bias_a_mps2, (B, 3))
+    w = np.broadcast_to(np.asarray(w_b_radps, dtype=float) - state.bias_g_radps, (B, 3))
+    lat, lon, h, v, C, f_n = _step(state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn, f, w, dt_s)
+    new = replace(state, lat_rad=lat, lon_rad=lon, h_m=h, v_enu_mps=v, C_bn=C, t_s=state.t_s + dt_s)
+    return (new, f_n) if return_fn else new
+
+
+def propagate_block(state: InsState, t_imu_s, f_b_mps2, w_b_radps, t_end_s: float | None = None,
+                    reorthonormalise: bool = True):
+    """Propagate B solutions through a block of IMU samples, e.g. between two GNSS epochs.
+
+    The sample at ``t_imu_s[k]`` is held over ``[t_imu_s[k], t_imu_s[k+1])``; sample 0 is
+    used from ``state.t_s`` on, and the last sample is held until ``t_end_s`` (default: its
+    own time stamp, so it only closes the block). Pass the samples with
+    ``state.t_s <= t_imu_s[k] < t_end_s`` (``numpy.searchsorted``) and the solutions land
+    exactly on the aiding epochs.
+
+    Parameters
+    ----------
+    state : InsState
+    t_imu_s : array_like (N,)
+        Sample times [s], increasing.
+    f_b_mps2, w_b_radps : array_like (N, 3) or (B, N, 3)
+        Raw samples [m/s^2], [rad/s]; a (N, 3) block is shared by the whole batch.
+    t_end_s : float, optional
+        End time of the block [s].
+    reorthonormalise : bool
+        Project ``C_b^n`` back onto SO(3) at the end of the block.
+
+    Returns
+    -------
+    InsState
+        The solutions at ``t_end_s`` (or the last sample time).
+    ImuBlock
+        Mean bias-corrected body specific force and rate, and mean ENU specific force.
+    """
+    t = np.asarray(t_imu_s, dtype=float)
+    f_all = np.asarray(f_b_mps2, dtype=float)
+    w_all = np.asarray(w_b_radps, dtype=float)
+    N = t.shape[0]
+    B = state.B
+    if f_all.ndim == 2:
+        f_all = f_all[None]
+        w_all = w_all[None]
+    f_all = f_all - state.bias_a_mps2[:, None, :]
+    w_all = w_all - state.bias_g_radps[:, None, :]
+    f_all = np.broadcast_to(f_all, (B, N, 3))
+    w_all = np.broadcast_to(w_all, (B, N, 3))
+    t_stop = float(t[-1]) if t_end_s is None else float(t_end_s)
+    starts = np.concatenate([[state.t_s], np.maximum(t[1:], state.t_s)])
+    ends = np.minimum(np.concatenate([t[1:], [t_stop]]), t_stop)
+    dts = ends - starts
+    lat, lon, h, v, C = state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn
+    f_sum_n = np.zeros((B, 3))
+    for k in np.flatnonzero(dts > 0.0):
+        dt = float(dts[k])
+        lat, lon, h, v, C, f_n = _step(lat, lon, h, v, C, f_all[:, k], w_all[:, k], dt)
+        f_sum_n += f_n * dt
+    if reorthonormalise:
+        C = orthonormalize(C)
+    pos = np.clip(dts, 0.0, None)
+    T = float(pos.sum())
+    Ts = T if T > 0 else 1.0
+    f_mean_b = np.einsum("k,bki->bi", pos, f_all) / Ts
+    w_mean_b = np.einsum("k,bki->bi", pos, w_all) / Ts
+    new = replace(state, lat_rad=lat, lon_rad=lon, h_m=h, v_enu_mps=v, C_bn=C, t_s=t_stop)
+    return new, ImuBlock(T, N, f_mean_b, w_mean_b, f_sum_n / Ts)
+
+
+def apply_correction(state: InsState, dx, bias_feedback: bool = True) -> InsState:
+    """Closed-loop correction: remove an estimated error state from the B solutions.
+
+    Parameters
+    ----------
+    state : InsState
+    dx : array_like (B, 15) or (B, >=9)
+        Estimated error (INS - truth) in the order ``[phi(ENU, rad), dv(ENU, m/s),
+        dp(N, E, U m), eps(body rad/s), nabla(body m/s^2)]``.
+    bias_feedback : bool
+        Add ``eps`` / ``nabla`` to the running bias estimates (they are then subtracted
+        from the raw IMU samples). The caller must zero the corrected states afterwards.
+
+    Returns
+    -------
+    InsState
+        ``C <- exp([phi x]) C``, ``v <- v - dv``, ``lat <- lat - dp_N/R_Mh``,
+        ``lon <- lon - dp_E/(R_Nh cos L)``, ``h <- h - dp_U``, ``bias += [eps, nabla]``.
+    """
+    dx = np.asarray(dx, dtype=float)
+    if dx.ndim != 2 or dx.shape[0] != state.B or dx.shape[1] < 9:
+        raise NavlabError(
+            f"correction has shape {dx.shape}; pass (B={state.B}, 15) ordered [phi, dv, dp, eps, nabla]."
+        )
+    R_Mh, R_Nh = radii(state.lat_rad, state.h_m)
+    C = orthonormalize(rotvec_to_dcm(dx[:, 0:3]) @ state.C_bn)
+    lat = state.lat_rad - dx[:, 6] / R_Mh
+    lon = state.lon_rad - dx[:, 7] / (R_Nh * np.cos(state.lat_rad))
+    bg, ba = state.bias_g_radps, state.bias_a_mps2
+    if bias_feedback and dx.shape[1] >= 15:
+        bg = bg + dx[:, 9:12]
+        ba = ba + dx[:, 12:15]
+    return replace(
+        state, C_bn=C, v_enu_mps=state.v_enu_mps - dx[:, 3:6], lat_rad=lat, lon_rad=lon,
+        h_m=state.h_m - dx[:, 8], bias_g_radps=bg, bias_a_mps2=ba,
+    )
+
+
+def error_model_FG(lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn, gravity_gradient: bool = False,
+                   tau_g_s=None, tau_a_s=None):
+    """Continuous-time 15-state error model ``x_dot = F x + G w`` of ALGORITHMS.md §8.0.
+
+    Position-error states are METRES (N, E, U). Noise vector
+    ``w = [gyro white (3, body rad/s), accel white (3, body m/s^2), gyro-bias driving (3),
+    accel-bias driving (3)]``.
+
+    Parameters
+    ----------
+    lat_rad, h_m : array_like (B,)
+        Current latitude [rad] and height [m].
+    v_enu_mps, f_n_mps2 : array_like (B, 3)
+        Velocity [m/s] and specific force in ENU [m/s^2] (e.g. ``ImuBlock.f_n_mean_mps2``).
+    C_bn : array_like (B, 3, 3)
+        Attitude.
+    gravity_gradient : bool
+        Add ``dv_U_dot += 2 g / R dp_U`` (omitted by default as in the spec).
+    tau_g_s, tau_a_s : float, optional
+        If given, first-order Gauss-Markov biases (``-1/tau`` on the diagonal) instead of
+        random walks.
+
+    Returns
+    -------
+    F : numpy.ndarray (B, 15, 15)
+    G : numpy.ndarray (B, 15, 12)
+    """
+    lat = np.atleast_1d(np.asarray(lat_rad, dtype=float))
+    h = np.broadcast_to(np.asarray(h_m, dtype=float), lat.shape)
+    v = np.asarray(v_enu_mps, dtype=float).reshape(-1, 3)
+    fn = np.asarray(f_n_mps2, dtype=float).reshape(-1, 3)
+    C = np.asarray(C_bn, dtype=float).reshape(-1, 3, 3)
+    B = max(lat.shape[0], v.shape[0], fn.shape[0], C.shape[0])
+    lat, h = np.broadcast_to(lat, (B,)), np.broadcast_to(h, (B,))
+    v, fn, C = np.broadcast_to(v, (B, 3)), np.broadcast_to(fn, (B, 3)), np.broadcast_to(C, (B, 3, 3))
+    sL, cL, tL = np.sin(lat), np.cos(lat), np.tan(lat)
+    R_Mh, R_Nh = radii(lat, h)
+    wie = 7.2921151467e-5
+    vE, vN = v[:, 0], v[:, 1]
+    w_ie = earth_rate_enu(lat)
+    w_en = transport_rate_enu(lat, h, v)
+    w_in = w_ie + w_en
+    N1 = np.zeros((B, 3, 3))
+    N1[:, 1, 0] = -wie * sL
+    N1[:, 2, 0] = wie * cL
+    N2 = np.zeros((B, 3, 3))
+    N2[:, 0, 2] = vN / R_Mh**2
+    N2[:, 1, 2] = -vE / R_Nh**2
+    N2[:, 2, 0] = vE / (cL**2 * R_Nh)
+    N2[:, 2, 2] = -vE * tL / R_Nh**2
+    Mav = np.zeros((B, 3, 3))
+    Mav[:, 0, 1] = -1.0 / R_Mh
+    Mav[:, 1, 0] = 1.0 / R_Nh
+    Mav[:, 2, 0] = tL / R_Nh
+    Maa = -skew(w_in)
+    Map = N1 + N2
+    Mva = skew(fn)
+    Mvv = skew(v) @ Mav - skew(2.0 * w_ie + w_en)
+    Mvp = skew(v) @ (2.0 * N1 + N2)
+    Mpv = np.zeros((B, 3, 3))
+    Mpv[:, 0, 1] = 1.0 / R_Mh
+    Mpv[:, 1, 0] = 1.0 / (cL * R_Nh)
+    Mpv[:, 2, 2] = 1.0
+    Mpp = np.zeros((B, 3, 3))
+    Mpp[:, 0, 2] = -vN / R_Mh**2
+    Mpp[:, 1, 0] = vE * tL / (cL * R_Nh)
+    Mpp[:, 1, 2] = -vE / (cL * R_Nh**2)
+    D = np.zeros((B, 3, 3))
+    D[:, 0, 0], D[:, 1, 1], D[:, 2, 2] = R_Mh, R_Nh * cL, 1.0
+    Dinv = np.zeros((B, 3, 3))
+    Dinv[:, 0, 0], Dinv[:, 1, 1], Dinv[:, 2, 2] = 1.0 / R_Mh, 1.0 / (R_Nh * cL), 1.0
+    F = np.zeros((B, 15, 15))
+    F[:, 0:3, 0:3] = Maa
+    F[:, 0:3, 3:6] = Mav
+    F[:, 0:3, 6:9] = Map @ Dinv
+    F[:, 0:3, 9:12] = -C
+    F[:, 3:6, 0:3] = Mva
+    F[:, 3:6, 3:6] = Mvv
+    F[:, 3:6, 6:9] = Mvp @ Dinv
+    F[:, 3:6, 12:15] = C
+    F[:, 6:9, 3:6] = D @ Mpv
+    F[:, 6:9, 6:9] = D @ Mpp @ Dinv
+    if gravity_gradient:
+        F[:, 5, 8] += 2.0 * normal_gravity(lat, h) / np.sqrt(R_Mh * R_Nh)
+    if tau_g_s is not None:
+        F[:, 9:12, 9:12] = -np.eye(3) / float(tau_g_s)
+    if tau_a_s is not None:
+        F[:, 12:15, 12:15] = -np.eye(3) / float(tau_a_s)
+    G = np.zeros((B, 15, 12))
+    G[:, 0:3, 0:3] = -C
+    G[:, 3:6, 3:6] = C
+    G[:, 9:12, 6:9] = np.eye(3)
+    G[:, 12:15, 9:12] = np.eye(3)
+    return F, G
+
+
+def discretise(F, G, Qc, T_s: float):
+    """Second-order discretisation of ALGORITHMS.md §8.0.
+
+    ``Phi = I + F T + (F T)^2 / 2``; ``Q_d = (Phi G Qc G^T Phi^T + G Qc G^T) T / 2``.
+
+    Parameters
+    ----------
+    F : (B, n, n); G : (B, n, q); Qc : (q, q) or (B, q, q) continuous PSDs.
+    T_s : float
+        Step [s].
+
+    Returns
+    -------
+    Phi, Qd : numpy.ndarray (B, n, n)
+    """
+    F = np.asarray(F, dtype=float)
+    n = F.shape[-1]
+    FT = F * T_s
+    Phi = np.eye(n) + FT + FT @ FT / 2.0
+    GQG = G @ np.asarray(Qc, dtype=float) @ np.swapaxes(G, -1, -2)
+    Qd = 0.5 * (Phi @ GQG @ np.swapaxes(Phi, -1, -2) + GQG) * T_s
+    return Phi, 0.5 * (Qd + np.swapaxes(Qd, -1, -2))

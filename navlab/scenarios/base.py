@@ -1,0 +1,172 @@
+"""The scenario interface, the simulated data every filter sees, and the scenario registry.
+
+A scenario turns (its parameters, a noise schedule, an outlier model, run indices, a base seed)
+into :class:`ScenarioData`: truth, measurements, the true R(t), the outlier mask and the nominal
+model the filters assume. Run r always draws from ``SeedSequence([seed, r])`` (split into
+independent truth / measurement / initial-estimate streams), so run r is the same whether it is
+simulated alone or in a batch, and changing the outlier model does not change the truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple
+
+import numpy as np
+
+from navlab import params as P_
+from navlab.errors import NavlabError
+from navlab.filters.base import Model, SideInfo
+from navlab.filters.linalg import Array
+from navlab.noise import OutlierModel, Schedule
+
+
+class MetricGroup(NamedTuple):
+    """A group of state components reported together (error norm over ``idx``).
+
+    ``scale`` converts state units to display units (e.g. rad → arcmin).
+    """
+
+    idx: tuple[int, ...]
+    unit: str
+    label: str
+    scale: float = 1.0
+
+
+@dataclass(eq=False)
+class ScenarioData:
+    """Everything one experiment's filters see and are judged against. Arrays (B, K+1, …).
+
+    Index 0 is the initial epoch: ``z[:, 0]`` is NaN (no measurement).
+    """
+
+    scenario: str
+    t: Array  # (K+1,) seconds
+    model: Model
+    x_true: Array  # (B, K+1, n)
+    z: Array  # (B, K+1, m); NaN = channel unavailable
+    R_true: Array  # (B, K+1, m) variance actually drawn (contamination included)
+    R_schedule: Array  # (K+1, m) variance of the noise schedule (the "true R(t)")
+    outlier_mask: Array  # (B, K+1, m) bool
+    bias: Array  # (B, K+1, m) known additive outlier mean
+    x0: Array  # (B, n) initial estimate
+    P0: Array  # (n, n)
+    runs: Array  # (B,) run indices r
+    state_names: tuple[str, ...]
+    channel_names: tuple[str, ...]
+    channel_units: tuple[str, ...]
+    groups: dict[str, MetricGroup]
+    window: Array  # (K+1,) bool: default analysis window
+    Q_extra: Array | None = None  # (K+1, n, n) process-noise anomaly known to the oracle
+    has_truth: bool = True
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def B(self) -> int:
+        return int(self.z.shape[0])
+
+    @property
+    def K(self) -> int:
+        return int(self.z.shape[1] - 1)
+
+    def side(self, k: int, sl: slice | Array = slice(None)) -> SideInfo:
+        """Simulator side information at epoch k (for the oracle), for the runs ``sl``."""
+        return SideInfo(
+            R_true=self.R_true[sl, k],
+            bias=self.bias[sl, k],
+            outlier=self.outlier_mask[sl, k],
+            Q_extra=None if self.Q_extra is None else self.Q_extra[k],
+        )
+
+    def subset(self, sl: slice) -> ScenarioData:
+        """The same data for a slice of runs (chunked Monte Carlo)."""
+        per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
+        return dataclasses.replace(self, **{f: getattr(self, f)[sl] for f in per_run})
+
+
+class RunStreams(NamedTuple):
+    """Independent random streams of one Monte Carlo run."""
+
+    truth: np.random.Generator
+    meas: np.random.Generator
+    init: np.random.Generator
+
+
+def run_streams(seed: int, r: int) -> RunStreams:
+    """The three generators of run r: ``SeedSequence([seed, r]).spawn(3)`` (ALGORITHMS.md §0.2)."""
+    children = np.random.SeedSequence([int(seed), int(r)]).spawn(3)
+    return RunStreams(*(np.random.default_rng(c) for c in children))
+
+
+def draw_measurement_noise(
+    streams: Sequence[RunStreams], std: Array, outliers: OutlierModel
+) -> tuple[Array, Array, Array, Array]:
+    """Noise of every run from its measurement stream: (noise, var, bias, mask), each (B, K+1, m)."""
+    draws = [outliers.draw(s.meas, std) for s in streams]
+    return tuple(np.stack([getattr(d, f) for d in draws]) for f in ("noise", "var", "bias", "mask"))
+
+
+class Scenario:
+    """Base class of simulated (and real-data) scenarios.
+
+    Class attributes: ``key``, ``label``, ``paper``, ``summary``, ``Params`` (frozen dataclass),
+    ``outlier_defaults`` (per outlier-model key, parameter overrides suited to this scenario),
+    ``default_filters``, ``simulated`` (False for real data: no oracle, no schedules).
+    """
+
+    key: ClassVar[str] = ""
+    label: ClassVar[str] = ""
+    paper: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    Params: ClassVar[type] = P_.NoParams
+    outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {}
+    default_filters: ClassVar[tuple[str, ...]] = ("kf", "oracle-kf", "chi2-kf")
+    default_runs: ClassVar[int] = 100
+    simulated: ClassVar[bool] = True
+    headline: ClassVar[tuple[str, ...]] = ("pos",)
+
+    def __init__(self, params: Any = None) -> None:
+        if params is None or isinstance(params, dict):
+            params = P_.build(self.Params, params, f"scenario '{self.key}'")
+        self.params = params
+
+    @property
+    def epochs(self) -> int:
+        return int(getattr(self.params, "epochs", 0))
+
+    def simulate(
+        self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
+    ) -> ScenarioData:
+        raise NotImplementedError
+
+
+_SCENARIOS: dict[str, type[Scenario]] = {}
+
+
+def register_scenario(cls: type[Scenario]) -> type[Scenario]:
+    """Class decorator adding a scenario to the registry."""
+    if cls.key in _SCENARIOS and _SCENARIOS[cls.key] is not cls:
+        raise ValueError(f"scenario key {cls.key!r} registered twice")
+    _SCENARIOS[cls.key] = cls
+    return cls
+
+
+def scenario_registry() -> dict[str, type[Scenario]]:
+    """All registered scenarios by key (importing the scenario modules first)."""
+    import navlab.scenarios  # noqa: F401
+
+    return dict(_SCENARIOS)
+
+
+def get_scenario_class(key: str) -> type[Scenario]:
+    reg = scenario_registry()
+    if key not in reg:
+        raise NavlabError(f"unknown scenario '{key}'; known scenarios: {', '.join(sorted(reg))}")
+    return reg[key]
+
+
+def make_scenario(key: str, params: dict[str, Any] | None = None) -> Scenario:
+    """Instantiate a registered scenario with validated parameters."""
+    return get_scenario_class(key)(params or {})
