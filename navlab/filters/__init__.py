@@ -1,6 +1,8 @@
-"""Filter families. Importing this package registers every filter module listed below."""
+"""Filter families. Importing this package imports (and so registers) every module in it."""
 
-from navlab.filters import kalman  # noqa: F401
+import importlib
+import pkgutil
+
 from navlab.filters.base import (
     Filter,
     KFState,
@@ -18,3 +20,7 @@ __all__ = [
     "Filter", "KFState", "LinearModel", "Model", "SideInfo", "StepOut", "get_filter_class",
     "make_filter", "register", "registry",
 ]
+
+# every module of this package registers its filters with @register on import
+for _m in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_m.name}")

@@ -2,7 +2,7 @@
 (experiment, filter, metric, value, paper, …) comparing navlab's number with the paper's.
 
 A reproduction module defines a :class:`Reproduction` and registers it with :func:`register`;
-the modules listed at the bottom are imported so the CLI and the app see them.
+every module of this package is imported so the CLI and the app see them.
 """
 
 from __future__ import annotations
@@ -52,4 +52,13 @@ def ensure_dir(outdir: Path | None) -> Path | None:
     return outdir
 
 
-# reproduction modules (each calls register(...) on import)
+# every module of this package calls register(...) on import
+def _discover() -> None:
+    import importlib
+    import pkgutil
+
+    for m in pkgutil.iter_modules(__path__):
+        importlib.import_module(f"{__name__}.{m.name}")
+
+
+_discover()

@@ -1,9 +1,11 @@
 """Scenarios: simulated experiments of the four papers and the real-data recordings.
 
-Importing this package registers every scenario module listed below.
+Importing this package imports (and so registers) every module in it.
 """
 
-from navlab.scenarios import cv2d  # noqa: F401
+import importlib
+import pkgutil
+
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -18,3 +20,7 @@ __all__ = [
     "MetricGroup", "Scenario", "ScenarioData", "get_scenario_class", "make_scenario",
     "register_scenario", "scenario_registry",
 ]
+
+# every module of this package registers its scenarios on import
+for _m in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_m.name}")
