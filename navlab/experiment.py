@@ -312,11 +312,9 @@ def run_filters(
         for i, f in enumerate(filters):
             rec = recs[i]
             t0 = time.perf_counter()
-            if (rec.diverged_at >= 0).any():
-                with np.errstate(all="ignore"):
-                    st = f.predict(model, states[i], k)
-                    states[i], out = f.update(model, st, k, zk, side)
-            else:
+            # a run that blows up is caught below by the finiteness check and reported as
+            # diverged (left out of the metrics); it must not stop the other runs
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 st = f.predict(model, states[i], k)
                 states[i], out = f.update(model, st, k, zk, side)
             rec.runtime += time.perf_counter() - t0

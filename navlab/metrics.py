@@ -71,8 +71,10 @@ def average_over_runs(v: Array, ok_runs: Array | None = None) -> Array:
     """Per-epoch mean over runs (ANEES ε̄_k or ANIS), (K+1,)."""
     if ok_runs is not None:
         v = v[ok_runs]
-    with np.errstate(all="ignore"):
-        return np.nanmean(v, axis=0) if v.shape[0] else np.full(v.shape[1], np.nan)
+    finite = np.isfinite(v)
+    n = finite.sum(axis=0)
+    total = np.where(finite, v, 0.0).sum(axis=0)
+    return np.divide(total, n, out=np.full(v.shape[1:], np.nan), where=n > 0)
 
 
 def consistency(v: Array, dof: int, window: Array, ok_runs: Array) -> dict[str, float]:

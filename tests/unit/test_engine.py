@@ -1,0 +1,164 @@
+"""Monte Carlo engine: batching, seeding, shared data, consistency, oracle and noise models."""
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, iter_experiment, plan, run_experiment, run_filters
+from navlab.filters import make_filter
+from navlab.noise import SCHEDULES, make_outliers, make_schedule
+from navlab.scenarios import make_scenario
+
+
+def metric(res, key, name):
+    df = res.metrics()
+    return float(df[(df["filter"] == key) & (df.metric == name)].value.iloc[0])
+
+
+def test_batched_equals_single_runs():
+    scen = make_scenario("cv2d", {"epochs": 40})
+    sched, outl = make_schedule("constant"), make_outliers("mixture")
+    batch = scen.simulate(sched, outl, [0, 1, 2, 3], seed=7)
+    filters = [make_filter("kf"), make_filter("chi2-kf"), make_filter("oracle-kf")]
+    together = run_filters(batch, filters)
+    for r in range(4):
+        one = scen.simulate(sched, outl, [r], seed=7)
+        np.testing.assert_array_equal(one.z, batch.z[r : r + 1])
+        alone = run_filters(one, filters)
+        for key in together:
+            np.testing.assert_allclose(alone[key].x[0], together[key].x[r], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(alone[key].nis[0], together[key].nis[r], atol=1e-9)
+
+
+def test_same_seed_same_numbers_and_chunking_is_invisible():
+    spec = ExperimentSpec(filters=("kf", "chi2-kf"), runs=12, seed=3, epochs=30)
+    a = run_experiment(spec).metrics()
+    b = run_experiment(spec, chunk_runs=5).metrics()
+    c = run_experiment(spec.replace(seed=4)).metrics()
+    q = ~a.metric.isin(["us_per_run_step", "steps_per_s"])
+    np.testing.assert_array_equal(a[q].value.to_numpy(), b[q].value.to_numpy())
+    assert not np.allclose(a[q].value.to_numpy(), c[q].value.to_numpy(), equal_nan=True)
+
+
+def test_every_filter_sees_the_same_data():
+    """Adding filters to a run must not change another filter's numbers."""
+    spec = ExperimentSpec(filters=("kf",), runs=6, seed=2, epochs=30)
+    alone = run_experiment(spec)
+    crowd = run_experiment(spec.replace(filters=("chi2-kf", "kf", "oracle-kf")))
+    np.testing.assert_array_equal(alone.data.z, crowd.data.z)
+    np.testing.assert_array_equal(alone.runs["kf"].x, crowd.runs["kf"].x)
+
+
+def test_progress_streams_accumulate():
+    spec = ExperimentSpec(filters=("kf",), runs=10, seed=1, epochs=20)
+    seen = [(r.done_runs, r.complete) for r in iter_experiment(spec, chunk_runs=4)]
+    assert seen == [(4, False), (8, False), (10, True)]
+    calls = []
+    run_experiment(spec, on_progress=lambda d, t: calls.append((d, t)), chunk_runs=3)
+    assert calls[-1] == (10, 10)
+    assert len(calls) == 4
+
+
+def test_kf_anees_in_chi2_band_on_clean_data():
+    spec = ExperimentSpec(filters=("kf",), runs=200, seed=11, outliers="none")
+    res = run_experiment(spec)
+    anees = metric(res, "kf", "anees")
+    lo, hi = metric(res, "kf", "anees_band_lo"), metric(res, "kf", "anees_band_hi")
+    assert lo <= anees <= hi, (lo, anees, hi)
+    assert metric(res, "kf", "anees_in_band_pct") > 85  # ~95 % of epochs expected
+    assert metric(res, "kf", "rmse_pos") == pytest.approx(
+        np.sqrt(np.mean(res.runs["kf"].P_diag[:, 1:, [0, 2]].sum(-1))), rel=0.1
+    )
+
+
+@pytest.mark.parametrize("outliers", ["mixture", "isolated", "continuous", "student-t"])
+def test_oracle_not_worse_than_kf_under_outliers(outliers):
+    spec = ExperimentSpec(filters=("kf", "oracle-kf"), runs=100, seed=5, outliers=outliers)
+    res = run_experiment(spec)
+    assert metric(res, "oracle-kf", "rmse_pos") <= metric(res, "kf", "rmse_pos")
+
+
+def test_mixture_outlier_fraction_matches_alpha():
+    alpha = 0.13
+    spec = ExperimentSpec(filters=("kf",), runs=50, seed=9, contamination=alpha)
+    mask = plan(spec)
+    data = mask.scenario.simulate(mask.schedule, mask.outliers, range(50), 9)
+    hits = data.outlier_mask[:, 1:]
+    n = hits.size
+    lo, hi = binom.ppf([0.0005, 0.9995], n, alpha)
+    assert lo <= hits.sum() <= hi
+    assert not data.outlier_mask[:, 0].any()
+    # contaminated entries have κ² times the variance
+    ratio = data.R_true[:, 1:][hits] / data.R_schedule[1:][np.nonzero(hits)[1], np.nonzero(hits)[2]]
+    np.testing.assert_allclose(ratio, 100.0)
+
+
+def test_isolated_outliers_are_the_papers():
+    spec = ExperimentSpec(filters=("kf",), runs=400, seed=2, outliers="isolated")
+    p = plan(spec)
+    d = p.scenario.simulate(p.schedule, p.outliers, range(400), 2)
+    epochs = np.nonzero(d.outlier_mask[0, :, 0])[0]
+    np.testing.assert_array_equal(epochs, np.arange(20, 71, 5))
+    assert not d.outlier_mask[:, :, 1].any()
+    err = d.z[:, epochs, 0] - d.x_true[:, epochs, 0]  # N(10, 64 + 4)
+    assert abs(err.mean() - 10) < 0.3
+    assert abs(err.var() - 68) < 5
+
+
+@pytest.mark.parametrize("key", sorted(SCHEDULES))
+def test_schedules_are_positive_and_start_nominal(key):
+    s = make_schedule(key).std(np.array([2.0, 3.0]), 100)
+    assert s.shape == (101, 2)
+    assert np.all(np.isfinite(s)) and np.all(s > 0)
+
+
+def test_step_schedule_changes_sigma():
+    s = make_schedule("step").std(np.array([1.0]), 100)[:, 0]
+    assert s[0] == 1.0 and s.max() > 1.0
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        ({"runs": 0}, "runs"),
+        ({"runs": float("nan")}, "runs"),
+        ({"epochs": 10**12}, "epochs"),
+        ({"filters": ("kf", "nope")}, "unknown filter"),
+        ({"filters": ()}, "at least one filter"),
+        ({"scenario": "mars"}, "unknown scenario"),
+        ({"contamination": 2.0}, "contamination"),
+        ({"contamination": float("nan")}, "contamination"),
+        ({"outliers": "isolated", "contamination": 0.1}, "contamination"),
+        ({"noise_schedule": "zigzag"}, "zigzag"),
+        ({"filters": ("chi2-kf",), "filter_params": {"chi2-kf": {"alpha": -1}}}, "outside"),
+        ({"filter_params": {"kf": {"bogus": 1}}}, "bogus"),
+    ],
+)
+def test_bad_specs_say_what_to_change(change, words):
+    spec = ExperimentSpec(filters=("kf",), runs=3).replace(**change)
+    with pytest.raises(NavlabError, match=words):
+        plan(spec)
+
+
+def test_spec_json_round_trip_and_broken_json():
+    spec = ExperimentSpec(filters=("kf", "chi2-kf"), runs=7, contamination=0.2,
+                          filter_params={"chi2-kf": {"alpha": 0.05}})
+    assert ExperimentSpec.from_json(spec.to_json()) == spec
+    with pytest.raises(NavlabError):
+        ExperimentSpec.from_json("{not json")
+    with pytest.raises(NavlabError):
+        ExperimentSpec.from_json('{"scenario": "cv2d", "colour": "red"}')
+
+
+def test_a_diverging_run_is_counted_not_nan():
+    """A run whose filter blows up is reported as diverged and left out of the RMSE."""
+    spec = ExperimentSpec(filters=("kf",), runs=5, epochs=30, outliers="none")
+    p = plan(spec)
+    data = p.scenario.simulate(p.schedule, p.outliers, range(5), 1)
+    data.z[2, 10::2], data.z[2, 11::2] = 1.7e308, -1.7e308  # absurd measurements: overflow
+    res = run_filters(data, [make_filter("kf")])
+    assert res["kf"].diverged.sum() == 1
+    assert res["kf"].diverged_at[2] >= 10
+    res = run_experiment(ExperimentSpec(filters=("kf",), runs=5, epochs=30, outliers="none"))
+    assert metric(res, "kf", "diverged") == 0
