@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, exit 2, no usage dump
-        raise NavlabError(f"{message} (see 'python -m navlab {self.prog.split()[-1]} --help')")
+        sub = " ".join(self.prog.split()[1:])
+        raise NavlabError(f"{message} (see 'python -m navlab {sub + ' ' if sub else ''}--help')")
 
 
 def _list(what: str) -> pd.DataFrame:
@@ -136,7 +137,10 @@ def _run(a: argparse.Namespace) -> int:
     else:
         _emit(df, a.format, a.out)
     if a.save_spec:
-        Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
+        try:
+            Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
+        except OSError as exc:
+            raise NavlabError(f"cannot write --save-spec {a.save_spec}: {exc.strerror}") from None
     return 0
 
 

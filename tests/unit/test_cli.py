@@ -1,0 +1,93 @@
+"""The command line: listing, running, formats and one-line errors."""
+
+import io
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from navlab.cli import main
+
+
+def run_cli(capsys, *argv):
+    rc = main(list(argv))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_list_filters_and_scenarios(capsys):
+    rc, out, _ = run_cli(capsys, "list", "filters")
+    assert rc == 0
+    for key in ("kf", "oracle-kf", "chi2-kf"):
+        assert key in out
+    rc, out, _ = run_cli(capsys, "list", "scenarios", "--format", "json")
+    assert rc == 0
+    assert "cv2d" in {row["key"] for row in json.loads(out)}
+
+
+def test_run_json_has_tidy_rows(capsys):
+    rc, out, _ = run_cli(capsys, "run", "--scenario", "cv2d", "--filters", "kf,oracle-kf,chi2-kf",
+                         "--runs", "20", "--seed", "1", "--epochs", "50", "--format", "json")
+    assert rc == 0
+    rows = json.loads(out)
+    assert all({"filter", "metric", "value"} <= set(r) for r in rows)
+    got = {(r["filter"], r["metric"]): r["value"] for r in rows}
+    for f in ("kf", "oracle-kf", "chi2-kf"):
+        assert got[(f, "rmse_pos")] > 0
+        assert got[(f, "rmse_vel")] > 0
+    assert got[("oracle-kf", "rmse_pos")] <= got[("kf", "rmse_pos")]
+
+
+def test_config_file_and_overrides(tmp_path, capsys):
+    spec = tmp_path / "spec.json"
+    rc, _, _ = run_cli(capsys, "run", "--filters", "kf", "--runs", "5", "--epochs", "20",
+                       "--contamination", "0.2", "--save-spec", str(spec), "--format", "csv")
+    assert rc == 0
+    saved = json.loads(spec.read_text())
+    assert saved["contamination"] == 0.2
+    rc, out1, _ = run_cli(capsys, "run", "--config", str(spec), "--format", "csv")
+    rc2, out2, _ = run_cli(capsys, "run", "--config", str(spec), "--runs", "6", "--format", "csv")
+    assert rc == rc2 == 0
+    runs = lambda text: pd.read_csv(io.StringIO(text)).query("metric == 'runs'").value.iloc[0]  # noqa: E731
+    assert runs(out1) == 5
+    assert runs(out2) == 6
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["run", "--runs", "abc"], "--runs"),
+        (["run", "--runs", "0"], "runs"),
+        (["run", "--filters", "kf,nope"], "unknown filter"),
+        (["run", "--scenario", "moon"], "unknown scenario"),
+        (["run", "--contamination", "7"], "contamination"),
+        (["run", "--config", "/nonexistent/spec.json"], "cannot read"),
+        (["run", "--set", "oops"], "GROUP.NAME=VALUE"),
+        (["list", "bananas"], "invalid choice"),
+        (["reproduce", "nobody"], "unknown reproduction"),
+        (["frobnicate"], "invalid choice"),
+    ],
+)
+def test_bad_arguments_give_one_line(capsys, argv, words):
+    rc, out, err = run_cli(capsys, *argv)
+    assert rc == 2
+    assert words in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_broken_config_file(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"runs": 5, "filters": ["kf"')
+    rc, _, err = run_cli(capsys, "run", "--config", str(bad))
+    assert rc == 2
+    assert "JSON" in err or "json" in err
+
+
+def test_module_entry_point():
+    p = subprocess.run([sys.executable, "-m", "navlab", "run", "--runs", "3", "--epochs", "10",
+                        "--filters", "kf", "--format", "csv"], capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("filter,label,metric,value,unit")
