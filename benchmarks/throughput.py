@@ -19,8 +19,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, no install
 
-from navlab.experiment import ExperimentSpec, plan, run_experiment, run_filters  # noqa: E402
-from navlab.filters import make_filter  # noqa: E402
+from navlab.experiment import ExperimentSpec, plan, run_experiment, run_filters
+from navlab.filters import make_filter
 
 
 def best_of(fn, repeat):

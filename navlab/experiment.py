@@ -163,7 +163,9 @@ def plan(spec: ExperimentSpec) -> Plan:
     for key in spec.filters:
         cls = get_filter_class(key)
         if cls.family == "oracle" and not scen_cls.simulated:
-            raise NavlabError(f"'{key}' needs simulator ground truth; scenario '{spec.scenario}' is real data")
+            raise NavlabError(
+                f"'{key}' needs simulator ground truth; scenario '{spec.scenario}' is real data"
+            )
         filters.append(make_filter(key, spec.filter_params.get(key)))
     schedule = make_schedule(spec.noise_schedule, spec.noise_params)
     if spec.outliers not in OUTLIERS:

@@ -118,8 +118,8 @@ def summarize(res: Results) -> pd.DataFrame:
     B, K = data.B, data.K
     for key, fr in res.runs.items():
         ok = ~fr.diverged
-        add = lambda metric, value, unit="": rows.append(  # noqa: E731
-            (key, fr.label, metric, float(value), unit)
+        add = lambda metric, value, unit="", key=key, label=fr.label: rows.append(  # noqa: E731
+            (key, label, metric, float(value), unit)
         )
         if data.has_truth:
             for g, group in data.groups.items():

@@ -66,7 +66,7 @@ def _check_value(owner: str, name: str, value: Any, default: Any, meta: Mapping[
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             raise NavlabError(f"{where} = {value} is outside [{lo}, {hi}]; choose a value in range")
         return value
-    if isinstance(default, str) or default is None and meta.get("choices"):
+    if isinstance(default, str) or (default is None and meta.get("choices")):
         if not isinstance(value, str):
             raise NavlabError(f"{where} must be text, got {value!r}")
         choices = meta.get("choices")

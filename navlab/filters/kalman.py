@@ -47,7 +47,7 @@ def kf_update(
     """
     H = model.H(x, k)
     nu = z - model.h(x, k)
-    ok, nu, H, R = mask_missing(z, nu, H, R)
+    _ok, nu, H, R = mask_missing(z, nu, H, R)
     S = sym(H @ P @ np.swapaxes(H, -1, -2) + R)
     K, fixed = gain(P, H, S)
     x = x + mv(K, nu)
@@ -104,10 +104,7 @@ class OracleKF(Filter):
     def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
         R_true = side.R_true
         P_prior = state.P if side.Q_extra is None else state.P + side.Q_extra  # (§1.4 step 1)
-        if self.params.mode == "skip":
-            z = np.where(side.outlier, np.nan, z)
-        else:
-            z = z - side.bias
+        z = np.where(side.outlier, np.nan, z) if self.params.mode == "skip" else z - side.bias
         R = R_true[..., :, None] * np.eye(z.shape[-1])
         x, P, nu, S, R, flags = kf_update(model, state.x, P_prior, k, z, R)
         return KFState(x, P), StepOut(x=x, P=P, innov=nu, S=S, R_used=R, R_hat=R, flags=flags)

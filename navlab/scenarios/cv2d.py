@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -60,7 +61,7 @@ class Cv2d(Scenario):
         "measured with σ = 2 m. The IRAKF paper's outlier experiments hit the x channel."
     )
     Params = Cv2dParams
-    outlier_defaults = {
+    outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {
         "isolated": {"start": 20, "stop": 70, "every": 5, "mean": 5.0, "scale": 4.0, "channels": [0]},
         "continuous": {"start": 50, "stop": 70, "mean": 0.0, "scale": 4.0, "channels": [0]},
     }

@@ -71,7 +71,7 @@ def test_config_file_and_overrides(tmp_path, capsys):
     ],
 )
 def test_bad_arguments_give_one_line(capsys, argv, words):
-    rc, out, err = run_cli(capsys, *argv)
+    rc, _out, err = run_cli(capsys, *argv)
     assert rc == 2
     assert words in err
     assert err.count("\n") == 1 and "Traceback" not in err
