@@ -1,0 +1,810 @@
+"""Sage–Husa family: classic SHAKF, IRAKF (Ge, Zhang, Tang 2020) and its three comparators.
+
+Every filter here estimates the measurement-noise covariance R from the innovations or the
+posterior residuals, and (except the classic SHAKF) protects itself against outliers:
+
+* ``sage-husa`` — classic fading-memory Sage–Husa R estimate (ALGORITHMS.md §4.1).
+* ``irakf`` — windowed residual R estimate (RAE, S1 eq. 3) with the prior covariance of eq. 4 on
+  suspect epochs, a three-segment IGG/Huber weight function with gain-column zeroing (eq. 7) and
+  dual detection by a parallel standard KF (Fig. 1) (§4.2–4.6).
+* ``rrae`` — RAE + classical IGG-III equivalent weights (§4.7, RECONSTRUCTION).
+* ``rakf`` — Sage–Husa + divergence-triggered P inflation + whitened-innovation Huber clipping
+  (§4.8, RECONSTRUCTION).
+* ``rsshakf`` — simplified (R-only, diagonal) Sage–Husa + outlier variance inflation (§4.9,
+  RECONSTRUCTION).
+
+The weight functions and the RAE estimate are module-level pure functions so that tests (and the
+app) can call them on their own.
+
+References
+----------
+A. P. Sage, G. W. Husa, "Adaptive filtering with unknown prior statistics", JACC 1969.
+Ge B., Zhang H., Tang Z., "Improved robust adaptive Kalman filter with innovation-based outliers
+diagnosis", Navigation Positioning and Timing 7(1), 2020, doi:10.19306/j.cnki.2095-8110.2020.01.007.
+A. H. Mohamed, K. P. Schwarz, "Adaptive Kalman filtering for INS/GPS", J. Geodesy 73, 1999.
+Yang Y., He H., Xu G., "Adaptively robust filtering for kinematic geodetic positioning",
+J. Geodesy 75, 2001 (IGG-III equivalent weights).
+Bai Y. Q., Han J. H., Qi X. H., "Data processing algorithm of MEMS inclinometer based on improved
+Sage-Husa adaptive Kalman filter", Chinese Control Conference 2012 (abstract only).
+M. Narasimhappa, S. L. Sabat, J. Nayak, "Fiber-optic gyroscope signal denoising using an adaptive
+robust Kalman filter", IEEE Sensors J. 16(10), 2016 (not retrieved).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from navlab.errors import NavlabError
+from navlab.filters.base import (
+    ACCEPTED,
+    DOWNWEIGHTED,
+    EPOCH_ANOMALY,
+    NUMERICAL_FIX,
+    REJECTED,
+    REJECTED_AUX,
+    Filter,
+    Model,
+    SideInfo,
+    StepOut,
+    register,
+)
+from navlab.filters.kalman import kf_update
+from navlab.filters.linalg import (
+    Array,
+    diag,
+    eigh_clamp,
+    gain,
+    joseph,
+    mask_missing,
+    mT,
+    mv,
+    solve_sym,
+    sym,
+)
+from navlab.params import param
+
+# ------------------------------------------------------------------------------ pure kernels
+
+
+def forgetting_weight(k: int, b: float) -> float:
+    """Sage–Husa fading-memory weight d_k = (1 − b)/(1 − b^{k+1}), k = 1 at the first update.
+
+    b = 1 is the limit d_k = 1/(k + 1) (plain running average including the prior R0).
+    """
+    if k < 1:
+        raise ValueError("k counts updates from 1")
+    if b >= 1.0:
+        return 1.0 / (k + 1)
+    return (1.0 - b) / (1.0 - b ** (k + 1))
+
+
+def rhat_bounds(R0: Array) -> tuple[float, float]:
+    """Eigenvalue clamp [r_min, r_max] = [0.01·min diag R0, 1e4·max diag R0] (§4.1 step 4)."""
+    d = np.diag(np.asarray(R0, dtype=float))
+    return 0.01 * float(d.min()), 1e4 * float(d.max())
+
+
+def irakf_weights(
+    nu_tilde: Array, k0: float, k1: float, middle: str = "huber", sigma: Array | None = None
+) -> tuple[Array, Array]:
+    """Three-segment weights of S1 eq. 7 on normalised innovations ν̃ = ν/σ (§4.4).
+
+    Returns ``(w, zone)``: the factor multiplying ν_i (1, k0/|ν̃| in the middle zone, 0 in the
+    rejection zone, where IRAKF zeroes the gain column) and the zone code 0/1/2.
+    ``middle="literal"`` is the seed's printed ν/c1 with c1 = k1·σ_i in measurement units (weight
+    1/(k1 σ_i), dimensionally inconsistent; kept only for comparison; needs ``sigma``).
+    """
+    a = np.abs(nu_tilde)
+    zone = np.where(a > k1, 2, np.where(a > k0, 1, 0)).astype(np.int8)
+    with np.errstate(divide="ignore"):
+        if middle == "literal":
+            if sigma is None:
+                raise ValueError("middle='literal' needs sigma")
+            mid = 1.0 / (k1 * sigma)
+        else:
+            mid = k0 / np.where(a > 0, a, 1.0)
+    w = np.where(zone == 0, 1.0, np.where(zone == 1, mid, 0.0))
+    return w, zone
+
+
+def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
+    """Yang's IGG-III equivalent weights (§4.7 step 3): continuous, 1 → 0 between k0 and k1.
+
+    w = 1 (|ν̃| ≤ k0); (k0/|ν̃|)·((k1 − |ν̃|)/(k1 − k0))² (k0 < |ν̃| ≤ k1); 0 (|ν̃| > k1).
+    Returns ``(w, zone)`` with zone 0/1/2.
+    """
+    a = np.abs(nu_tilde)
+    zone = np.where(a > k1, 2, np.where(a > k0, 1, 0)).astype(np.int8)
+    safe = np.where(a > 0, a, 1.0)
+    span = max(k1 - k0, 1e-300)
+    mid = (k0 / safe) * ((k1 - a) / span) ** 2
+    w = np.where(zone == 0, 1.0, np.where(zone == 1, mid, 0.0))
+    return w, zone
+
+
+def rae_estimate(
+    eta: Array, eta_ok: Array, H: Array, P_ref: Array, R0: Array, full: bool
+) -> Array:
+    """Residual-based windowed R estimate (S1 eqs. 3/4, §4.2–4.3), batched.
+
+    R̂ = (1/M) Σ_j η_j η_jᵀ + H P_ref Hᵀ over the window, where P_ref = P⁺_{k−1} (eq. 3) or P⁻_k
+    (eq. 4). Entries whose channels were missing in some epochs average over the epochs where
+    both were present; an entry never observed in the window falls back to R0.
+
+    Parameters
+    ----------
+    eta : (B, M, m) residuals η_j = z_j − H x⁺_j of the last M epochs (any order).
+    eta_ok : (B, M, m) bool, channel present at that epoch.
+    H : (m, n) or (B, m, n); P_ref : (n, n) or (B, n, n).
+    R0 : (m, m) nominal R, returned (broadcast) while the window is not full.
+    full : the window holds M pushed residuals.
+    """
+    B, _, m = eta.shape
+    if not full:
+        return np.broadcast_to(np.asarray(R0, dtype=float), (B, m, m)).copy()
+    e = np.where(eta_ok, eta, 0.0)
+    okf = eta_ok.astype(float)
+    num = mT(e) @ e  # (B, m, m) Σ_j η_j η_jᵀ
+    cnt = mT(okf) @ okf  # (B, m, m) epochs where both channels were present
+    S_hat = np.where(cnt > 0, num / np.maximum(cnt, 1.0), np.broadcast_to(R0, (B, m, m)))
+    return sym(S_hat + H @ P_ref @ mT(H))
+
+
+# ------------------------------------------------------------------------------ helpers
+
+
+def _batched(P: Array, B: int) -> Array:
+    return np.broadcast_to(P, (B, *P.shape[-2:])).copy()
+
+
+def _flag_fix(flags: Array, fixed: Array) -> None:
+    """Set flag 9 on every still-accepted channel of runs where a numerical fix was applied."""
+    fixed = np.broadcast_to(np.asarray(fixed, dtype=bool), flags.shape[:1])
+    if fixed.any():
+        sel = fixed[:, None] & (flags == ACCEPTED)
+        flags[sel] = NUMERICAL_FIX
+
+
+def _zero_columns(K: Array, B: int, reject: Array) -> Array:
+    """K with column i zeroed where reject[b, i]: (B, n, m)."""
+    return np.broadcast_to(K, (B, *K.shape[-2:])) * ~reject[:, None, :]
+
+
+class _Window(NamedTuple):
+    """Ring buffer of the last M posterior residuals of every run."""
+
+    eta: Array  # (B, M, m)
+    ok: Array  # (B, M, m) bool
+    pushes: int
+
+    @staticmethod
+    def empty(B: int, M: int, m: int) -> _Window:
+        return _Window(np.zeros((B, M, m)), np.zeros((B, M, m), dtype=bool), 0)
+
+    @property
+    def full(self) -> bool:
+        return self.pushes >= self.eta.shape[1]
+
+    def push(self, eta: Array, ok: Array) -> _Window:
+        i = self.pushes % self.eta.shape[1]
+        e, o = self.eta.copy(), self.ok.copy()
+        e[:, i] = np.where(ok, eta, 0.0)
+        o[:, i] = ok
+        return _Window(e, o, self.pushes + 1)
+
+
+def _sage_husa_R(
+    R_prev: Array, nu: Array, HPHt: Array, ok: Array, d: float, lo: float, hi: float,
+    diagonal: bool = False,
+) -> tuple[Array, Array]:
+    """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), eigenvalues clamped into [lo, hi] (§4.1).
+
+    Entries involving a missing channel keep their previous value. ``diagonal=True`` is the
+    simplified per-channel form of §4.9 (off-diagonals 0, each diagonal entry clamped).
+    Returns ``(R̂_k (B, m, m), clamped (B,))``.
+    """
+    nu0 = np.where(ok, nu, 0.0)
+    if diagonal:
+        r = (1.0 - d) * diag(R_prev) + d * (nu0**2 - diag(HPHt))
+        r = np.where(ok, r, diag(R_prev))
+        clamped = np.any((r < lo) | (r > hi), axis=-1)
+        r = np.clip(r, lo, hi)
+        return r[..., :, None] * np.eye(r.shape[-1]), clamped
+    new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
+    okk = ok[:, :, None] & ok[:, None, :]
+    new = np.where(okk, new, R_prev)
+    return eigh_clamp(new, lo, hi)
+
+
+def _check_k0_k1(owner: str, k0: float, k1: float) -> None:
+    if k1 < k0:
+        raise NavlabError(f"filter '{owner}': k1 = {k1} must not be smaller than k0 = {k0}")
+
+
+# ------------------------------------------------------------------------------ classic SHAKF
+
+
+@dataclass(frozen=True)
+class SageHusaParams:
+    """Classic Sage–Husa options (ALGORITHMS.md §4.1)."""
+
+    b: float = param(
+        0.98, lo=0.5, hi=1.0,
+        help="forgetting factor b (memory ≈ 1/(1−b) epochs; 1 = running average)",
+    )
+    adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")
+    full: bool = param(
+        False, help="full Sage–Husa: also estimate r̂, q̂ and Q̂ (ill-posed, may diverge)"
+    )
+
+
+class SHState(NamedTuple):
+    x: Array
+    P: Array
+    R: Array  # (B, m, m) current R̂
+    k: int  # updates done
+    r: Array  # (B, m) measurement-noise mean r̂
+    Q: Array | None  # (B, n, n) Q̂ (full mode)
+    q: Array  # (B, n) q̂
+    x_prev: Array  # x⁺_{k−1}
+    P_prev: Array  # P⁺_{k−1}
+
+
+@register
+class SageHusa(Filter):
+    """Classic Sage–Husa adaptive KF: fading-memory innovation-based R̂ (ALGORITHMS.md §4.1)."""
+
+    key = "sage-husa"
+    label = "Sage–Husa AKF"
+    family = "adaptive"
+    paper = "Sage & Husa 1969"
+    spec_section = "§4.1"
+    summary = (
+        "Estimates R recursively from the innovations with a forgetting factor b; no outlier "
+        "protection (outliers inflate R̂)."
+    )
+    estimates_R = True
+    Params = SageHusaParams
+
+    def init(self, model: Model, x0: Array, P0: Array) -> SHState:
+        x0 = np.array(x0, dtype=float)
+        B, n = x0.shape
+        m = model.m
+        P = _batched(np.asarray(P0, dtype=float), B)
+        R = _batched(np.asarray(model.R0, dtype=float), B)
+        Q = None
+        if self.params.full:
+            Q = _batched(np.asarray(model.Q(1), dtype=float), B)
+        return SHState(x0, P, R, 0, np.zeros((B, m)), Q, np.zeros((B, n)), x0, P)
+
+    def predict(self, model: Model, state: SHState, k: int) -> SHState:
+        F = model.F(k)
+        x = model.f(state.x, k)
+        Q = model.Q(k) if state.Q is None else state.Q
+        if self.params.full:
+            x = x + state.q
+        P = sym(F @ state.P @ mT(F) + Q)
+        return state._replace(x=x, P=P, x_prev=state.x, P_prev=state.P)
+
+    def update(self, model: Model, state: SHState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        x_m, P_m = state.x, state.P
+        B = z.shape[0]
+        H = model.H(x_m, k)
+        ok = np.isfinite(z)
+        nu = z - model.h(x_m, k) - state.r
+        HPHt = H @ P_m @ mT(H)
+        kk = state.k + 1
+        flags = np.zeros(z.shape, dtype=np.int8)
+        R = state.R
+        d = forgetting_weight(kk, p.b)
+        if p.adapt:
+            lo, hi = rhat_bounds(model.R0)
+            R, clamped = _sage_husa_R(state.R, nu, HPHt, ok, d, lo, hi)  # (3)–(4)
+            _flag_fix(flags, clamped)
+        ok, nu_m, Hm, Rm = mask_missing(z, nu, H, R)
+        S = sym(Hm @ P_m @ mT(Hm) + Rm)
+        K, fixed = gain(P_m, Hm, S)
+        x = x_m + mv(K, nu_m)
+        P = joseph(P_m, K, Hm, Rm)
+        _flag_fix(flags, fixed)
+        r, q, Q = state.r, state.q, state.Q
+        if p.full:  # optional full Sage–Husa (§4.1, off by default): noise means and Q̂
+            r = np.where(ok, (1 - d) * state.r + d * (z - model.h(x_m, k)), state.r)
+            Knu = mv(K, nu_m)
+            F = model.F(k)
+            Qn = (1 - d) * state.Q + d * (
+                Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F)
+            )
+            qmax = max(float(np.max(np.diag(np.asarray(model.Q(k), dtype=float)))), 1e-300)
+            Q, _ = eigh_clamp(Qn, 1e-6 * qmax, 1e6 * qmax)  # same PD guard as R̂
+            q = (1 - d) * state.q + d * (x - model.f(state.x_prev, k))
+        out = StepOut(
+            x=x, P=P, innov=nu_m, S=S, R_used=Rm, R_hat=R, flags=flags,
+            stats={"d_k": np.full(B, d)},
+        )
+        return state._replace(x=x, P=P, R=R, k=kk, r=r, q=q, Q=Q), out
+
+
+# ------------------------------------------------------------------------------ IRAKF
+
+
+@dataclass(frozen=True)
+class IRAKFParams:
+    """IRAKF options (ALGORITHMS.md §4.2–4.6, S1 = Ge, Zhang, Tang 2020)."""
+
+    window: int = param(
+        10, lo=1, hi=5000,
+        help="RAE window M (epochs of residuals averaged; S1 gives none; R̂ = R0 until full)",
+    )
+    k0: float = param(1.5, lo=0.1, hi=1e6, help="down-weighting threshold k0 in σ (S1: 0.8–1.5)")
+    k1: float = param(3.0, lo=0.1, hi=1e6, help="rejection threshold k1 in σ (S1: 3.0–5.0)")
+    C: float = param(
+        3.0, lo=0.1, hi=1e6, help="threshold factor C of the parallel-SKF detector, in σ (Fig. 1)"
+    )
+    dual_detection: bool = param(True, help="run the parallel standard KF detector (Fig. 1)")
+    improved_rae: str = param(
+        "conditional", choices=("conditional", "always", "never"),
+        help="use P⁻ (eq. 4) instead of P⁺ₖ₋₁ (eq. 3) in R̂: on SKF detections / always / never",
+    )
+    middle_segment: str = param(
+        "huber", choices=("huber", "literal"),
+        help="middle-zone weight: Huber ν·k0/|ν̃| (default) or the seed's literal ν/c1",
+    )
+    skf_gated: bool = param(
+        False, help="also zero the parallel SKF's gain on its detections (locks out; spec §4.5)"
+    )
+
+
+class IRAKFState(NamedTuple):
+    x: Array
+    P: Array
+    P_post: Array  # P⁺_{k−1}
+    win: _Window
+    xs: Array  # parallel SKF
+    Ps: Array
+
+
+@register
+class IRAKF(Filter):
+    """Improved robust adaptive KF (Ge, Zhang, Tang 2020; ALGORITHMS.md §4.6).
+
+    Per epoch: (1) a parallel, ungated standard KF with the fixed R0 flags channels whose
+    innovation exceeds C σ; (2) R̂ from the window of posterior residuals (eq. 3), with P⁻ in
+    place of P⁺_{k−1} on flagged epochs (eq. 4); (3) per channel, ν̃ = ν/√S_ii: keep (≤ k0),
+    Huber-shrink (≤ k1), or zero the gain column (> k1 or flagged by the SKF); (4) Joseph update,
+    so P does not shrink on a rejected channel; (5) the raw posterior residual enters the window.
+    """
+
+    key = "irakf"
+    label = "IRAKF"
+    family = "robust-adaptive"
+    paper = "Ge, Zhang, Tang 2020 (doi:10.19306/j.cnki.2095-8110.2020.01.007)"
+    spec_section = "§4.2–4.6"
+    summary = (
+        "Windowed residual-based R̂, three-segment IGG/Huber weights that zero the gain of "
+        "rejected channels, and a parallel standard KF as a second outlier detector."
+    )
+    estimates_R = True
+    Params = IRAKFParams
+
+    def __init__(self, params: Any = None, **kwargs: Any) -> None:
+        super().__init__(params, **kwargs)
+        _check_k0_k1(self.key, self.params.k0, self.params.k1)
+
+    def init(self, model: Model, x0: Array, P0: Array) -> IRAKFState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = _batched(np.asarray(P0, dtype=float), B)
+        win = _Window.empty(B, self.params.window, model.m)
+        Ps = np.array(P0, dtype=float)  # the ungated SKF keeps a shared P if P0 is shared
+        return IRAKFState(x0, P, P, win, x0.copy(), Ps)
+
+    def predict(self, model: Model, state: IRAKFState, k: int) -> IRAKFState:
+        F = model.F(k)
+        Q = model.Q(k)
+        x = model.f(state.x, k)
+        P = sym(F @ state.P @ mT(F) + Q)
+        if self.params.dual_detection:
+            xs = model.f(state.xs, k)
+            Ps = sym(F @ state.Ps @ mT(F) + Q)
+        else:
+            xs, Ps = state.xs, state.Ps
+        return state._replace(x=x, P=P, P_post=state.P, xs=xs, Ps=Ps)
+
+    def _skf_step(self, model: Model, state: IRAKFState, k: int, z: Array):
+        """Parallel SKF (§4.5): detection flags from its own innovation, then its own update."""
+        p = self.params
+        B, m = z.shape
+        if not p.dual_detection:
+            return np.zeros((B, m), dtype=bool), np.zeros((B, m)), state.xs, state.Ps
+        R0 = model.R0
+        Hs = model.H(state.xs, k)
+        nu_s = z - model.h(state.xs, k)
+        ok, nu_s, Hs, Rs = mask_missing(z, nu_s, Hs, R0)
+        Ss = sym(Hs @ state.Ps @ mT(Hs) + Rs)
+        nt_s = nu_s / np.sqrt(diag(Ss))
+        flag_s = (np.abs(nt_s) > p.C) & ok
+        if p.skf_gated:
+            K, _ = gain(state.Ps, Hs, Ss)
+            K = _zero_columns(K, B, flag_s)
+            xs = state.xs + mv(K, nu_s)
+            Ps = joseph(state.Ps, K, Hs, Rs)
+        else:
+            xs, Ps, *_ = kf_update(model, state.xs, state.Ps, k, z, R0)
+        return flag_s, nt_s, xs, Ps
+
+    def update(self, model: Model, state: IRAKFState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        # 1 parallel SKF: detection, then its own (ungated) update
+        flag_s, nt_s, xs, Ps = self._skf_step(model, state, k, z)
+        # 2 prior from predict(); 3 R̂ by RAE (eq. 3) or improved RAE (eq. 4)
+        x_m, P_m = state.x, state.P
+        H = model.H(x_m, k)
+        if p.improved_rae == "always":
+            use_prior = np.ones(B, dtype=bool)
+        elif p.improved_rae == "never":
+            use_prior = np.zeros(B, dtype=bool)
+        else:
+            use_prior = flag_s.any(axis=1)
+        P_ref = np.where(use_prior[:, None, None], P_m, state.P_post)
+        R_hat = rae_estimate(state.win.eta, state.win.ok, H, P_ref, model.R0, state.win.full)
+        flags = np.zeros((B, m), dtype=np.int8)
+        if state.win.full:  # eigenvalue guard (only bites with missing channels)
+            lo, hi = rhat_bounds(model.R0)
+            R_hat, clamped = eigh_clamp(R_hat, lo, hi)
+            _flag_fix(flags, clamped)
+        # 4 gain from the unmodified R̂
+        nu_raw = z - model.h(x_m, k)
+        ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R_hat)
+        S = sym(Hm @ P_m @ mT(Hm) + Rm)
+        K, fixed = gain(P_m, Hm, S)
+        sig = np.sqrt(diag(S))
+        nt = nu / sig
+        # 5 three-segment weights (eq. 7) + SKF detections: zero gain columns
+        w, zone = irakf_weights(nt, p.k0, p.k1, p.middle_segment, sig)
+        own_reject = (zone == 2) & ok
+        aux_reject = flag_s & ~own_reject
+        reject = own_reject | aux_reject
+        down = (zone == 1) & ~reject & ok
+        nu_w = np.where(down, w * nu, nu)
+        K = _zero_columns(K, B, reject)
+        # 6 state and Joseph covariance (P keeps the information of rejected channels out)
+        x = x_m + mv(K, nu_w)
+        P = joseph(P_m, K, Hm, Rm)
+        # 7 raw posterior residual into the window (rejected channels included, S1)
+        eta = z - model.h(x, k)
+        win = state.win.push(eta, ok)
+        flags[down] = DOWNWEIGHTED
+        flags[own_reject] = REJECTED
+        flags[aux_reject] = REJECTED_AUX
+        _flag_fix(flags, fixed)
+        weights = np.where(reject, 0.0, np.where(down, w, 1.0))
+        out = StepOut(
+            x=x, P=P, innov=nu, S=S, R_used=Rm, R_hat=R_hat, weights=weights, flags=flags,
+            stats={
+                "nu_tilde": nt,
+                "skf_nu_tilde": nt_s,
+                "skf_flag": flag_s.astype(float),
+                "improved_rae": use_prior.astype(float),
+            },
+        )
+        return IRAKFState(x, P, P, win, xs, Ps), out
+
+
+# ------------------------------------------------------------------------------ RRAE
+
+
+@dataclass(frozen=True)
+class RRAEParams:
+    """RRAE options (ALGORITHMS.md §4.7, RECONSTRUCTION of Ge et al. 2018)."""
+
+    window: int = param(10, lo=1, hi=5000, help="RAE window M (R̂ = R0 until full)")
+    k0: float = param(1.5, lo=0.1, hi=1e6, help="IGG-III down-weighting threshold k0 in σ")
+    k1: float = param(
+        5.0, lo=0.1, hi=1e6,
+        help="IGG-III rejection threshold k1 in σ (5 = top of S1's range; 3 locks out, §4.7)",
+    )
+    form: str = param(
+        "equivalent_variance", choices=("equivalent_variance", "literal_scaling"),
+        help="middle zone as an inflated variance R̂ᵢᵢ/wᵢ (default) or ν scaled by w "
+        "(literal; locks out on clean data, spec uses k1 = 3 for it)",
+    )
+
+
+class RAEState(NamedTuple):
+    x: Array
+    P: Array
+    P_post: Array
+    win: _Window
+
+
+@register
+class RRAE(Filter):
+    """Robust residual-based adaptive estimation (RECONSTRUCTION, ALGORITHMS.md §4.7).
+
+    RAE R̂ (eq. 3, P⁺_{k−1}); IGG-III equivalent weights on ν̃ = ν/√S_ii: the middle zone enters
+    as an inflated variance R̂_ii/w_i, the rejection zone sets ν_i = 0 while P is still updated
+    with the short form (I − KH)P⁻ as if the measurement had been used — the scheme S1 criticises.
+    """
+
+    key = "rrae"
+    label = "RRAE (reconstruction)"
+    family = "robust-adaptive"
+    paper = "Ge, Zhang, Sheng et al. 2018 (IEEE/CSAA GNC), cited as S1 ref. [16]"
+    spec_section = "§4.7"
+    summary = (
+        "RECONSTRUCTION (paper not retrievable): windowed residual R̂ with classical IGG-III "
+        "equivalent weights; rejected innovations are zeroed while P keeps shrinking."
+    )
+    reconstruction = True
+    estimates_R = True
+    Params = RRAEParams
+
+    def __init__(self, params: Any = None, **kwargs: Any) -> None:
+        super().__init__(params, **kwargs)
+        _check_k0_k1(self.key, self.params.k0, self.params.k1)
+
+    def init(self, model: Model, x0: Array, P0: Array) -> RAEState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = _batched(np.asarray(P0, dtype=float), B)
+        return RAEState(x0, P, P, _Window.empty(B, self.params.window, model.m))
+
+    def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
+        F = model.F(k)
+        x = model.f(state.x, k)
+        P = sym(F @ state.P @ mT(F) + model.Q(k))
+        return state._replace(x=x, P=P, P_post=state.P)
+
+    def update(self, model: Model, state: RAEState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        x_m, P_m = state.x, state.P
+        H = model.H(x_m, k)
+        # 1 RAE R̂ with P⁺_{k−1} (S1 eq. 3)
+        R_hat = rae_estimate(state.win.eta, state.win.ok, H, state.P_post, model.R0, state.win.full)
+        flags = np.zeros((B, m), dtype=np.int8)
+        if state.win.full:
+            lo, hi = rhat_bounds(model.R0)
+            R_hat, clamped = eigh_clamp(R_hat, lo, hi)
+            _flag_fix(flags, clamped)
+        # 2 innovation statistics with R̂
+        ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
+        HPHt = Hm @ P_m @ mT(Hm)
+        S = sym(HPHt + Rm)
+        nt = nu / np.sqrt(diag(S))
+        # 3 IGG-III equivalent weights
+        w, zone = igg3_weights(nt, p.k0, p.k1)
+        w = np.where(ok, w, 1.0)
+        zone = np.where(ok, zone, 0)
+        eye = np.eye(m, dtype=bool)
+        if p.form == "literal_scaling":
+            R_bar = Rm
+            nu_w = w * nu
+        else:
+            # 4 middle zone: equivalent variance R̄_ii = R̂_ii / w_i; rejection: ν_i ← 0
+            mid = zone == 1
+            infl = np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0)
+            R_bar = np.where(eye, Rm * infl[:, None, :], Rm)
+            nu_w = np.where(zone == 2, 0.0, nu)
+        # 5 gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
+        S_bar = sym(HPHt + R_bar)
+        K, fixed = gain(P_m, Hm, S_bar)
+        x = x_m + mv(K, nu_w)
+        n = x.shape[1]
+        P = sym((np.eye(n) - K @ Hm) @ P_m)
+        # 6 posterior residual into the window
+        win = state.win.push(z - model.h(x, k), ok)
+        flags[zone == 1] = DOWNWEIGHTED
+        flags[zone == 2] = REJECTED
+        _flag_fix(flags, fixed)
+        out = StepOut(
+            x=x, P=P, innov=nu, S=S, R_used=R_bar, R_hat=R_hat, weights=w, flags=flags,
+            stats={"nu_tilde": nt},
+        )
+        return RAEState(x, P, P, win), out
+
+
+# ------------------------------------------------------------------------------ RAKF
+
+
+@dataclass(frozen=True)
+class RAKFParams:
+    """RAKF options (ALGORITHMS.md §4.8, RECONSTRUCTION of Bai, Han, Qi 2012)."""
+
+    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    adapt: bool = param(True, help="estimate R by Sage–Husa (off: R̂ stays R0)")
+    gamma_s: float = param(
+        3.0, lo=0.1, hi=1e12,
+        help="reserve coefficient γ_s of the divergence test νᵀν > γ_s·tr(S) (large = off)",
+    )
+    c: float = param(
+        2.0, lo=0.1, hi=1e12,
+        help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
+    )
+
+
+class RAKFState(NamedTuple):
+    x: Array
+    P: Array
+    R: Array
+    k: int
+
+
+@register
+class RAKF(Filter):
+    """Improved Sage–Husa KF of Bai et al. 2012 (RECONSTRUCTION, ALGORITHMS.md §4.8).
+
+    Sage–Husa R̂; if νᵀν > γ_s·tr(H P⁻ Hᵀ + R̂) the prior covariance is inflated by
+    λ = max(1, (νᵀν − tr R̂)/tr(H P⁻ Hᵀ)) (divergence suppression — the filter then trusts the
+    measurement more); the innovation is Huber-clipped in whitened coordinates,
+    ν' = L ψ_c(L⁻¹ν) with S = L Lᵀ, which keeps its covariance structure.
+    """
+
+    key = "rakf"
+    label = "RAKF (reconstruction)"
+    family = "robust-adaptive"
+    paper = "Bai, Han, Qi 2012 (Chinese Control Conference), cited as S1 ref. [17]"
+    spec_section = "§4.8"
+    summary = (
+        "RECONSTRUCTION (from the abstract): Sage–Husa R̂, prior covariance inflated when the "
+        "innovation is abnormally large, Huber clipping of the whitened innovation."
+    )
+    reconstruction = True
+    estimates_R = True
+    Params = RAKFParams
+
+    def init(self, model: Model, x0: Array, P0: Array) -> RAKFState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = _batched(np.asarray(P0, dtype=float), B)
+        return RAKFState(x0, P, _batched(np.asarray(model.R0, dtype=float), B), 0)
+
+    def update(self, model: Model, state: RAKFState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        x_m, P_m = state.x, state.P
+        H = model.H(x_m, k)
+        kk = state.k + 1
+        flags = np.zeros((B, m), dtype=np.int8)
+        # 1–2 innovation and Sage–Husa R̂
+        nu_raw = z - model.h(x_m, k)
+        ok = np.isfinite(z)
+        R = state.R
+        if p.adapt:
+            lo, hi = rhat_bounds(model.R0)
+            HPHt0 = H @ P_m @ mT(H)
+            d = forgetting_weight(kk, p.b)
+            R, clamped = _sage_husa_R(state.R, nu_raw, HPHt0, ok, d, lo, hi)
+            _flag_fix(flags, clamped)
+        ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R)
+        HPHt = Hm @ P_m @ mT(Hm)
+        # 3 abnormality test and prior-covariance inflation
+        nn = np.einsum("bi,bi->b", nu, nu)
+        trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
+        trR = np.trace(Rm, axis1=-2, axis2=-1)
+        abnormal = nn > p.gamma_s * (trHPH + trR)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.where(abnormal, np.maximum(1.0, (nn - trR) / np.maximum(trHPH, 1e-300)), 1.0)
+        P_m = P_m * lam[:, None, None]
+        HPHt = HPHt * lam[:, None, None]
+        # 4 Huber clipping of the whitened innovation
+        S = sym(HPHt + Rm)
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            jit = 1e-12 * np.trace(S, axis1=-2, axis2=-1)[:, None, None] / m * np.eye(m)
+            L = np.linalg.cholesky(S + jit)
+        e, _ = solve_sym(L, nu[..., None])  # L is triangular, a general solve is exact
+        e = e[..., 0]
+        ae = np.abs(e)
+        clip = (ae > p.c) & ok
+        psi = np.where(clip, p.c * np.sign(e), e)
+        nu_c = mv(L, psi)
+        # 5 update with the clipped innovation, Joseph form with R̂
+        K, fixed = gain(P_m, Hm, S)
+        x = x_m + mv(K, nu_c)
+        P = joseph(P_m, K, Hm, Rm)
+        flags[abnormal[:, None] & ok & (flags == ACCEPTED)] = EPOCH_ANOMALY
+        flags[clip] = DOWNWEIGHTED
+        _flag_fix(flags, fixed)
+        weights = np.where(clip, p.c / np.where(clip, ae, 1.0), 1.0)
+        out = StepOut(
+            x=x, P=P, innov=nu, S=S, R_used=Rm, R_hat=R, weights=weights, flags=flags,
+            stats={"lambda": lam},
+        )
+        return RAKFState(x, P, R, kk), out
+
+
+# ------------------------------------------------------------------------------ RSSHAKF
+
+
+@dataclass(frozen=True)
+class RSSHAKFParams:
+    """RSSHAKF options (ALGORITHMS.md §4.9, RECONSTRUCTION of Narasimhappa et al. 2016)."""
+
+    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    adapt: bool = param(True, help="estimate the diagonal R̂ (off: R̂ stays diag R0)")
+    c_r: float = param(
+        2.5, lo=0.1, hi=1e12, help="outlier threshold c_r on |ν̃| (variance inflation above it)"
+    )
+    exclude_outliers: bool = param(
+        False,
+        help="skip the Sage–Husa update on outlier channels (variant; inverts S1's ranking, §4.9)",
+    )
+
+
+@register
+class RSSHAKF(Filter):
+    """Robust simplified Sage–Husa KF (RECONSTRUCTION, ALGORITHMS.md §4.9).
+
+    R-only, diagonal Sage–Husa; channels with |ν̃_i| > c_r (ν̃ from R̂_{k−1}) get their variance
+    inflated by |ν̃_i|/c_r for this update; the Sage–Husa update then runs on every channel.
+    """
+
+    key = "rsshakf"
+    label = "RSSHAKF (reconstruction)"
+    family = "robust-adaptive"
+    paper = "Narasimhappa, Sabat, Nayak 2016 (IEEE Sensors J. 16(10)), cited as S1 ref. [18]"
+    spec_section = "§4.9"
+    summary = (
+        "RECONSTRUCTION (paper not retrievable): diagonal Sage–Husa R̂ with variance inflation "
+        "of channels whose normalised innovation exceeds c_r."
+    )
+    reconstruction = True
+    estimates_R = True
+    Params = RSSHAKFParams
+
+    def init(self, model: Model, x0: Array, P0: Array) -> RAKFState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = _batched(np.asarray(P0, dtype=float), B)
+        R = np.diag(np.diag(np.asarray(model.R0, dtype=float)))  # diagonal R̂ (§4.9)
+        return RAKFState(x0, P, _batched(R, B), 0)
+
+    def update(self, model: Model, state: RAKFState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        x_m, P_m = state.x, state.P
+        H = model.H(x_m, k)
+        kk = state.k + 1
+        flags = np.zeros((B, m), dtype=np.int8)
+        nu_raw = z - model.h(x_m, k)
+        # 1 normalised innovation with R̂_{k−1}
+        ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, state.R)
+        HPHt = Hm @ P_m @ mT(Hm)
+        Sp = sym(HPHt + Rm)
+        nt = nu / np.sqrt(diag(Sp))
+        # 2–3 outlier channels: variance inflation R_ii · |ν̃_i|/c_r
+        out_ch = (np.abs(nt) > p.c_r) & ok
+        infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)
+        eye = np.eye(m, dtype=bool)
+        R_used = np.where(eye, Rm * infl[:, None, :], Rm)
+        # 4 standard update with R_used (Joseph)
+        S = sym(HPHt + R_used)
+        K, fixed = gain(P_m, Hm, S)
+        x = x_m + mv(K, nu)
+        P = joseph(P_m, K, Hm, R_used)
+        # 5 simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
+        R = state.R
+        if p.adapt:
+            lo, hi = rhat_bounds(model.R0)
+            upd = ok & ~out_ch if p.exclude_outliers else ok
+            R, clamped = _sage_husa_R(
+                state.R, nu, H @ state.P @ mT(H), upd, forgetting_weight(kk, p.b), lo, hi,
+                diagonal=True,
+            )
+            _flag_fix(flags, clamped)
+        flags[out_ch] = DOWNWEIGHTED
+        _flag_fix(flags, fixed)
+        weights = np.where(out_ch, 1.0 / infl, 1.0)
+        out = StepOut(
+            x=x, P=P, innov=nu, S=S, R_used=R_used, R_hat=R, weights=weights, flags=flags,
+            stats={"nu_tilde": nt},
+        )
+        return RAKFState(x, P, R, kk), out
