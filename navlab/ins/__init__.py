@@ -18,19 +18,19 @@ from navlab.ins.strapdown import (
 )
 
 __all__ = [
-    "align",
-    "earth",
-    "strapdown",
     "AlignmentResult",
-    "align_static",
-    "body_to_vehicle",
-    "course_heading",
     "ImuBlock",
     "InsState",
+    "align",
+    "align_static",
     "apply_correction",
+    "body_to_vehicle",
+    "course_heading",
     "discretise",
+    "earth",
     "error_model_FG",
     "init_state",
     "mechanise_step",
     "propagate_block",
+    "strapdown",
 ]

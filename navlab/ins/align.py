@@ -26,12 +26,12 @@ from navlab.ins.earth import dcm_to_euler, earth_rate_enu, euler_to_dcm, normal_
 __all__ = [
     "RTKX_NOMINAL_C_BV",
     "AlignmentResult",
-    "body_to_vehicle",
-    "vehicle_tilt_from_static",
-    "triad_attitude",
     "align_static",
+    "body_to_vehicle",
     "course_heading",
     "motion_start_time",
+    "triad_attitude",
+    "vehicle_tilt_from_static",
 ]
 
 #: Nominal rtkx IMU axes in the vehicle RFU frame (columns: IMU x = backward,
@@ -116,7 +116,8 @@ def triad_attitude(f_b_mean, heading_rad: float, forward_b=(0.0, 1.0, 0.0)):
     fw_h /= np.linalg.norm(fw_h)
     Bm = np.column_stack([np.cross(fw_h, up_b), fw_h, up_b])  # right, forward, up in body
     Nm = np.column_stack(
-        [[np.cos(heading_rad), -np.sin(heading_rad), 0.0], [np.sin(heading_rad), np.cos(heading_rad), 0.0], [0, 0, 1.0]]
+        [[np.cos(heading_rad), -np.sin(heading_rad), 0.0],
+         [np.sin(heading_rad), np.cos(heading_rad), 0.0], [0, 0, 1.0]]
     )
     return Nm @ Bm.T
 
@@ -175,7 +176,9 @@ def align_static(f_b_mps2, w_b_radps, lat_rad: float, h_m: float, heading_rad: f
     f = np.asarray(f_b_mps2, dtype=float)
     w = np.asarray(w_b_radps, dtype=float)
     if f.ndim != 2 or f.shape[1] != 3 or f.shape != w.shape or f.shape[0] < 10:
-        raise NavlabError("static alignment needs at least 10 IMU samples of shape (N, 3); give a longer static window.")
+        raise NavlabError(
+            "static alignment needs at least 10 IMU samples of shape (N, 3); give a longer static window."
+        )
     C_bv = np.eye(3) if C_bv is None else np.asarray(C_bv, dtype=float)
     f_mean = f.mean(axis=0)
     g = float(normal_gravity(lat_rad, h_m))
@@ -231,4 +234,6 @@ def motion_start_time(t_s, v_enu_mps, speed_threshold_mps: float = 0.3, hold_s: 
         j = np.searchsorted(t, t[i] + hold_s)
         if np.all(moving[i:j]) and j > i:
             return float(t[i])
-    raise NavlabError(f"speed never exceeds {speed_threshold_mps} m/s; lower the threshold or check velocities.")
+    raise NavlabError(
+        f"speed never exceeds {speed_threshold_mps} m/s; lower the threshold or check velocities."
+    )

@@ -263,7 +263,7 @@ def skew(v):
         Shape ``(..., 3, 3)``.
     """
     v = np.asarray(v, dtype=float)
-    S = np.zeros(v.shape[:-1] + (3, 3))
+    S = np.zeros((*v.shape[:-1], 3, 3))
     S[..., 0, 1] = -v[..., 2]
     S[..., 0, 2] = v[..., 1]
     S[..., 1, 0] = v[..., 2]
@@ -302,7 +302,9 @@ def dcm_to_rotvec(C):
     C = np.asarray(C, dtype=float)
     tr = np.trace(C, axis1=-2, axis2=-1)
     ang = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-    w = 0.5 * np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], axis=-1)
+    w = 0.5 * np.stack(
+        [C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], axis=-1
+    )
     sa = np.sin(ang)[..., None]
     scale = np.where(sa > 1e-12, ang[..., None] / np.where(sa > 1e-12, sa, 1.0), 1.0)
     return w * scale

@@ -40,13 +40,29 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.ins.earth import (
     GAMMA_E_MPS2 as _GE,
+)
+from navlab.ins.earth import (
     GAMMA_P_MPS2 as _GP,
+)
+from navlab.ins.earth import (
     OMEGA_IE_RADPS as _WIE,
+)
+from navlab.ins.earth import (
     WGS84_A_M as _A,
+)
+from navlab.ins.earth import (
     WGS84_B_M as _B,
+)
+from navlab.ins.earth import (
     WGS84_E2 as _E2,
+)
+from navlab.ins.earth import (
     WGS84_F as _F,
+)
+from navlab.ins.earth import (
     WGS84_GM_M3PS2 as _GM,
+)
+from navlab.ins.earth import (
     earth_rate_enu,
     normal_gravity,
     orthonormalize,
@@ -57,14 +73,14 @@ from navlab.ins.earth import (
 )
 
 __all__ = [
-    "InsState",
     "ImuBlock",
+    "InsState",
+    "apply_correction",
+    "discretise",
+    "error_model_FG",
     "init_state",
     "mechanise_step",
     "propagate_block",
-    "apply_correction",
-    "error_model_FG",
-    "discretise",
 ]
 
 
@@ -128,7 +144,7 @@ class ImuBlock:
 
 def _batch(a, B, shape, name):
     a = np.asarray(a, dtype=float)
-    out = np.broadcast_to(a, (B,) + shape).copy() if a.shape != (B,) + shape else a.copy()
+    out = np.broadcast_to(a, (B, *shape)).copy() if a.shape != (B, *shape) else a.copy()
     if not np.all(np.isfinite(out)):
         raise NavlabError(f"INS initial {name} contains NaN/inf; give finite values.")
     return out
@@ -174,7 +190,8 @@ def init_state(lat_rad, lon_rad, h_m, v_enu_mps, C_bn, B=1, bias_g_radps=0.0, bi
 
 
 _LEVI = np.zeros((3, 9))
-for _i, _j, _k, _sgn in ((0, 1, 2, 1), (1, 2, 0, 1), (2, 0, 1, 1), (0, 2, 1, -1), (2, 1, 0, -1), (1, 0, 2, -1)):
+_PERM = ((0, 1, 2, 1), (1, 2, 0, 1), (2, 0, 1, 1), (0, 2, 1, -1), (2, 1, 0, -1), (1, 0, 2, -1))
+for _i, _j, _k, _sgn in _PERM:
     _LEVI[_k, 3 * _i + _j] = -_sgn  # [phi x]_ij = -eps_ijk phi_k
 _I3 = np.eye(3)
 
@@ -253,7 +270,9 @@ def mechanise_step(state: InsState, f_b_mps2, w_b_radps, dt_s: float, return_fn:
     B = state.B
     f = np.broadcast_to(np.asarray(f_b_mps2, dtype=float) - state.bias_a_mps2, (B, 3))
     w = np.broadcast_to(np.asarray(w_b_radps, dtype=float) - state.bias_g_radps, (B, 3))
-    lat, lon, h, v, C, f_n = _step(state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn, f, w, dt_s)
+    lat, lon, h, v, C, f_n = _step(
+        state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn, f, w, dt_s
+    )
     new = replace(state, lat_rad=lat, lon_rad=lon, h_m=h, v_enu_mps=v, C_bn=C, t_s=state.t_s + dt_s)
     return (new, f_n) if return_fn else new
 
