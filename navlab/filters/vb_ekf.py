@@ -1,0 +1,204 @@
+"""Variational-Bayes EKF with inverse-Wishart P_{k|k−1} and R (ALGORITHMS.md §7).
+
+Huang et al. 2018 (IEEE TAC) as applied with EKF linearisation by Hou et al. 2024 (Algorithm 1).
+The joint posterior of the state, the one-step prediction covariance P_{k|k−1} and a full
+measurement-noise covariance R_k is approximated by N(x) · IW(P_{k|k−1}; t, T) · IW(R_k; u, U) and
+refined by N fixed-point iterations::
+
+    time update      x⁻ = f(x⁺) ;  P̃⁻ = A P⁺ Aᵀ + Q̃                           (nominal Q̃)
+    initialise       x⁽⁰⁾ = x⁻ ;  P⁽⁰⁾ = P̃⁻ ;  t⁻ = n + τ_P + 1 ;  T⁻ = τ_P P̃⁻
+                     u⁻ = ρ (û − m − 1) + m + 1 ;  U⁻ = ρ Û                    (S3 eq. 14)
+    for it = 0 … N−1:
+        A_P = P⁽ⁱᵗ⁾ + (x⁽ⁱᵗ⁾ − x⁻)(x⁽ⁱᵗ⁾ − x⁻)ᵀ ;  t = t⁻ + 1 ;  T = T⁻ + A_P
+        r = z − h(x⁽ⁱᵗ⁾) ;  B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ ;  u = u⁻ + 1 ;  U = U⁻ + B_R
+        P̂ = T / (t − n − 1) ;  R̂ = U / (u − m − 1)
+        K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹
+        x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻)) ;  P⁽ⁱᵗ⁺¹⁾ = P̂ − K H P̂   (Joseph form, same value)
+    x⁺ = x⁽ᴺ⁾ ;  P⁺ = P⁽ᴺ⁾ ;  (û, Û) = (u, U)
+
+Notes (ALGORITHMS.md §7):
+
+* P̂ = T/(t − n − 1) and R̂ = U/(u − m − 1) are the inverse-Wishart MEANS E[P], E[R]; Huang (and
+  S3's "E[R⁻¹] = (u − d − 1) U⁻¹") use {E[R]}⁻¹ where exact VB would use E[R⁻¹] = u U⁻¹. navlab
+  reproduces Huang exactly: at the prior P̂ = P̃⁻ and R̂ = R̃₀.
+* The state update uses the PRIOR innovation z − h(x⁻) while the R-part uses z − h(x⁽ⁱᵗ⁾): that
+  is Huang's algorithm (q(x) is the exact posterior given P̂, R̂), not an iterated EKF. H is the
+  Jacobian at x⁻, kept fixed in the loop.
+* S3's typos ``f(x̂, ρ)``, ``h(x̂ | ρ)`` read f(x̂), h(x̂); its single τ ("π" in the input list)
+  is split into τ_P (P-prior, re-set every epoch) and τ_R (initial R-prior, used once), as in
+  Huang's code. Initial R-distribution û₀ = m + 1 + τ_R, Û₀ = τ_R R̃₀ (so R̂ starts at R̃₀).
+* Missing channels (NaN in z): the gain column is zero (as in the KF) and the R-statistic of every
+  entry involving a missing channel is replaced by its current expectation, so R̂ of a channel
+  that is not observed stays where it was (E over the missing residual, not a silent shrink).
+
+References
+----------
+Y. Huang, Y. Zhang, Z. Wu, N. Li, J. Chambers, "A novel adaptive Kalman filter with inaccurate
+process and measurement noise covariance matrices", IEEE Trans. Automatic Control 63(2), 594–601,
+2018, doi:10.1109/TAC.2017.2730480.
+Hou H., Cheng M., Huang D., Guo S., Wang T., "GPS/INS loose integrated navigation and positioning
+algorithm based on VB-EKF", Computer Applications and Software 41(6), 2024,
+doi:10.3969/j.issn.1000-386x.2024.06.041.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from navlab.filters.base import NUMERICAL_FIX, Filter, Model, SideInfo, StepOut, register
+from navlab.filters.ekf import ekf_predict
+from navlab.filters.linalg import Array, gain, joseph, mask_missing, mT, mv, sym
+from navlab.params import param
+
+
+class VBState(NamedTuple):
+    """Per-run VB-EKF state: posterior (x, P) and the inverse-Wishart R-distribution (u, U).
+
+    u is the same in every run (its recursion does not depend on data): a float. U is (B, m, m).
+    """
+
+    x: Array
+    P: Array
+    u: float
+    U: Array
+
+
+@dataclass(frozen=True)
+class VBEKFParams:
+    """VB-EKF hyper-parameters (ALGORITHMS.md §7, §10 #35–#36)."""
+
+    tau_P: float = param(
+        10.0, lo=1e-3, hi=1e12,
+        help="prior weight τ_P of the P_{k|k−1} inverse-Wishart (navlab default 10; Huang: 3; "
+        "large = trust the nominal Q)",
+    )
+    tau_R: float = param(
+        3.0, lo=1e-3, hi=1e12,
+        help="prior weight τ_R of the initial R inverse-Wishart (Huang: 3; large = trust R0)",
+    )
+    rho: float = param(
+        1.0 - math.exp(-4.0), lo=0.01, hi=1.0,
+        help="forgetting factor ρ of the R-distribution (1 − e⁻⁴ ≈ 0.982: memory ≈ 55 epochs; "
+        "1 = constant R)",
+    )
+    iterations: int = param(10, lo=1, hi=100, help="VB fixed-point iterations N per epoch")
+    tol: float = param(
+        0.0, lo=0.0, hi=1.0,
+        help="stop a run's iterations when its state change is below tol × its correction "
+        "(0 = always N, as in the paper)",
+    )
+    adapt_P: bool = param(
+        True, help="estimate P_{k|k−1} too (Huang); off = R-only VB with the nominal P_{k|k−1}"
+    )
+
+
+@register
+class VBEKF(Filter):
+    """VB-EKF: EKF with variational inverse-Wishart estimates of P_{k|k−1} and R (§7)."""
+
+    key = "vb-ekf"
+    label = "VB-EKF"
+    family = "adaptive"
+    paper = "Hou et al. 2024; Huang et al. 2018 (IEEE TAC)"
+    spec_section = "§7"
+    summary = (
+        "Learns a full measurement-noise covariance R (and the prediction covariance P) on line "
+        "with variational-Bayes inverse-Wishart updates; forgets old noise with factor ρ."
+    )
+    estimates_R = True
+    Params = VBEKFParams
+
+    def init(self, model: Model, x0: Array, P0: Array) -> VBState:
+        p = self.params
+        m = model.m
+        x = np.array(x0, dtype=float)
+        # û₀ = m + 1 + τ_R, Û₀ = τ_R R̃₀  ⇒  R̂ = Û₀/(û₀ − m − 1) = R̃₀  (§10 #36)
+        U = np.broadcast_to(p.tau_R * np.asarray(model.R0, float), (x.shape[0], m, m)).copy()
+        return VBState(x, np.array(P0, dtype=float), float(m + 1 + p.tau_R), U)
+
+    def predict(self, model: Model, state: VBState, k: int) -> VBState:
+        x, P = ekf_predict(model, state.x, state.P, k)  # x⁻ = f(x⁺), P̃⁻ = A P⁺ Aᵀ + Q̃
+        return state._replace(x=x, P=P)
+
+    def update(self, model: Model, state: VBState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        x_pr = state.x
+        B, n = x_pr.shape
+        m = z.shape[-1]
+        P_pr = np.broadcast_to(state.P, (B, n, n))
+        H = np.broadcast_to(model.H(x_pr, k), (B, m, n))  # Jacobian at x⁻, fixed in the loop
+        ok = np.isfinite(z)
+        okk = ok[:, :, None] & ok[:, None, :]
+        nu = np.where(ok, z - model.h(x_pr, k), 0.0)  # prior innovation z − h(x⁻)
+        z0 = np.where(ok, z, 0.0)
+
+        # (S3 eq. 14) forgetting of the R-distribution; P-prior re-set from the nominal P̃⁻
+        u_pr = p.rho * (state.u - m - 1) + m + 1
+        U_pr = p.rho * state.U
+        R_exp = U_pr / (u_pr - m - 1)  # current E[R], stands in for missing channels
+        u = u_pr + 1.0
+        T_pr = p.tau_P * P_pr  # t⁻ = n + τ_P + 1  ⇒  t − n − 1 = τ_P + 1
+
+        x_it, P_it, U = x_pr, P_pr, U_pr
+        active = np.ones(B, dtype=bool)  # with tol > 0 a converged run stops iterating
+        iters = np.zeros(B)
+        fixed_any = np.zeros(B, dtype=bool)
+        for it in range(p.iterations):
+            # P-part: A_P = P⁽ⁱᵗ⁾ + δx δxᵀ ; T = T⁻ + A_P ; P̂ = T/(t − n − 1)
+            if p.adapt_P:
+                dx = x_it - x_pr
+                P_hat = (T_pr + P_it + dx[:, :, None] * dx[:, None, :]) / (p.tau_P + 1.0)
+            else:
+                P_hat = P_pr
+            # R-part: r = z − h(x⁽ⁱᵗ⁾) ; B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ ; U = U⁻ + B_R ; R̂ = U/(u − m − 1)
+            r = np.where(ok, z0 - model.h(x_it, k), 0.0)
+            B_R = r[:, :, None] * r[:, None, :] + H @ P_it @ mT(H)
+            B_R = np.where(okk, B_R, R_exp)
+            U_new = U_pr + B_R
+            R_hat = sym(U_new / (u - m - 1))
+            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹ ; missing channels get a zero gain column
+            _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
+            S = sym(H_m @ P_hat @ mT(H_m) + R_m)
+            K, fixed = gain(P_hat, H_m, S)
+            x_new = x_pr + mv(K, nu_m)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
+            P_new = joseph(P_hat, K, H_m, R_m)  # = P̂ − K H P̂ for this optimal gain
+            fixed_any |= np.broadcast_to(fixed, (B,)) & active
+            iters += active
+            if it == 0 or p.tol == 0:  # every run active
+                done = None
+                if p.tol > 0:
+                    done = _converged(x_new, x_it, x_pr, p.tol)
+                x_it, P_it, U, S_out, R_out, P_hat_out = x_new, P_new, U_new, S, R_m, P_hat
+            else:
+                a1, a3 = active[:, None], active[:, None, None]
+                done = _converged(x_new, x_it, x_pr, p.tol)
+                x_it = np.where(a1, x_new, x_it)
+                P_it = np.where(a3, P_new, P_it)
+                U = np.where(a3, U_new, U)
+                S_out = np.where(a3, S, S_out)
+                R_out = np.where(a3, R_m, R_out)
+                P_hat_out = np.where(a3, P_hat, P_hat_out)
+            if done is not None:
+                active = active & ~done
+                if not active.any():
+                    break
+        flags = np.zeros(z.shape, dtype=np.int8)
+        flags[fixed_any] = NUMERICAL_FIX
+        R_hat = sym(U / (u - m - 1))  # = the R̂ of each run's last iteration
+        trP = np.trace(P_hat_out, axis1=-2, axis2=-1) / np.trace(P_pr, axis1=-2, axis2=-1)
+        out = StepOut(
+            x=x_it, P=P_it, innov=nu, S=S_out, R_used=R_out, R_hat=R_hat, flags=flags,
+            stats={"vb_iters": iters, "P_scale": trP},
+        )
+        return VBState(x_it, P_it, u, U), out
+
+
+def _converged(x_new: Array, x_old: Array, x_pr: Array, tol: float) -> Array:
+    """(B,) True where ‖x⁽ⁱᵗ⁺¹⁾ − x⁽ⁱᵗ⁾‖ ≤ tol · ‖x⁽ⁱᵗ⁺¹⁾ − x⁻‖ (the fixed point is reached)."""
+    step = np.linalg.norm(x_new - x_old, axis=1)
+    size = np.linalg.norm(x_new - x_pr, axis=1)
+    return step <= tol * size
