@@ -1,0 +1,265 @@
+"""The Learn page's building blocks: step-through figures (pure) and Streamlit renderers.
+
+The maths lives in :mod:`navlab.learn` (no streamlit); here are the Plotly figures of a
+:class:`navlab.learn.StepThrough` and the small Streamlit pieces the page script composes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+import streamlit as st
+from plotly.subplots import make_subplots
+
+from navlab.errors import NavlabError
+from navlab.filters import registry
+from navlab.learn import StepThrough, TinySpec, applicability, filter_info, step_through
+from navlab.ui.colors import TRUTH_COLOR, filter_color, rgba
+
+F32 = np.float32
+CHANNEL_DASH = ("solid", "dot", "dash", "dashdot")
+CONFIG = {"displaylogo": False}
+
+
+# ------------------------------------------------------------------------------- pure figures
+def _a(s: pd.Series) -> np.ndarray:
+    return np.ascontiguousarray(s.to_numpy(dtype=float), dtype=F32)
+
+
+def overview_figure(res: StepThrough, step: int) -> go.Figure:
+    """Four stacked panels over the epochs, the current ``step`` highlighted.
+
+    1 measurement z, the filter's prediction ẑ⁻ and the truth per channel (outliers marked);
+    2 NIS per epoch against the χ²_{1−α}(m) threshold;
+    3 R_used and R̂ against the true R per channel (log scale);
+    4 per-channel weights (1 = untouched) with the flag of each channel as hover text.
+    """
+    color = filter_color(res.key)
+    fig = make_subplots(
+        rows=4, cols=1, shared_xaxes=True, vertical_spacing=0.05,
+        subplot_titles=(
+            "measurement z, prediction ẑ⁻ and truth", "NIS vs χ² threshold",
+            "R used in the gain, R̂ and true R", "weights (1 = untouched)",
+        ),
+        row_heights=(0.32, 0.24, 0.24, 0.2),
+    )
+    df = res.steps
+    ep = res.epoch_table()
+    for i, (ch, g) in enumerate(df.groupby("channel", sort=False)):
+        dash = CHANNEL_DASH[i % len(CHANNEL_DASH)]
+        x = _a(g["epoch"])
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["truth"]), name=f"truth {ch}", mode="lines",
+            line={"color": TRUTH_COLOR, "dash": dash, "width": 1}, legendgroup="truth",
+        ), row=1, col=1)
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["z_pred"]), name=f"prediction ẑ⁻ {ch}", mode="lines+markers",
+            line={"color": color, "dash": dash}, legendgroup="pred",
+        ), row=1, col=1)
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["z"]), name=f"measurement z {ch}", mode="markers",
+            marker={"color": "#555555", "symbol": "circle-open", "size": 8},
+            legendgroup="z",
+        ), row=1, col=1)
+        out = g[g["outlier"]]
+        if len(out):
+            fig.add_trace(go.Scatter(
+                x=_a(out["epoch"]), y=_a(out["z"]), name=f"outlier {ch}", mode="markers",
+                marker={"color": "#d62728", "symbol": "x", "size": 12}, legendgroup="outlier",
+            ), row=1, col=1)
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["R_used"]), name=f"R used {ch}", mode="lines+markers",
+            line={"color": color, "dash": dash}, legendgroup="Rused",
+        ), row=3, col=1)
+        if np.isfinite(g["R_hat"].to_numpy(dtype=float)).any():
+            fig.add_trace(go.Scatter(
+                x=x, y=_a(g["R_hat"]), name=f"R̂ {ch}", mode="lines+markers",
+                line={"color": rgba(color, 0.55), "dash": dash, "width": 3},
+                marker={"symbol": "diamond"}, legendgroup="Rhat",
+            ), row=3, col=1)
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["R_true"]), name=f"true R {ch}", mode="lines",
+            line={"color": TRUTH_COLOR, "dash": dash, "width": 1}, legendgroup="Rtrue",
+        ), row=3, col=1)
+        fig.add_trace(go.Scatter(
+            x=x, y=_a(g["weight"]), name=f"weight {ch}", mode="lines+markers",
+            line={"color": color, "dash": dash}, text=g["flag_name"].astype(str).to_numpy(),
+            hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
+            legendgroup="w",
+        ), row=4, col=1)
+    if len(ep):
+        exceed = ep["nis_exceeds"].to_numpy(dtype=bool)
+        fig.add_trace(go.Bar(
+            x=_a(ep["epoch"]), y=_a(ep["nis"]), name="NIS",
+            marker={"color": np.where(exceed, "#d62728", color).tolist()},
+        ), row=2, col=1)
+        fig.add_trace(go.Scatter(
+            x=_a(ep["epoch"]), y=_a(ep["nis_threshold"]), name="χ² threshold", mode="lines",
+            line={"color": TRUTH_COLOR, "dash": "dash", "shape": "hvh"},
+        ), row=2, col=1)
+    for r in (1, 2, 3, 4):
+        fig.add_vline(x=step, line={"color": "#f0a500", "width": 2}, opacity=0.5, row=r, col=1)
+    fig.update_yaxes(type="log", row=2, col=1)
+    fig.update_yaxes(type="log", row=3, col=1)
+    fig.update_yaxes(range=[-0.05, 1.1], row=4, col=1)
+    fig.update_xaxes(title_text="epoch k", dtick=1, row=4, col=1)
+    fig.update_layout(
+        height=820, margin={"l": 50, "r": 10, "t": 40, "b": 40},
+        legend={"orientation": "h", "y": -0.08}, bargap=0.4,
+    )
+    return fig
+
+
+def step_channels(res: StepThrough, step: int) -> pd.DataFrame:
+    """The per-channel table of one epoch, with readable column names."""
+    rows = res.steps[res.steps["epoch"] == step].copy()
+    if rows.empty:
+        return rows
+    rows["√S"] = np.sqrt(rows["S"].to_numpy(dtype=float))
+    cols = {
+        "channel": "channel", "z": "z", "z_pred": "ẑ⁻ (predicted)", "innov": "innovation ν",
+        "√S": "√S", "innov_norm": "ν/√S", "weight": "weight", "flag_name": "flag",
+        "R_true": "true R", "R_used": "R used", "R_hat": "R̂", "outlier": "outlier added",
+    }
+    stat_cols = [c for c in rows.columns if c.startswith("stat:")]
+    out = rows[list(cols) + stat_cols].rename(columns=cols)
+    return out.rename(columns={c: c[5:] for c in stat_cols}).reset_index(drop=True)
+
+
+def step_states(res: StepThrough, step: int) -> pd.DataFrame:
+    """Prior, posterior and truth of each state at one epoch."""
+    s = res.states[res.states["epoch"] == step].copy()
+    s["σ prior"] = np.sqrt(s["P_prior"].to_numpy(dtype=float))
+    s["σ posterior"] = np.sqrt(s["P_post"].to_numpy(dtype=float))
+    keep = ["state", "truth", "prior", "posterior", "σ prior", "σ posterior", "error"]
+    return s[keep].reset_index(drop=True)
+
+
+# --------------------------------------------------------------------------- cached compute
+@st.cache_data(max_entries=256, show_spinner=False)
+def cached_step_through(key: str, spec: TinySpec) -> StepThrough:
+    return step_through(key, spec)
+
+
+@st.cache_data(max_entries=32, show_spinner=False)
+def cached_applicability(spec: TinySpec) -> pd.DataFrame:
+    rows = []
+    for key, r in applicability(spec).items():
+        cls = registry()[key]
+        rows.append({
+            "filter": key, "label": cls.label, "family": cls.family,
+            "runs on the tiny example": "yes" if r.applicable else "no",
+            "why not": r.reason,
+        })
+    return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------------------------- renderers
+FAMILY_ORDER = ("baseline", "oracle", "robust", "adaptive", "robust-adaptive", "nonlinear")
+
+
+def filter_keys() -> list[str]:
+    """Registered filter keys, grouped by family (baseline first), then by key."""
+    reg = registry()
+    rank = {f: i for i, f in enumerate(FAMILY_ORDER)}
+    return sorted(reg, key=lambda k: (rank.get(reg[k].family, 99), k))
+
+
+def render_filter_card(key: str) -> None:
+    """Idea, paper, equations and parameters of one filter."""
+    cls = registry()[key]
+    info = filter_info(cls)
+    st.header(info["label"])
+    meta = f"**family** {info['family']} · **paper** {info['paper']}"
+    if info["spec_section"]:
+        meta += f" · **spec** ALGORITHMS.md {info['spec_section']}"
+    meta += f" · **key** `{key}`"
+    st.markdown(meta)
+    if info["reconstruction"]:
+        st.warning(
+            "Reconstruction: the original paper could not be retrieved; navlab implements the "
+            "reading documented in its spec section.", icon=":material/construction:",
+        )
+    st.markdown(info["idea"])
+    st.subheader("Key equations")
+    if info["equations"]:
+        for line in info["equations"]:
+            st.latex(line)
+    else:
+        st.info(f"No equations written up for `{key}` yet. {info['summary']}")
+    if info["params"]:
+        with st.expander("Parameters and defaults"):
+            p = pd.DataFrame(info["params"])[["name", "default", "lo", "hi", "help"]]
+            p["default"] = p["default"].astype(str)
+            st.dataframe(p, hide_index=True, width="stretch")
+
+
+def spec_from_state(ss: Any) -> TinySpec:
+    """The TinySpec described by the page's widgets (session-state keys below)."""
+    epochs = int(ss.get("ep", 8))
+    return TinySpec(
+        dims=2 if ss.get("dims", "1-D") == "2-D" else 1,
+        epochs=epochs,
+        outlier_epoch=min(int(ss.get("oe", 5)), epochs),
+        outlier_size=float(ss.get("os", 10.0)),
+        outlier_channel="all" if ss.get("oall", False) else "first",
+        noise_scale=float(ss.get("ns", 1.0)),
+        seed=int(ss.get("seed", 0)),
+    )
+
+
+def render_step(res: StepThrough, step: int) -> None:
+    """What happened at one epoch: NIS against the threshold, the channels, the states."""
+    ep = res.epoch_table().set_index("epoch")
+    row = ep.loc[step]
+    c1, c2, c3, c4 = st.columns(4)
+    c1.metric("NIS γ", f"{row['nis']:.3g}",
+              delta=f"{row['nis'] - row['nis_threshold']:+.3g} vs threshold",
+              delta_color="inverse")
+    c2.metric("χ² threshold", f"{row['nis_threshold']:.3g}",
+              help=f"χ²_(1−α)(m) with α = {res.data.spec.alpha:g}")
+    c3.metric("outlier at this epoch", "yes" if row["outlier"] else "no")
+    flags = res.steps.loc[res.steps["epoch"] == step, "flag_name"].unique().tolist()
+    c4.metric("flags", ", ".join(flags))
+    if row["nis_exceeds"]:
+        st.error(f"Epoch {step}: the NIS {row['nis']:.3g} exceeds the χ² threshold "
+                 f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.")
+    st.markdown("**Per channel** (innovation, its normalised size, the weight/flag the filter "
+                "gave it, the R it used, its R̂ and the filter's own stats)")
+    st.dataframe(step_channels(res, step), hide_index=True, width="stretch")
+    extra = res.extra_stats.get(step, {})
+    if extra:
+        with st.expander("Other stats at this epoch (e.g. per-iteration traces)"):
+            for name, v in extra.items():
+                st.write(f"`{name}`", np.asarray(v))
+    st.markdown("**States**: prior x⁻ (after predict), posterior x⁺ (after update), truth")
+    st.dataframe(step_states(res, step), hide_index=True, width="stretch")
+
+
+def step_buttons(n_steps: int, key: str = "step") -> None:
+    """◀ / ▶ / reset buttons moving the bound step slider (changed through session_state)."""
+
+    def move(d: int) -> None:
+        st.session_state[key] = int(min(n_steps, max(1, st.session_state.get(key, 1) + d)))
+
+    b1, b2, b3, _ = st.columns([1, 1, 1, 5])
+    b1.button("◀ previous", on_click=move, args=(-1,), key=f"{key}_prev", width="stretch")
+    b2.button("next ▶", on_click=move, args=(1,), key=f"{key}_next", width="stretch")
+    b3.button("⟲ first", on_click=move, args=(-n_steps,), key=f"{key}_first", width="stretch")
+
+
+def safe_step_through(key: str, spec: TinySpec) -> StepThrough | None:
+    try:
+        return cached_step_through(key, spec)
+    except NavlabError as exc:
+        st.error(str(exc))
+        return None
+
+
+def spec_summary(spec: TinySpec) -> str:
+    d = dataclasses.asdict(spec)
+    return ", ".join(f"{k}={v}" for k, v in d.items())

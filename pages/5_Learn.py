@@ -1,0 +1,87 @@
+"""Learn: each filter's idea, equations and paper, and a step-through of single updates."""
+
+import streamlit as st
+
+from navlab.learn import TinySpec
+from navlab.ui import learn as ui
+
+st.set_page_config(page_title="navlab · Learn", page_icon=":material/school:", layout="wide")
+
+# Widget defaults live in session_state (no value= on the widgets): the URL still initialises
+# them (bind="query-params"), and the ◀/▶ buttons and range clamping can move them freely.
+DEFAULTS = {"flt": "kf", "dims": "1-D", "ep": 8, "oe": 5, "os": 10.0, "oall": False,
+            "ns": 1.0, "seed": 0, "step": 1}
+for k, v in DEFAULTS.items():
+    st.session_state.setdefault(k, v)
+
+st.title("Learn")
+st.caption(
+    "Pick a filter: its idea, its key equations and the paper, then step through its updates on "
+    "a tiny constant-velocity example with an outlier you place. The URL keeps the filter and "
+    "the step, so a link shows the same update."
+)
+
+keys = ui.filter_keys()
+if not keys:
+    st.info("No filters are registered.")
+    st.stop()
+if st.session_state["flt"] not in keys:
+    st.session_state["flt"] = keys[0]
+key = st.selectbox(
+    "Filter", keys, key="flt", bind="query-params",
+    format_func=lambda k: f"{ui.registry()[k].label}  ({k})",
+)
+
+ui.render_filter_card(key)
+
+st.divider()
+st.subheader("Step through single updates")
+with st.expander("The tiny example", expanded=True):
+    c1, c2, c3 = st.columns(3)
+    dims = c1.segmented_control(
+        "Model", ["1-D", "2-D"], key="dims", bind="query-params",
+        help="1-D: state [p, v], p measured; 2-D: state [x, y, v_x, v_y], x and y measured",
+    ) or "1-D"
+    epochs = c1.slider("Epochs", 2, 30, key="ep", bind="query-params")
+    if st.session_state["oe"] > epochs:
+        st.session_state["oe"] = epochs
+    oe = c2.slider("Outlier at epoch (0 = none)", 0, epochs, key="oe", bind="query-params")
+    os_ = c2.slider(
+        "Outlier size (measurement σ)", -30.0, 30.0, step=0.5, key="os", bind="query-params",
+    )
+    oall = c2.checkbox("Outlier on every channel", key="oall", bind="query-params",
+                       help="Otherwise only the first channel (p or x) is hit.")
+    ns = c3.slider(
+        "True noise σ / assumed σ", 0.25, 5.0, step=0.25, key="ns", bind="query-params",
+        help="Above 1 the filters' R is too small: watch the adaptive filters' R̂ grow.",
+    )
+    seed = c3.number_input("Noise seed", 0, 10_000, step=1, key="seed", bind="query-params")
+
+spec = TinySpec(
+    dims=2 if dims == "2-D" else 1, epochs=int(epochs), outlier_epoch=int(oe),
+    outlier_size=float(os_), outlier_channel="all" if oall else "first",
+    noise_scale=float(ns), seed=int(seed),
+)
+res = ui.safe_step_through(key, spec)
+if res is None:
+    st.stop()
+if not res.applicable:
+    st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}",
+               icon=":material/block:")
+else:
+    if st.session_state["step"] > res.epochs:
+        st.session_state["step"] = res.epochs
+    step = st.slider("Step (epoch k)", 1, res.epochs, key="step", bind="query-params")
+    ui.step_buttons(res.epochs)
+    ui.render_step(res, int(step))
+    st.plotly_chart(
+        ui.overview_figure(res, int(step)), width="stretch", config=ui.CONFIG,
+        alt="Step-through overview: measurements, NIS against the χ² threshold, R and weights",
+    )
+    st.download_button(
+        "Download the step table (CSV)", res.steps.to_csv(index=False).encode(),
+        file_name=f"navlab-learn-{key}.csv", mime="text/csv", on_click="ignore",
+    )
+
+with st.expander("Which filters can run on the tiny example?"):
+    st.dataframe(ui.cached_applicability(spec), hide_index=True, width="stretch")
