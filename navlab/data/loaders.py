@@ -1,0 +1,498 @@
+"""Parsers for ``rtkx_drive_0708``, ``smartloc_berlin_pp`` and the generic CSV format.
+
+Time
+----
+Every table has a ``t_s`` column: seconds from the start of the recording (first GNSS epoch for
+the drives, the file's own time origin for smartLoc). ``DriveRecording.t0_gpst_s`` keeps the
+absolute GPS time (s since 1970-01-01 without leap seconds) of ``t_s = 0``.
+
+Generic format (what a user may upload)
+---------------------------------------
+A directory (or three uploaded files) with comma-separated values and a header line:
+
+``imu.csv`` (required): ``t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`` —
+time [s], specific force [m/s²] and angular rate [rad/s] in the VEHICLE frame x right, y
+forward, z up (a level, parked vehicle reads f ≈ (0, 0, +9.8)).
+
+``gnss.csv`` (required): ``t_s, lat_deg, lon_deg, h_m`` and optionally ``sigma_n_m, sigma_e_m,
+sigma_u_m`` (1-σ position uncertainty) and ``vn_mps, ve_mps, vu_mps`` (velocity).
+
+``truth.csv`` (optional): ``t_s, lat_deg, lon_deg, h_m`` — reference positions for the errors.
+
+Lines starting with ``#`` are comments. Times must increase.
+"""
+
+from __future__ import annotations
+
+import calendar
+import math
+import os
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from navlab.errors import NavlabError
+from navlab.ins.align import RTKX_NOMINAL_C_BV, body_to_vehicle
+from navlab.ins.earth import G0_MPS2
+
+#: Environment variable naming the data directory (overrides ../shared/data).
+ENV_VAR = "NAVLAB_DATA"
+
+RTKX_DIR = "rtkx_drive_0708"
+SMARTLOC_DIR = "smartloc_berlin_pp"
+#: Constant IMU time offset of the rtkx drive (data README: aligns yaw rate with course rate).
+RTKX_IMU_TIME_OFFSET_S = -0.10
+
+RTKX_SOURCE = (
+    "rtkx_drive_0708: public repository rtklibexplorer/GNSS_IMU, folder data/drive_0708 "
+    "(BSD-3-Clause, © 2025 rtklibexplorer). Car drive near Boulder CO: MEMS IMU at 100 Hz "
+    "and a u-blox RTK solution (cm level) used as the truth."
+)
+SMARTLOC_SOURCE = (
+    "smartloc_berlin_pp: the smartLoc dataset (TU Chemnitz; P. Reisdorf, T. Pfeifer, J. Breßler, "
+    "S. Bauer, P. Weissig, S. Lange), as distributed in the public repository TUC-ProAut/libRSF, "
+    "folder datasets/smartLoc; licence CC BY-SA 4.0. Berlin Potsdamer Platz: GPS + GLONASS "
+    "pseudoranges, odometry, NovAtel SPAN ground truth."
+)
+
+
+def repo_root() -> Path:
+    """The repository root (the directory holding the ``navlab`` package)."""
+    return Path(__file__).resolve().parents[2]
+
+
+def data_root(path: str | os.PathLike | None = None) -> Path:
+    """Where the recordings live: ``path``, else ``$NAVLAB_DATA``, else ``<repo>/../shared/data``."""
+    if path is not None and str(path) != "":
+        return Path(path).expanduser()
+    env = os.environ.get(ENV_VAR)
+    if env:
+        return Path(env).expanduser()
+    return repo_root().parent / "shared" / "data"
+
+
+def _recording_dir(name: str, path: str | os.PathLike | None) -> Path:
+    """The folder of recording ``name``; ``path`` may be the data root or the folder itself."""
+    root = data_root(path)
+    if (root / name).is_dir():
+        return root / name
+    if root.name == name and root.is_dir():
+        return root
+    raise NavlabError(
+        f"recording folder '{name}' not found under {root}; set {ENV_VAR}=/path/to/data (the "
+        f"directory holding {name}/) or pass the data directory explicitly"
+    )
+
+
+# ---------------------------------------------------------------------------- parsing helpers
+Range = tuple[float, float, str]
+
+
+def _read_text(path: Path) -> str:
+    if not path.is_file():
+        raise NavlabError(f"{path}: file not found; check the data directory ({ENV_VAR} or --set "
+                          f"scenario.data_dir=...)")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise NavlabError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        try:
+            text = raw.decode("latin-1")
+        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes everything
+            raise NavlabError(f"{path}: not a text file") from None
+    if not text.strip():
+        raise NavlabError(f"{path}: the file is empty; give a file with data rows")
+    return text
+
+
+def _parse_rows(
+    path: Path,
+    names: tuple[str, ...],
+    *,
+    sep: str | None = ",",
+    keyword: str | None = None,
+    skip: Callable[[str], bool] = lambda s: s.startswith(("#", "%")),
+    ranges: dict[str, Range] | None = None,
+    first_line: int = 1,
+    lines: list[str] | None = None,
+) -> np.ndarray:
+    """Parse numeric rows of ``len(names)`` columns with exact line/column error messages.
+
+    ``keyword``: only lines whose first field equals it are parsed (the field is dropped).
+    Extra trailing columns are ignored. Returns (N, len(names)) float64.
+    """
+    if lines is None:
+        lines = _read_text(path).splitlines()
+    ncol = len(names)
+    rows: list[list[float]] = []
+    for i, line in enumerate(lines, start=first_line):
+        s = line.strip()
+        if not s or skip(s):
+            continue
+        parts = s.split(sep) if sep is not None else s.split()
+        if keyword is not None:
+            if parts[0] != keyword:
+                continue
+            parts = parts[1:]
+        parts = [p.strip() for p in parts]
+        if len(parts) < ncol:
+            raise NavlabError(
+                f"{path}: line {i} has {len(parts)} column(s), expected {ncol} "
+                f"({', '.join(names)}); the file is truncated or not in this format"
+            )
+        row = []
+        for j, name in enumerate(names):
+            try:
+                v = float(parts[j])
+            except ValueError:
+                raise NavlabError(
+                    f"{path}: line {i}, column {j + 1} ({name}) is {parts[j][:30]!r}, not a number; "
+                    "fix or delete that line"
+                ) from None
+            if not math.isfinite(v):
+                raise NavlabError(
+                    f"{path}: line {i}, column {j + 1} ({name}) is {parts[j]!r}; "
+                    "NaN/inf values are not allowed — fix or delete that line"
+                )
+            if ranges and name in ranges:
+                lo, hi, unit = ranges[name]
+                if not lo <= v <= hi:
+                    raise NavlabError(
+                        f"{path}: line {i}, column {j + 1} ({name}) = {v:g} is outside the "
+                        f"plausible range [{lo:g}, {hi:g}] {unit}; check the units or fix that line"
+                    )
+            row.append(v)
+        rows.append(row)
+    if not rows:
+        what = f"'{keyword}' lines" if keyword else "data rows"
+        raise NavlabError(f"{path}: no {what} found; the file is empty or not in this format")
+    return np.asarray(rows, dtype=float)
+
+
+def _check_increasing(path: Path, t: np.ndarray, what: str = "time") -> None:
+    d = np.diff(t)
+    bad = np.flatnonzero(d < 0)
+    if bad.size:
+        raise NavlabError(
+            f"{path}: {what} goes backwards at data row {bad[0] + 2} ({t[bad[0]]:.3f} -> "
+            f"{t[bad[0] + 1]:.3f}); sort the rows by time"
+        )
+
+
+# ---------------------------------------------------------------------------- drives
+@dataclass(frozen=True, eq=False)
+class DriveRecording:
+    """An IMU + GNSS (+ truth) recording for the loosely coupled INS/GNSS scenario.
+
+    Attributes
+    ----------
+    name : recording name.
+    imu : DataFrame ``t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps``
+        (IMU body axes) and ``repeated`` (bool: identical to the previous sample).
+    gnss : DataFrame ``t_s, lat_deg, lon_deg, h_m, q, sigma_n_m, sigma_e_m, sigma_u_m,
+        vn_mps, ve_mps, vu_mps`` (NaN where a column is absent).
+    truth : DataFrame ``t_s, lat_deg, lon_deg, h_m`` or None.
+    C_bv : (3, 3) rotation IMU body -> vehicle (x right, y forward, z up).
+    t0_gpst_s : absolute GPS time of t_s = 0 (s since 1970, no leap seconds), NaN if unknown.
+    source : provenance and licence statement.
+    """
+
+    name: str
+    imu: pd.DataFrame
+    gnss: pd.DataFrame
+    truth: pd.DataFrame | None
+    C_bv: np.ndarray
+    t0_gpst_s: float
+    source: str
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.gnss.t_s.iloc[-1] - self.gnss.t_s.iloc[0])
+
+
+IMU_COLS = ("f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps")
+GNSS_COLS = ("t_s", "lat_deg", "lon_deg", "h_m", "q", "sigma_n_m", "sigma_e_m", "sigma_u_m",
+             "vn_mps", "ve_mps", "vu_mps")
+
+
+def read_rtklib_tag(path: Path) -> tuple[float, np.ndarray]:
+    """RTKLIB demo5 time-tag file: (start time [s since 1970, GPST], tick_ms records (N,))."""
+    if not path.is_file():
+        raise NavlabError(f"{path}: file not found (the IMU time-tag file must sit next to the CSV)")
+    b = path.read_bytes()
+    if len(b) < 84 or not b[:7] == b"TIMETAG":
+        raise NavlabError(
+            f"{path}: not an RTKLIB time-tag file (it must start with 'TIMETAG' and hold a 76-byte "
+            "header plus 8-byte records); use the .tag file written with the IMU log"
+        )
+    _tick_f, t_start, frac = struct.unpack("<IId", b[60:76])
+    if (len(b) - 76) % 8:
+        raise NavlabError(f"{path}: truncated after byte {len(b) - (len(b) - 76) % 8}; "
+                          "the records are 8 bytes each — use an intact copy")
+    rec = np.frombuffer(b[76:], dtype="<u4").reshape(-1, 2)
+    ticks = rec[:, 0].astype(float)
+    if not math.isfinite(frac) or not 0 <= frac < 1 or np.any(np.diff(ticks) < 0):
+        raise NavlabError(f"{path}: corrupt header or tick records (fraction {frac!r}); "
+                          "use an intact copy of the tag file")
+    return float(t_start) + float(frac), ticks
+
+
+def read_rtklib_pos(path: Path) -> pd.DataFrame:
+    """RTKLIB .pos solution (GPST date/time, lat/lon/h, Q, ns, σ's, velocities)."""
+    lines = _read_text(path).splitlines()
+    t_abs: list[float] = []
+    body: list[str] = []
+    first = None
+    for i, line in enumerate(lines, start=1):
+        s = line.strip()
+        if not s or s.startswith("%"):
+            continue
+        parts = s.split()
+        try:
+            ymd = [int(v) for v in parts[0].split("/")]
+            hh, mm, ss = parts[1].split(":")
+            sec = float(ss)
+            t = calendar.timegm((ymd[0], ymd[1], ymd[2], int(hh), int(mm), 0)) + sec
+        except (ValueError, IndexError):
+            raise NavlabError(
+                f"{path}: line {i}, columns 1-2 must be 'YYYY/MM/DD hh:mm:ss.sss' (GPST), got "
+                f"{' '.join(parts[:2])[:40]!r}; output the solution with time format 'yyyy/mm/dd'"
+            ) from None
+        if first is None:
+            first = i
+        t_abs.append(t)
+        body.append(" ".join(parts[2:]))
+    if not body:
+        raise NavlabError(f"{path}: no solution epochs found (only header lines)")
+    names = ("lat_deg", "lon_deg", "h_m", "q", "ns", "sdn_m", "sde_m", "sdu_m", "sdne_m", "sdeu_m",
+             "sdun_m", "age_s", "ratio", "vn_mps", "ve_mps", "vu_mps")
+    ranges = {
+        "lat_deg": (-90.0, 90.0, "deg"), "lon_deg": (-180.0, 360.0, "deg"),
+        "h_m": (-1000.0, 1e5, "m"), "q": (0.0, 7.0, ""), "sdn_m": (0.0, 1e4, "m"),
+        "sde_m": (0.0, 1e4, "m"), "sdu_m": (0.0, 1e4, "m"), "vn_mps": (-500.0, 500.0, "m/s"),
+        "ve_mps": (-500.0, 500.0, "m/s"), "vu_mps": (-500.0, 500.0, "m/s"),
+    }
+    # line numbers: body lines are exactly the non-header lines in order
+    data_lines = [ln for ln in lines if ln.strip() and not ln.strip().startswith("%")]
+    idx = [i for i, ln in enumerate(lines, start=1) if ln.strip() and not ln.strip().startswith("%")]
+    arr = np.empty((len(body), len(names)))
+    for r, (i, _ln) in enumerate(zip(idx, data_lines, strict=True)):
+        arr[r] = _parse_rows(path, names, sep=None, ranges=ranges, lines=[body[r]], first_line=i)[0]
+    t = np.asarray(t_abs)
+    _check_increasing(path, t)
+    df = pd.DataFrame(arr, columns=names)
+    df.insert(0, "t_gpst_s", t)
+    return df
+
+
+def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
+    """Load the rtkx_drive_0708 car drive (100 Hz MEMS IMU, RTKLIB time tags, RTK solution).
+
+    IMU rows are converted from g and deg/s to m/s² and rad/s; their times follow the data
+    README: ``t0 + (ms_i − ms_0)/1000 · (last_tick/1000)/((ms_N − ms_0)/1000) − 0.10 s``.
+    ≈2 % of IMU rows repeat the previous reading (new counter, same values); they are kept and
+    marked in ``imu.repeated``. The truth is the RTK-fixed part (Q = 1) of the solution.
+    """
+    d = _recording_dir(RTKX_DIR, path)
+    f_imu = d / "imu_1934.csv"
+    lim_g, lim_w = 16.0, 2000.0
+    raw = _parse_rows(
+        f_imu, ("ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "ms"),
+        ranges={"ax_g": (-lim_g, lim_g, "g"), "ay_g": (-lim_g, lim_g, "g"),
+                "az_g": (-lim_g, lim_g, "g"), "gx_dps": (-lim_w, lim_w, "deg/s"),
+                "gy_dps": (-lim_w, lim_w, "deg/s"), "gz_dps": (-lim_w, lim_w, "deg/s"),
+                "ms": (0.0, 2.0**32, "ms")},
+    )
+    _check_increasing(f_imu, raw[:, 6], "the millisecond counter (column 7)")
+    if raw.shape[0] < 100:
+        raise NavlabError(f"{f_imu}: only {raw.shape[0]} IMU rows; the file is truncated")
+    t_start, ticks = read_rtklib_tag(d / "imu_1934.csv.tag")
+    ms = raw[:, 6]
+    span = (ms[-1] - ms[0]) / 1000.0
+    if span <= 0:
+        raise NavlabError(f"{f_imu}: the millisecond counter does not advance")
+    scale = (ticks[-1] / 1000.0) / span
+    if not 0.9 < scale < 1.1:
+        raise NavlabError(
+            f"{d / 'imu_1934.csv.tag'}: its last tick ({ticks[-1]:.0f} ms) does not match the IMU "
+            f"span ({span:.1f} s); the tag file belongs to another log"
+        )
+    t_imu_abs = t_start + (ms - ms[0]) / 1000.0 * scale + RTKX_IMU_TIME_OFFSET_S
+    pos = read_rtklib_pos(d / "gnss_1934_sf.pos")
+    t0 = float(pos.t_gpst_s.iloc[0])
+    imu = pd.DataFrame(
+        np.column_stack([raw[:, 0:3] * G0_MPS2, np.radians(raw[:, 3:6])]), columns=IMU_COLS
+    )
+    imu.insert(0, "t_s", t_imu_abs - t0)
+    imu["repeated"] = np.r_[False, np.all(raw[1:, :6] == raw[:-1, :6], axis=1)]
+    gnss = pd.DataFrame({
+        "t_s": pos.t_gpst_s - t0, "lat_deg": pos.lat_deg, "lon_deg": pos.lon_deg, "h_m": pos.h_m,
+        "q": pos.q.astype(int), "sigma_n_m": pos.sdn_m, "sigma_e_m": pos.sde_m,
+        "sigma_u_m": pos.sdu_m, "vn_mps": pos.vn_mps, "ve_mps": pos.ve_mps, "vu_mps": pos.vu_mps,
+    })
+    truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m"]].reset_index(drop=True)
+    if len(truth) < 2:
+        raise NavlabError(f"{d / 'gnss_1934_sf.pos'}: fewer than 2 RTK-fixed (Q=1) epochs")
+    return DriveRecording(
+        name=RTKX_DIR, imu=imu, gnss=gnss, truth=truth,
+        C_bv=body_to_vehicle(nominal=RTKX_NOMINAL_C_BV), t0_gpst_s=t0, source=RTKX_SOURCE,
+    )
+
+
+# ---------------------------------------------------------------------------- generic CSV
+def _read_header_csv(path: Path, required: tuple[str, ...], optional: tuple[str, ...],
+                     ranges: dict[str, Range]) -> pd.DataFrame:
+    lines = _read_text(path).splitlines()
+    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")),
+                 None)
+    if hdr_i is None:
+        raise NavlabError(f"{path}: no header line; the first line must name the columns "
+                          f"({', '.join(required)})")
+    header = [h.strip() for h in lines[hdr_i].split(",")]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise NavlabError(
+            f"{path}: line {hdr_i + 1} (header) lacks column(s) {', '.join(missing)}; the header "
+            f"must contain {', '.join(required)} (optional: {', '.join(optional) or 'none'})"
+        )
+    try:
+        float(header[0])
+        raise NavlabError(f"{path}: line {hdr_i + 1} is numbers, not a header; add a header line")
+    except ValueError:
+        pass
+    arr = _parse_rows(path, tuple(header), lines=lines[hdr_i + 1:], first_line=hdr_i + 2,
+                      ranges=ranges, skip=lambda s: s.startswith("#"))
+    df = pd.DataFrame(arr, columns=header)
+    keep = [c for c in (*required, *optional) if c in df.columns]
+    df = df[keep].copy()
+    _check_increasing(path, df.t_s.to_numpy())
+    return df
+
+
+_POS_RANGES: dict[str, Range] = {
+    "lat_deg": (-90.0, 90.0, "deg"), "lon_deg": (-180.0, 360.0, "deg"),
+    "h_m": (-1000.0, 1e5, "m"), "sigma_n_m": (0.0, 1e4, "m"), "sigma_e_m": (0.0, 1e4, "m"),
+    "sigma_u_m": (0.0, 1e4, "m"), "vn_mps": (-500.0, 500.0, "m/s"),
+    "ve_mps": (-500.0, 500.0, "m/s"), "vu_mps": (-500.0, 500.0, "m/s"),
+}
+
+
+def load_generic(imu_csv: str | os.PathLike, gnss_csv: str | os.PathLike,
+                 truth_csv: str | os.PathLike | None = None, name: str = "user upload") -> DriveRecording:
+    """Load the generic CSV format (see the module docstring for the columns and units)."""
+    imu_ranges = {c: (-160.0, 160.0, "m/s²") for c in IMU_COLS[:3]}
+    imu_ranges.update({c: (-35.0, 35.0, "rad/s (a value this large usually means deg/s)")
+                       for c in IMU_COLS[3:]})
+    imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges)
+    if len(imu) < 100:
+        raise NavlabError(f"{imu_csv}: only {len(imu)} IMU rows; give at least 100 samples")
+    fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy()[:50].mean(axis=0))
+    if not 5.0 < fz < 15.0:
+        raise NavlabError(
+            f"{imu_csv}: the first samples' specific force has magnitude {fz:.3g}, not ≈ 9.8 m/s²; "
+            "give f_*_mps2 in m/s² (multiply g by 9.80665) and start with the vehicle at rest"
+        )
+    imu["repeated"] = np.r_[False, np.all(np.diff(imu[list(IMU_COLS)].to_numpy(), axis=0) == 0, axis=1)]
+    opt = ("sigma_n_m", "sigma_e_m", "sigma_u_m", "vn_mps", "ve_mps", "vu_mps")
+    gnss = _read_header_csv(Path(gnss_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), opt, _POS_RANGES)
+    if len(gnss) < 3:
+        raise NavlabError(f"{gnss_csv}: only {len(gnss)} GNSS rows; give at least 3 epochs")
+    for c in opt:
+        if c not in gnss.columns:
+            gnss[c] = np.nan
+    gnss["q"] = 0
+    gnss = gnss[list(GNSS_COLS)]
+    truth = None
+    if truth_csv is not None:
+        truth = _read_header_csv(Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), (), _POS_RANGES)
+    if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
+        raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
+    return DriveRecording(
+        name=name, imu=imu, gnss=gnss.reset_index(drop=True), truth=truth, C_bv=np.eye(3),
+        t0_gpst_s=float("nan"), source=f"{name}: user-provided files (generic navlab CSV format)",
+    )
+
+
+def load_drive(data_dir: str | os.PathLike | None = None) -> DriveRecording:
+    """``rtkx_drive_0708`` from the data root, or a generic-format folder (imu.csv, gnss.csv[, truth.csv])."""
+    if data_dir:
+        d = Path(data_dir).expanduser()
+        if (d / "imu.csv").exists() or (d / "gnss.csv").exists():
+            truth = d / "truth.csv"
+            return load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None,
+                                name=d.name)
+    return rtkx_drive_0708(data_dir)
+
+
+# ---------------------------------------------------------------------------- smartLoc
+@dataclass(frozen=True, eq=False)
+class PseudorangeRecording:
+    """Pseudoranges, odometry and ground truth of a smartLoc recording.
+
+    Attributes
+    ----------
+    pr : DataFrame ``t_s, pseudorange_m, var_m2, sat_x_m, sat_y_m, sat_z_m, sat_id, system,
+        elevation_deg, cn0_dbhz`` (system: 1 GPS, 4 GLONASS, …; satellite ECEF at transmit time).
+    odom : DataFrame ``t_s, speed_mps, yaw_rate_radps`` (yaw rate about the vehicle up axis,
+        counter-clockwise positive).
+    truth : DataFrame ``t_s, x_m, y_m, z_m`` (ECEF, SPAN).
+    """
+
+    name: str
+    pr: pd.DataFrame
+    odom: pd.DataFrame
+    truth: pd.DataFrame
+    source: str
+
+    @property
+    def epochs_s(self) -> np.ndarray:
+        return np.unique(self.pr.t_s.to_numpy())
+
+
+PR_NAMES = ("t_s", "pseudorange_m", "var_m2", "sat_x_m", "sat_y_m", "sat_z_m", "sat_id", "system",
+            "elevation_deg", "cn0_dbhz")
+
+
+def smartloc_berlin_pp(path: str | os.PathLike | None = None) -> PseudorangeRecording:
+    """Load smartLoc Berlin Potsdamer Platz (``*_Input.txt`` and ``*_GT.txt``)."""
+    d = _recording_dir(SMARTLOC_DIR, path)
+    f_in = d / "Berlin_Potsdamer_Platz_Input.txt"
+    f_gt = d / "Berlin_Potsdamer_Platz_GT.txt"
+    lines = _read_text(f_in).splitlines()
+    pr_ranges = {
+        "t_s": (-1e6, 1e7, "s"), "pseudorange_m": (1.0e7, 6.0e7, "m"),
+        "var_m2": (1e-6, 1e10, "m²"), "sat_x_m": (-5e7, 5e7, "m"), "sat_y_m": (-5e7, 5e7, "m"),
+        "sat_z_m": (-5e7, 5e7, "m"), "system": (1, 32, ""), "elevation_deg": (-10.0, 90.0, "deg"),
+        "cn0_dbhz": (0.0, 80.0, "dBHz"),
+    }
+    pr = _parse_rows(f_in, PR_NAMES, sep=None, keyword="pseudorange3", lines=lines, ranges=pr_ranges)
+    od = _parse_rows(f_in, ("t_s", "vx", "vy", "vz", "wx", "wy", "wz"), sep=None, keyword="odom3",
+                     lines=lines, ranges={"vx": (-100.0, 100.0, "m/s"), "wz": (-10.0, 10.0, "rad/s")})
+    gt = _parse_rows(f_gt, ("t_s", "x_m", "y_m", "z_m"), sep=None, keyword="point3",
+                     ranges={"x_m": (-7e6, 7e6, "m"), "y_m": (-7e6, 7e6, "m"), "z_m": (-7e6, 7e6, "m")})
+    r = np.linalg.norm(pr[:, 3:6], axis=1)
+    bad = np.flatnonzero((r < 1.9e7) | (r > 3.0e7))
+    if bad.size:
+        raise NavlabError(f"{f_in}: pseudorange row {bad[0] + 1} has a satellite {r[bad[0]]:.4g} m from "
+                          "the Earth's centre (expected 2.0e7–2.6e7); columns 5-7 must be ECEF metres")
+    rg = np.linalg.norm(gt[:, 1:4], axis=1)
+    bad = np.flatnonzero(np.abs(rg - 6.37e6) > 5e4)
+    if bad.size:
+        raise NavlabError(f"{f_gt}: point3 row {bad[0] + 1} is {rg[bad[0]]:.4g} m from the Earth's "
+                          "centre, not on the ground; columns 3-5 must be ECEF metres")
+    _check_increasing(f_in, pr[:, 0], "pseudorange time")
+    _check_increasing(f_in, od[:, 0], "odometry time")
+    _check_increasing(f_gt, gt[:, 0])
+    pr_df = pd.DataFrame(pr, columns=PR_NAMES)
+    pr_df["sat_id"] = pr_df.sat_id.astype(int)
+    pr_df["system"] = pr_df.system.astype(int)
+    odom = pd.DataFrame({"t_s": od[:, 0], "speed_mps": od[:, 1], "yaw_rate_radps": od[:, 6]})
+    truth = pd.DataFrame(gt, columns=("t_s", "x_m", "y_m", "z_m"))
+    return PseudorangeRecording(SMARTLOC_DIR, pr_df, odom, truth, SMARTLOC_SOURCE)
