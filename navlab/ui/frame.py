@@ -1,0 +1,35 @@
+"""The frame every page draws first: page config, sidebar footer, data/licence note."""
+
+from __future__ import annotations
+
+import streamlit as st
+
+PAGES = (
+    ("app.py", "Home", ":material/home:"),
+    ("pages/1_Compare.py", "Compare filters", ":material/compare_arrows:"),
+    ("pages/2_Noise.py", "Noise: R̂ inspection", ":material/graphic_eq:"),
+    ("pages/3_Sweep.py", "Sweep a parameter", ":material/tune:"),
+)
+
+
+def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
+    """Page config + title (+ an intro line) + sidebar footer. Call first on every page."""
+    st.set_page_config(page_title=f"{title} · navlab", page_icon=icon, layout="wide")
+    st.title(title)
+    if intro:
+        st.caption(intro)
+    st.sidebar.caption(
+        "navlab — robust & adaptive Kalman filters, batched Monte Carlo. "
+        "Every setting is in the URL: copy it to share the exact run."
+    )
+
+
+def page_links(container=None) -> None:
+    """Links to the pages that exist (others' pages appear when their files are added)."""
+    from pathlib import Path
+
+    c = container if container is not None else st
+    root = Path(__file__).resolve().parents[2]
+    for path, label, icon in PAGES:
+        if (root / path).exists():
+            c.page_link(path, label=label, icon=icon)

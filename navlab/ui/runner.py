@@ -1,0 +1,249 @@
+"""Cached and streaming experiment runners for the pages.
+
+* :class:`ResultStore` — one process-wide LRU of finished :class:`~navlab.experiment.Results`,
+  keyed by the spec's JSON and bounded by entry count and bytes (``st.cache_resource`` holds it,
+  so every session shares it and a shared link whose run is cached shows at once). Results are
+  shared, not copied: nothing may mutate them.
+* :func:`metrics_cached` — ``st.cache_data`` of the tidy metric table per spec (sweeps, bounded).
+* :func:`run_live` — run a spec in growing chunks of Monte Carlo runs, calling ``render`` with the
+  accumulated results after each chunk (progress bar, optional Stop button). A rerun that
+  interrupts it (a view control, Stop) keeps the partial results in the session and the next run
+  of the same spec resumes from them: run r always draws from its own seed, so chunking never
+  changes the numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import streamlit as st
+
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
+from navlab.metrics import summarize
+
+PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
+PENDING_KEY = "_navlab_pending"  # session: {page: spec_json} — a run the user asked for
+
+
+def _nbytes(obj: Any, depth: int = 0) -> int:
+    if isinstance(obj, np.ndarray):
+        return int(obj.nbytes)
+    if depth > 4:
+        return 0
+    if isinstance(obj, dict):
+        return sum(_nbytes(v, depth + 1) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return sum(_nbytes(v, depth + 1) for v in obj)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return sum(_nbytes(getattr(obj, f.name), depth + 1) for f in dataclasses.fields(obj))
+    return 0
+
+
+def results_nbytes(res: Results) -> int:
+    """Approximate memory held by a Results (its numpy arrays)."""
+    return _nbytes(res.data) + sum(_nbytes(fr) for fr in res.runs.values())
+
+
+class ResultStore:
+    """Thread-safe LRU of finished results keyed by spec JSON, bounded by entries and bytes."""
+
+    def __init__(self, max_entries: int = 32, max_bytes: int = 768 * 2**20) -> None:
+        self.max_entries, self.max_bytes = max_entries, max_bytes
+        self._d: OrderedDict[str, tuple[Results, int]] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: str) -> Results | None:
+        with self._lock:
+            hit = self._d.get(key)
+            if hit is None:
+                return None
+            self._d.move_to_end(key)
+            return hit[0]
+
+    def put(self, key: str, res: Results) -> None:
+        size = results_nbytes(res)
+        with self._lock:
+            self._d[key] = (res, size)
+            self._d.move_to_end(key)
+            total = sum(s for _, s in self._d.values())
+            while len(self._d) > 1 and (len(self._d) > self.max_entries or total > self.max_bytes):
+                _, (_, s) = self._d.popitem(last=False)
+                total -= s
+
+    def __len__(self) -> int:
+        return len(self._d)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._d.clear()
+
+
+@st.cache_resource(show_spinner=False)
+def result_store() -> ResultStore:
+    """The process-wide result store (shared by every session and page)."""
+    return ResultStore()
+
+
+def cached_results(spec: ExperimentSpec) -> Results | None:
+    return result_store().get(spec.to_json())
+
+
+# --------------------------------------------------------------------------- chunked running
+
+
+def chunk_sizes(total: int, first: int | None = None) -> list[int]:
+    """Growing chunks (≈ 1/10 of the runs first, then doubling): a first chart comes fast and
+    the per-chunk overhead stays small.
+    """
+    first = first or max(1, min(25, -(-total // 10)))
+    out, size, done = [], first, 0
+    while done < total:
+        n = min(size, total - done)
+        out.append(n)
+        done += n
+        size *= 2
+    return out
+
+
+def _concat_data(a: Any, b: Any) -> Any:
+    per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
+    return dataclasses.replace(a, **{f: np.concatenate([getattr(a, f), getattr(b, f)])
+                                     for f in per_run})
+
+
+def iter_chunks(
+    spec: ExperimentSpec, start: Results | None = None, first_chunk: int | None = None
+) -> Iterator[Results]:
+    """Like :func:`navlab.experiment.iter_experiment`, but resumable from partial results.
+
+    ``Results.elapsed_s`` is the compute time (simulation + filtering) summed over chunks.
+    """
+    p = plan(spec)
+    done = 0 if start is None else start.done_runs
+    acc = start
+    elapsed = 0.0 if start is None else start.elapsed_s
+    for n in chunk_sizes(spec.runs - done, first_chunk) if done < spec.runs else []:
+        t0 = time.perf_counter()
+        runs = list(range(done, done + n))
+        data = p.scenario.simulate(p.schedule, p.outliers, runs, spec.seed)
+        out = run_filters(data, p.filters)
+        if acc is None:
+            acc_data, acc_runs = data, out
+        else:
+            acc_data = _concat_data(acc.data, data)
+            acc_runs = {k: FilterRun.concat([acc.runs[k], out[k]]) for k in out}
+        done += n
+        elapsed += time.perf_counter() - t0
+        acc = Results(spec=spec, data=acc_data, runs=acc_runs, complete=done >= spec.runs,
+                      elapsed_s=elapsed)
+        yield acc
+
+
+def _partials() -> dict[str, tuple[str, Results]]:
+    return st.session_state.setdefault(PARTIAL_KEY, {})
+
+
+def partial_results(page: str, spec: ExperimentSpec) -> Results | None:
+    """The session's interrupted (incomplete) results of ``spec`` on ``page``, if any."""
+    hit = _partials().get(page)
+    return hit[1] if hit and hit[0] == spec.to_json() else None
+
+
+def request_run(page: str, spec: ExperimentSpec) -> None:
+    st.session_state.setdefault(PENDING_KEY, {})[page] = spec.to_json()
+
+
+def cancel_run(page: str) -> None:
+    st.session_state.setdefault(PENDING_KEY, {}).pop(page, None)
+
+
+def run_requested(page: str, spec: ExperimentSpec) -> bool:
+    return st.session_state.get(PENDING_KEY, {}).get(page) == spec.to_json()
+
+
+def show_error(exc: BaseException) -> None:
+    """A user error as a message; anything else as a short error naming the exception."""
+    if isinstance(exc, NavlabError):
+        st.error(str(exc))
+    else:
+        st.error(f"The run failed: {type(exc).__name__}: {exc}")
+
+
+def run_live(
+    spec: ExperimentSpec,
+    page: str,
+    render: Callable[[Results], None] | None = None,
+    *,
+    stop_button: bool = True,
+    first_chunk: int | None = None,
+) -> Results | None:
+    """Finished results of ``spec``: from the store, or computed now with progress and streaming.
+
+    ``render(res)`` is called with the accumulated results after every chunk (and once for a
+    cached result); it should draw into ``st.empty()`` placeholders created before this call.
+    Returns None after a failure (already shown as an error).
+    """
+    key = spec.to_json()
+    store = result_store()
+    res = store.get(key)
+    if res is not None:
+        if render is not None:
+            render(res)
+        return res
+    start = partial_results(page, spec)
+    prog = st.progress(0.0 if start is None else start.done_runs / spec.runs,
+                       text="starting the Monte Carlo…")
+    stop_ph = st.empty()
+    if stop_button:
+        stop_ph.button("Stop", key=f"_stop_{page}", on_click=cancel_run, args=(page,),
+                  help="stop after the current chunk of runs; Run resumes where it stopped")
+    if start is not None and render is not None:
+        render(start)
+    t0 = time.perf_counter()
+    try:
+        for res in iter_chunks(spec, start, first_chunk):
+            _partials()[page] = (key, res)
+            prog.progress(res.done_runs / spec.runs,
+                          text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute")
+            if render is not None:
+                render(res)
+    except Exception as exc:  # shown to the user, never a traceback
+        prog.empty()
+        stop_ph.empty()
+        cancel_run(page)
+        show_error(exc)
+        return None
+    assert res is not None
+    stop_ph.empty()
+    store.put(key, res)
+    _partials().pop(page, None)
+    cancel_run(page)
+    prog.progress(1.0, text=f"done: {spec.runs} runs, {res.elapsed_s:.2f} s compute, "
+                            f"{time.perf_counter() - t0:.2f} s on the page")
+    return res
+
+
+# --------------------------------------------------------------------------- metric cache
+
+
+@st.cache_data(max_entries=512, show_spinner=False)
+def _metrics_json(spec_json: str) -> pd.DataFrame:
+    from navlab.experiment import run_experiment
+
+    return summarize(run_experiment(ExperimentSpec.from_json(spec_json)))
+
+
+def metrics_cached(spec: ExperimentSpec) -> pd.DataFrame:
+    """Tidy metric table of ``spec`` (cached by its JSON; bounded to 512 configurations)."""
+    res = result_store().get(spec.to_json())
+    if res is not None:
+        return summarize(res)
+    return _metrics_json(spec.to_json())

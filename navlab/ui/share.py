@@ -1,0 +1,75 @@
+"""Sharing: configuration JSON download/upload and CSV downloads (streamlit)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pandas as pd
+import streamlit as st
+
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec
+from navlab.ui.widgets import spec_to_state
+
+UPLOAD_MSG_KEY = "_navlab_upload_msg"
+
+
+def config_download(spec: ExperimentSpec, name: str = "navlab-config.json", key: str = "dl_cfg",
+                    container=None) -> None:
+    """Download button for the configuration (the same JSON the CLI reads with --config)."""
+    c = container if container is not None else st
+    c.download_button("Configuration (JSON)", spec.to_json(indent=2), file_name=name,
+                      mime="application/json", key=key, on_click="ignore",
+                      help="load it back here, or run it with: python -m navlab run --config FILE")
+
+
+def csv_download(df: pd.DataFrame | Callable[[], pd.DataFrame], label: str, name: str, key: str,
+                 container=None) -> None:
+    """Download button for a table as CSV (a callable is evaluated only on click)."""
+    c = container if container is not None else st
+    data = (lambda: df().to_csv(index=False)) if callable(df) else df.to_csv(index=False)
+    c.download_button(label, data, file_name=name, mime="text/csv", key=key, on_click="ignore")
+
+
+def parse_config(raw: bytes) -> ExperimentSpec:
+    """Uploaded bytes → spec; NavlabError saying what is wrong (not JSON, unknown key, …)."""
+    if not raw.strip():
+        raise NavlabError("the uploaded file is empty; upload a navlab configuration JSON")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise NavlabError("the uploaded file is not UTF-8 text; upload a navlab configuration "
+                          "JSON (e.g. one downloaded from this page)") from None
+    return ExperimentSpec.from_json(text)
+
+
+def _on_upload(key: str) -> None:
+    f = st.session_state.get(key)
+    if f is None:
+        return
+    try:
+        spec = parse_config(f.getvalue())
+        hidden = spec_to_state(spec)
+    except NavlabError as exc:
+        st.session_state[UPLOAD_MSG_KEY] = ("error", f"Configuration not loaded: {exc}")
+        return
+    msg = f"Loaded {f.name}: scenario {spec.scenario}, {len(spec.filters)} filters, {spec.runs} runs."
+    if hidden:
+        msg += (" Settings without a widget (kept for this session, not in the URL): "
+                + ", ".join(hidden))
+    st.session_state[UPLOAD_MSG_KEY] = ("success", msg)
+
+
+def config_upload(key: str = "up_cfg", container=None) -> None:
+    """Uploader that loads a configuration JSON into the widgets (and so into the URL).
+
+    A broken file leaves the widgets untouched and shows an error saying what is wrong.
+    """
+    c = container if container is not None else st
+    c.file_uploader("Load a configuration (JSON)", type=["json"], key=key,
+                    on_change=_on_upload, args=(key,),
+                    help="a file downloaded with 'Configuration (JSON)' or a CLI --config file")
+    msg = st.session_state.pop(UPLOAD_MSG_KEY, None)
+    if msg:
+        kind, text = msg
+        (c.error if kind == "error" else c.success)(text)

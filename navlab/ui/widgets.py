@@ -1,0 +1,381 @@
+"""Experiment configuration widgets, built generically from the registries, bound to the URL.
+
+Every widget that defines a run has a ``key`` and ``bind="query-params"``, so the URL *is* the
+configuration: a shared link reproduces the run. Widgets are generated from
+:func:`navlab.params.describe` of each class's ``Params``, so filters, scenarios, noise schedules
+and outlier models added later appear without touching the pages.
+
+URL / session-state keys (short and stable):
+
+=========================  =============================================
+``scn``                    scenario key
+``flt``                    filter keys (repeated parameter)
+``runs``, ``seed``         Monte Carlo size and base seed
+``noise``, ``out``         noise schedule key, outlier model key
+``sc.<scenario>.<name>``   a scenario parameter
+``ns.<schedule>.<name>``   a noise-schedule parameter
+``ol.<model>.<name>``      an outlier-model parameter (``ol.mixture.contamination`` = α)
+``fp.<filter>.<name>``     a filter parameter
+=========================  =============================================
+
+Only values that differ from their defaults enter the spec (and the URL), so configurations stay
+short and new defaults propagate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import streamlit as st
+
+from navlab.errors import NavlabError
+from navlab.experiment import MAX_RUNS, ExperimentSpec, plan
+from navlab.filters import registry
+from navlab.noise import OUTLIERS, SCHEDULES
+from navlab.params import describe
+from navlab.scenarios import scenario_registry
+
+SCN, FLT, RUNS, SEED, NOISE, OUT = "scn", "flt", "runs", "seed", "noise", "out"
+UI_MAX_RUNS = min(MAX_RUNS, 5000)  # a browser user cannot start more than this per run
+SEED_MAX = 2**31 - 1
+BIND = "query-params"
+EXTRA_KEY = "_navlab_extra_params"  # uploaded settings that have no widget (kept per session)
+
+
+def pkey(kind: str, owner: str, name: str) -> str:
+    """Session-state / URL key of a parameter widget (kind: sc, ns, ol, fp)."""
+    return f"{kind}.{owner}.{name}"
+
+
+# --------------------------------------------------------------------------- defaults
+
+
+@dataclass(frozen=True)
+class PageDefaults:
+    """What a page shows before the user (or the URL) changes anything.
+
+    ``filters``/``runs`` None take the scenario's ``default_filters``/``default_runs``.
+    """
+
+    scenario: str = "cv2d"
+    filters: tuple[str, ...] | None = None
+    runs: int | None = None
+    seed: int = 1
+    noise_schedule: str = "constant"
+    outliers: str = "mixture"
+
+
+def scenario_keys() -> list[str]:
+    reg = scenario_registry()
+    return sorted(reg, key=lambda k: (k != "cv2d", k))
+
+
+def filter_keys() -> list[str]:
+    return list(registry())
+
+
+def default_filters(scn: str, defaults: PageDefaults) -> list[str]:
+    reg = registry()
+    want = defaults.filters
+    if want is None:
+        want = scenario_registry()[scn].default_filters
+    return [k for k in want if k in reg]
+
+
+def default_runs(scn: str, defaults: PageDefaults) -> int:
+    n = defaults.runs if defaults.runs is not None else scenario_registry()[scn].default_runs
+    return int(max(1, min(UI_MAX_RUNS, n)))
+
+
+def outlier_param_default(scn: str, model: str, name: str, class_default: Any) -> Any:
+    """The scenario's override of an outlier-model default (e.g. cv2d's isolated preset)."""
+    over = scenario_registry()[scn].outlier_defaults.get(model, {})
+    v = over.get(name, class_default)
+    return tuple(v) if isinstance(v, list) else v
+
+
+# --------------------------------------------------------------------------- generic widget
+
+
+def _float_step(default: float, lo: float | None, hi: float | None) -> float:
+    if default:
+        return float(10 ** (math.floor(math.log10(abs(default))) - 1))
+    if lo is not None and hi is not None and hi > lo:
+        return float(10 ** math.floor(math.log10((hi - lo) / 100)))
+    return 0.1
+
+
+def param_widget(p: dict[str, Any], key: str, default: Any, container: Any = None) -> Any:
+    """One bound widget for a parameter described by :func:`navlab.params.describe`.
+
+    Returns the widget's value, or ``default`` for parameters that have no widget (tuples,
+    ``ui=False``). Ranges come from the parameter's ``lo``/``hi``, so impossible values cannot
+    be entered.
+    """
+    c = container if container is not None else st
+    if not p.get("ui", True) or isinstance(default, tuple):
+        return default
+    label = p["name"].replace("_", " ")
+    help_ = p.get("help") or None
+    lo, hi = p.get("lo"), p.get("hi")
+    if isinstance(default, bool):
+        return c.checkbox(label, value=default, key=key, help=help_, bind=BIND)
+    if isinstance(default, int):
+        return int(c.number_input(
+            label, value=int(default), step=1, key=key, help=help_, bind=BIND,
+            min_value=None if lo is None else math.ceil(lo),
+            max_value=None if hi is None else math.floor(hi),
+        ))
+    if isinstance(default, float):
+        return float(c.number_input(
+            label, value=float(default), step=_float_step(default, lo, hi), format="%g", key=key,
+            help=help_, bind=BIND,
+            min_value=None if lo is None else float(lo),
+            max_value=None if hi is None else float(hi),
+        ))
+    choices = p.get("choices")
+    if choices:
+        opts = list(choices)
+        idx = opts.index(default) if default in opts else 0
+        return c.selectbox(label, opts, index=idx, key=key, help=help_, bind=BIND)
+    if isinstance(default, str):
+        return c.text_input(label, value=default, key=key, help=help_, bind=BIND)
+    return default
+
+
+def param_group(
+    kind: str,
+    owner: str,
+    Params: type,
+    container: Any = None,
+    overrides: dict[str, Any] | None = None,
+    skip: Sequence[str] = (),
+) -> dict[str, Any]:
+    """Widgets for every parameter of ``Params``; returns only the values that differ from the
+    defaults (``overrides`` replaces class defaults, e.g. a scenario's outlier preset).
+    """
+    out: dict[str, Any] = {}
+    for p in describe(Params):
+        if p["name"] in skip:
+            continue
+        default = (overrides or {}).get(p["name"], p["default"])
+        if isinstance(default, list):
+            default = tuple(default)
+        v = param_widget(p, pkey(kind, owner, p["name"]), default, container)
+        if v != default:
+            out[p["name"]] = v
+    return out
+
+
+def has_widgets(Params: type, skip: Sequence[str] = ()) -> bool:
+    return any(
+        p.get("ui", True) and not isinstance(p["default"], tuple) and p["name"] not in skip
+        for p in describe(Params)
+    )
+
+
+# --------------------------------------------------------------------------- compatibility
+
+
+@st.cache_data(max_entries=64, show_spinner=False)
+def scenario_is_linear(scn: str) -> bool | None:
+    """Whether the scenario's nominal model is linear (a 1-run, few-epoch probe; cached).
+
+    A scenario class may declare ``linear = True/False``; otherwise one tiny run is simulated.
+    None when unknown (the probe failed).
+    """
+    cls = scenario_registry()[scn]
+    declared = getattr(cls, "linear", None)
+    if isinstance(declared, bool):
+        return declared
+    try:
+        from navlab.noise import make_outliers, make_schedule
+
+        names = {p["name"] for p in describe(cls.Params)}
+        scen = cls({"epochs": 3} if "epochs" in names else {})
+        data = scen.simulate(make_schedule("constant"), make_outliers("none"), [0], 0)
+        return bool(getattr(data.model, "linear", True))
+    except Exception:  # a probe: any failure means "unknown"
+        return None
+
+
+def filter_problem(fkey: str, scn: str) -> str | None:
+    """Why filter ``fkey`` cannot run on scenario ``scn`` (None if it can, as far as known)."""
+    fcls = registry()[fkey]
+    scls = scenario_registry()[scn]
+    if fcls.family == "oracle" and not scls.simulated:
+        return "needs simulator ground truth (true R, outlier epochs); this scenario is real data"
+    if getattr(fcls, "linear_only", False) and scenario_is_linear(scn) is False:
+        return "needs a linear model (uses F and H only); this scenario's model is nonlinear"
+    return None
+
+
+# --------------------------------------------------------------------------- the sidebar
+
+
+@dataclass
+class Config:
+    """What :func:`experiment_config` read: the spec (None if invalid) and messages to show."""
+
+    spec: ExperimentSpec | None
+    error: str | None = None
+    skipped: dict[str, str] = field(default_factory=dict)  # filter key -> reason
+
+
+def _selectbox(c: Any, label: str, options: list[str], default: str, key: str, **kw: Any) -> str:
+    idx = options.index(default) if default in options else 0
+    return c.selectbox(label, options, index=idx, key=key, bind=BIND, **kw)
+
+
+def experiment_config(
+    defaults: PageDefaults = PageDefaults(),
+    container: Any = None,
+    *,
+    runs_max: int = UI_MAX_RUNS,
+    show_filter_tuning: bool = True,
+) -> Config:
+    """Render the configuration widgets (in ``container``, default the sidebar) → :class:`Config`.
+
+    Filters that cannot run on the chosen scenario are left out of the spec and reported in
+    ``Config.skipped`` with the reason; an invalid combination gives ``Config.error``.
+    """
+    c = container if container is not None else st.sidebar
+    reg, sreg = registry(), scenario_registry()
+    skeys = scenario_keys()
+    scn = _selectbox(c, "Scenario", skeys, defaults.scenario, SCN,
+                     help="the simulated experiment (or real recording) every filter runs on")
+    scls = sreg[scn]
+    c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
+
+    chosen = c.multiselect(
+        "Filters", filter_keys(), default=default_filters(scn, defaults), key=FLT, bind=BIND,
+        help="registry keys; all selected filters see exactly the same measurements",
+    )
+    if chosen:
+        c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
+    col1, col2 = c.columns(2)
+    runs = int(col1.number_input("Monte Carlo runs", min_value=1, max_value=int(runs_max),
+                                 value=min(default_runs(scn, defaults), int(runs_max)), step=10,
+                                 key=RUNS, bind=BIND))
+    seed = int(col2.number_input("Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed,
+                                 step=1, key=SEED, bind=BIND))
+
+    sparams: dict[str, Any] = {}
+    if has_widgets(scls.Params):
+        with c.expander("Scenario parameters", expanded=False):
+            sparams = param_group("sc", scn, scls.Params)
+
+    noise = _selectbox(c, "Noise schedule (true R(t))", list(SCHEDULES), defaults.noise_schedule,
+                       NOISE, help="how the true measurement-noise σ varies over the run")
+    ncls = SCHEDULES[noise]
+    c.caption(ncls.summary)
+    nparams: dict[str, Any] = {}
+    if has_widgets(ncls.Params):
+        with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
+            nparams = param_group("ns", noise, ncls.Params)
+
+    out = _selectbox(c, "Outlier model", list(OUTLIERS), defaults.outliers, OUT,
+                     help="how measurements are contaminated (ground-truth mask recorded)")
+    ocls = OUTLIERS[out]
+    c.caption(ocls.summary)
+    oparams: dict[str, Any] = {}
+    if has_widgets(ocls.Params):
+        over = scls.outlier_defaults.get(out, {})
+        with c.expander("Outlier parameters", expanded=True):
+            oparams = param_group("ol", out, ocls.Params, overrides=over)
+
+    skipped: dict[str, str] = {}
+    run_filters: list[str] = []
+    for k in chosen:
+        if k not in reg:
+            continue
+        why = filter_problem(k, scn)
+        if why:
+            skipped[k] = why
+        else:
+            run_filters.append(k)
+
+    fparams: dict[str, dict[str, Any]] = {}
+    tunable = [k for k in run_filters if has_widgets(reg[k].Params)]
+    if show_filter_tuning and tunable:
+        with c.expander("Filter tuning", expanded=False):
+            for k in tunable:
+                st.markdown(f"**{reg[k].label}** (`{k}`)")
+                vals = param_group("fp", k, reg[k].Params)
+                if vals:
+                    fparams[k] = vals
+
+    extra = st.session_state.get(EXTRA_KEY) or {}
+    spec_d: dict[str, Any] = {
+        "scenario": scn, "filters": tuple(run_filters), "runs": runs, "seed": seed,
+        "noise_schedule": noise, "noise_params": {**extra.get("noise_params", {}), **nparams},
+        "outliers": out, "outlier_params": {**extra.get("outlier_params", {}), **oparams},
+        "scenario_params": {**extra.get("scenario_params", {}), **sparams},
+        "filter_params": fparams,
+    }
+    try:
+        spec = ExperimentSpec.from_dict(spec_d)
+        if run_filters:
+            plan(spec)
+    except NavlabError as exc:
+        return Config(None, str(exc), skipped)
+    if not run_filters:
+        msg = "choose at least one filter" if not skipped else "none of the chosen filters can run here"
+        return Config(None, msg, skipped)
+    return Config(spec, None, skipped)
+
+
+# --------------------------------------------------------------------------- spec -> widgets
+
+
+def spec_to_state(spec: ExperimentSpec) -> list[str]:
+    """Write ``spec`` into the widgets' session state (call from a callback, before widgets render).
+
+    Returns the settings that have no widget (kept for this session in :data:`EXTRA_KEY`, but not
+    in the URL). Raises NavlabError when the spec names something unknown.
+    """
+    p = plan(spec)  # validates every key and value first
+    ss = st.session_state
+    scls = type(p.scenario)
+    ss[SCN] = spec.scenario
+    ss[FLT] = list(spec.filters)
+    ss[RUNS] = int(spec.runs)
+    ss[SEED] = int(spec.seed)
+    ss[NOISE] = spec.noise_schedule
+    ss[OUT] = spec.outliers
+    extra: dict[str, dict[str, Any]] = {}
+    no_widget: list[str] = []
+
+    def put(kind: str, owner: str, Params: type, values: dict[str, Any], section: str,
+            overrides: dict[str, Any] | None = None) -> None:
+        for d in describe(Params):
+            name = d["name"]
+            default = (overrides or {}).get(name, d["default"])
+            v = values.get(name, default)
+            if not d.get("ui", True) or isinstance(d["default"], tuple):
+                if name in values:
+                    extra.setdefault(section, {})[name] = v
+                    no_widget.append(f"{section}.{name}")
+                continue
+            ss[pkey(kind, owner, name)] = list(v) if isinstance(v, tuple) else v
+
+    sp = dict(spec.scenario_params)
+    if spec.epochs is not None:
+        sp["epochs"] = spec.epochs
+    put("sc", spec.scenario, scls.Params, sp, "scenario_params")
+    put("ns", spec.noise_schedule, type(p.schedule).Params, spec.noise_params, "noise_params")
+    op = dict(spec.outlier_params)
+    if spec.contamination is not None:
+        op["contamination"] = spec.contamination
+    if spec.outlier_scale is not None:
+        op["scale"] = spec.outlier_scale
+    put("ol", spec.outliers, type(p.outliers).Params, op, "outlier_params",
+        scls.outlier_defaults.get(spec.outliers, {}))
+    for f in p.filters:
+        put("fp", f.key, type(f).Params, spec.filter_params.get(f.key, {}),
+            f"filter_params.{f.key}")
+    ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
+    return no_widget
