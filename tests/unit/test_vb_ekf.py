@@ -195,7 +195,7 @@ def test_vb_ekf_r_hat_converges_to_the_true_r():
         if k > 200:
             Rh.append(out.R_hat)
     R_mean = np.mean(Rh, axis=(0, 1))
-    np.testing.assert_allclose(np.diag(R_mean), np.diag(R_true), rtol=0.12)
+    np.testing.assert_allclose(np.diag(R_mean), np.diag(R_true), rtol=0.06)
     assert abs(R_mean[0, 1]) < 0.5
 
 
@@ -213,17 +213,22 @@ def test_vb_ekf_r_hat_follows_the_interference_burst():
     assert np.all(Rh[1:, good] < 3 * R0)  # the clean satellites stay near R0
 
 
-def test_vb_ekf_beats_ekf_on_the_burst_and_huang_tau_is_selectable():
-    spec = ExperimentSpec(scenario="gps-ins-pseudorange", filters=("ekf", "vb-ekf"), runs=4,
-                          outliers="none")
-    df = run_experiment(spec).metrics()
-    rm = df[df.metric == "mean_rmse_pos"].set_index("filter").value
-    assert rm["vb-ekf"] < 0.7 * rm["ekf"]
-    # τ_P = 3 (Huang) runs; ALGORITHMS.md §7 reports it loses to τ_P = 10 on sudden bursts
-    spec3 = spec.replace(filter_params={"vb-ekf": {"tau_P": 3.0}})
-    df3 = run_experiment(spec3).metrics()
-    rm3 = df3[df3.metric == "mean_rmse_pos"].set_index("filter").value
-    assert rm3["vb-ekf"] > rm["vb-ekf"]
+def test_reproduction_vbekf_orderings_and_ratios():
+    """`reproduce vbekf` (Hou et al. 2024 Table 1): orderings and ratios, not the paper's numbers."""
+    from navlab.reproduce import COLUMNS, REPRODUCTIONS
+
+    df = REPRODUCTIONS["vbekf"].run(runs=4, seed=1)
+    assert list(df.columns) == COLUMNS
+    v = df.set_index(["filter", "metric"]).value
+    for metric in ("deviation_pos", "rmse_pos"):
+        # oracle (true R) ≤ VB-EKF < EKF: the paper's claim, with the floor below
+        assert v[("oracle-kf", metric)] < v[("vb-ekf", metric)] < v[("ekf", metric)]
+        assert v[("ekf/vb-ekf", f"ratio_{metric}")] > 1.5  # paper: 2.23 and 1.75
+        # Huang's τ_P = 3 lets a sudden burst inflate P̂ (ALGORITHMS.md §7): worse than τ_P = 10
+        assert v[("vb-ekf (τ_P=3)", metric)] > v[("vb-ekf", metric)]
+    paper = df.set_index(["filter", "metric"]).paper
+    assert paper[("ekf", "rmse_pos")] == 11.27
+    assert paper[("vb-ekf", "deviation_pos")] == 3.16
 
 
 def test_vb_ekf_missing_channel_keeps_its_r_hat():
