@@ -131,7 +131,9 @@ class VBEKF(Filter):
         m = z.shape[-1]
         P_pr = np.broadcast_to(state.P, (B, n, n))
         H = np.broadcast_to(model.H(x_pr, k), (B, m, n))  # Jacobian at x⁻, fixed in the loop
+        Ht = mT(H)
         ok = np.isfinite(z)
+        all_ok = bool(ok.all())
         okk = ok[:, :, None] & ok[:, None, :]
         nu = np.where(ok, z - model.h(x_pr, k), 0.0)  # prior innovation z − h(x⁻)
         z0 = np.where(ok, z, 0.0)
@@ -155,13 +157,19 @@ class VBEKF(Filter):
             else:
                 P_hat = P_pr
             # R-part: r = z − h(x⁽ⁱᵗ⁾) ; B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ ; U = U⁻ + B_R ; R̂ = U/(u − m − 1)
-            r = np.where(ok, z0 - model.h(x_it, k), 0.0)
-            B_R = r[:, :, None] * r[:, None, :] + H @ P_it @ mT(H)
-            B_R = np.where(okk, B_R, R_exp)
-            U_new = U_pr + B_R
-            R_hat = sym(U_new / (u - m - 1))
-            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹ ; missing channels get a zero gain column
-            _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
+            r = z0 - model.h(x_it, k)
+            if all_ok:
+                U_new = U_pr + (r[:, :, None] * r[:, None, :] + H @ P_it @ Ht)
+                R_hat = sym(U_new / (u - m - 1))
+                nu_m, H_m, R_m = nu, H, R_hat
+            else:
+                r = np.where(ok, r, 0.0)
+                B_R = r[:, :, None] * r[:, None, :] + H @ P_it @ Ht
+                U_new = U_pr + np.where(okk, B_R, R_exp)
+                R_hat = sym(U_new / (u - m - 1))
+                # missing channels get a zero gain column
+                _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
+            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹
             S = sym(H_m @ P_hat @ mT(H_m) + R_m)
             K, fixed = gain(P_hat, H_m, S)
             x_new = x_pr + mv(K, nu_m)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
