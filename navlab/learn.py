@@ -497,7 +497,7 @@ class StepThrough:
         return 0 if self.data is None else self.data.K
 
     def epoch_table(self) -> pd.DataFrame:
-        """One row per epoch: NIS, threshold, exceeds, outlier present, worst flag, min weight."""
+        """One row per epoch: NIS (filter's S, nominal S₀), threshold, outlier, flag, weight."""
         if self.steps.empty:
             return pd.DataFrame(columns=["epoch", "nis", "nis_threshold", "nis_exceeds"])
         g = self.steps.groupby("epoch", sort=True)
@@ -505,6 +505,8 @@ class StepThrough:
             nis=("nis", "first"),
             nis_threshold=("nis_threshold", "first"),
             nis_exceeds=("nis_exceeds", "first"),
+            nis_nominal=("nis_nominal", "first"),
+            nis_nominal_exceeds=("nis_nominal_exceeds", "first"),
             outlier=("outlier", "any"),
             min_weight=("weight", "min"),
             max_flag=("flag", "max"),
@@ -514,8 +516,8 @@ class StepThrough:
 
 STEP_COLUMNS = [
     "epoch", "t", "channel", "z", "z_pred", "truth", "innov", "S", "innov_norm", "nis",
-    "nis_threshold", "nis_exceeds", "dof", "R_true", "R_used", "R_hat", "weight", "flag",
-    "flag_name", "outlier",
+    "nis_threshold", "nis_exceeds", "dof", "nis_nominal", "nis_nominal_exceeds", "R_true",
+    "R_used", "R_hat", "weight", "flag", "flag_name", "outlier",
 ]
 STATE_COLUMNS = ["epoch", "state", "truth", "prior", "posterior", "P_prior", "P_post", "error"]
 
@@ -635,6 +637,11 @@ def _run(flt: Filter, data: TinyData):
         else:
             nis = float(quad(innov[None, :], S)[0])
         thr = float(chi2.ppf(1.0 - spec.alpha, max(dof, 1)))
+        # the same innovation judged with the nominal S₀ = H P⁻ Hᵀ + R₀ (a robust filter's own S
+        # is already inflated, which hides the outlier from its own NIS)
+        Hk = np.asarray(model.H(x_prior[None, :], k), dtype=float)
+        S0 = Hk @ P_prior @ Hk.T + model.R0
+        nis_nom = float(quad(innov[None, :], S0)[0])
         scal: dict[str, float] = {}
         perch: dict[str, Array] = {}
         for name, v in stats.items():
@@ -654,6 +661,7 @@ def _run(flt: Filter, data: TinyData):
                 "truth": float(model.H_[i] @ xt[k]), "innov": innov[i], "S": S[i, i],
                 "innov_norm": innov[i] / math.sqrt(S[i, i]) if S[i, i] > 0 else np.nan,
                 "nis": nis, "nis_threshold": thr, "nis_exceeds": bool(nis > thr), "dof": dof,
+                "nis_nominal": nis_nom, "nis_nominal_exceeds": bool(nis_nom > thr),
                 "R_true": data.R_true[k, i], "R_used": R_used[i, i],
                 "R_hat": np.nan if R_hat is None else R_hat[i, i],
                 "weight": weights[i], "flag": int(flags[i]),

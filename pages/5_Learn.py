@@ -27,10 +27,8 @@ if not keys:
     st.stop()
 if st.session_state["flt"] not in keys:
     st.session_state["flt"] = keys[0]
-key = st.selectbox(
-    "Filter", keys, key="flt", bind="query-params",
-    format_func=lambda k: f"{ui.registry()[k].label}  ({k})",
-)
+# no format_func: a bound selectbox puts the formatted option in the URL; keys keep it short
+key = st.selectbox("Filter (registry key)", keys, key="flt", bind="query-params")
 
 ui.render_filter_card(key)
 

@@ -42,7 +42,8 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
     fig = make_subplots(
         rows=4, cols=1, shared_xaxes=True, vertical_spacing=0.05,
         subplot_titles=(
-            "measurement z, prediction ẑ⁻ and truth", "NIS vs χ² threshold",
+            "measurement z, prediction ẑ⁻ and truth",
+            "NIS (bars: filter's own S; ◇: nominal S₀) vs χ² threshold",
             "R used in the gain, R̂ and true R", "weights (1 = untouched)",
         ),
         row_heights=(0.32, 0.24, 0.24, 0.2),
@@ -96,6 +97,10 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
         fig.add_trace(go.Bar(
             x=_a(ep["epoch"]), y=_a(ep["nis"]), name="NIS",
             marker={"color": np.where(exceed, "#d62728", color).tolist()},
+        ), row=2, col=1)
+        fig.add_trace(go.Scatter(
+            x=_a(ep["epoch"]), y=_a(ep["nis_nominal"]), name="NIS with nominal R₀",
+            mode="markers", marker={"color": TRUTH_COLOR, "symbol": "diamond-open", "size": 10},
         ), row=2, col=1)
         fig.add_trace(go.Scatter(
             x=_a(ep["epoch"]), y=_a(ep["nis_threshold"]), name="χ² threshold", mode="lines",
@@ -216,17 +221,22 @@ def render_step(res: StepThrough, step: int) -> None:
     """What happened at one epoch: NIS against the threshold, the channels, the states."""
     ep = res.epoch_table().set_index("epoch")
     row = ep.loc[step]
-    c1, c2, c3, c4 = st.columns(4)
-    c1.metric("NIS γ", f"{row['nis']:.3g}",
+    c1, c2, c3, c4, c5 = st.columns(5)
+    c1.metric("NIS γ (filter's S)", f"{row['nis']:.3g}",
               delta=f"{row['nis'] - row['nis_threshold']:+.3g} vs threshold",
-              delta_color="inverse")
-    c2.metric("χ² threshold", f"{row['nis_threshold']:.3g}",
+              delta_color="inverse",
+              help="νᵀS⁻¹ν with the S the filter used (a robust filter's S is already inflated)")
+    c2.metric("NIS with nominal R₀", f"{row['nis_nominal']:.3g}",
+              delta=f"{row['nis_nominal'] - row['nis_threshold']:+.3g} vs threshold",
+              delta_color="inverse", help="νᵀ(HP⁻Hᵀ + R₀)⁻¹ν: what a plain KF would test")
+    c3.metric("χ² threshold", f"{row['nis_threshold']:.3g}",
               help=f"χ²_(1−α)(m) with α = {res.data.spec.alpha:g}")
-    c3.metric("outlier at this epoch", "yes" if row["outlier"] else "no")
+    c4.metric("outlier at this epoch", "yes" if row["outlier"] else "no")
     flags = res.steps.loc[res.steps["epoch"] == step, "flag_name"].unique().tolist()
-    c4.metric("flags", ", ".join(flags))
-    if row["nis_exceeds"]:
-        st.error(f"Epoch {step}: the NIS {row['nis']:.3g} exceeds the χ² threshold "
+    c5.metric("flags", ", ".join(flags))
+    if row["nis_exceeds"] or row["nis_nominal_exceeds"]:
+        which = row["nis"] if row["nis_exceeds"] else row["nis_nominal"]
+        st.error(f"Epoch {step}: the NIS {which:.3g} exceeds the χ² threshold "
                  f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.")
     st.markdown("**Per channel** (innovation, its normalised size, the weight/flag the filter "
                 "gave it, the R it used, its R̂ and the filter's own stats)")

@@ -175,3 +175,19 @@ def test_equations_and_ideas():
     assert all(isinstance(s, str) and s for lines in EQUATIONS.values() for s in lines)
     info = filter_info(registry()["chi2-kf"])
     assert info["equations"] and info["idea"] and info["params"]
+
+
+def test_nominal_nis_equals_own_nis_for_the_kf():
+    res = step_through("kf", TinySpec(dims=2, outlier_epoch=3))
+    np.testing.assert_allclose(res.steps["nis_nominal"], res.steps["nis"], rtol=1e-10)
+
+
+
+@pytest.mark.parametrize("key", ["huber-kf", "chi2-kf", "student-t-kf"])
+def test_robust_filters_own_nis_hides_what_the_nominal_nis_shows(key):
+    """Whatever the filter does with it, a 15σ outlier exceeds χ² against the nominal S₀."""
+    if key not in registry():
+        pytest.skip(f"{key} not registered")
+    res = step_through(key, TinySpec(dims=2, epochs=6, outlier_epoch=4, outlier_size=15.0))
+    ep = res.epoch_table().set_index("epoch")
+    assert ep.loc[4, "nis_nominal"] > res.threshold
