@@ -9,6 +9,9 @@ PAGES = (
     ("pages/1_Compare.py", "Compare filters", ":material/compare_arrows:"),
     ("pages/2_Noise.py", "Noise: R̂ inspection", ":material/graphic_eq:"),
     ("pages/3_Sweep.py", "Sweep a parameter", ":material/tune:"),
+    ("pages/4_Reproduce.py", "Reproduce the papers", ":material/article:"),
+    ("pages/5_Learn.py", "Learn: filters step by step", ":material/school:"),
+    ("pages/6_Real_data.py", "Real data", ":material/directions_car:"),
 )
 
 

@@ -5,7 +5,7 @@
   so every session shares it and a shared link whose run is cached shows at once). Results are
   shared, not copied: nothing may mutate them.
 * :func:`metrics_cached` — ``st.cache_data`` of the tidy metric table per spec (sweeps, bounded).
-* :func:`run_live` — run a spec in growing chunks of Monte Carlo runs, calling ``render`` with the
+* :func:`run_live` — run a spec in a few chunks of Monte Carlo runs, calling ``render`` with the
   accumulated results after each chunk (progress bar, optional Stop button). A rerun that
   interrupts it (a view control, Stop) keeps the partial results in the session and the next run
   of the same spec resumes from them: run r always draws from its own seed, so chunking never
@@ -99,18 +99,21 @@ def cached_results(spec: ExperimentSpec) -> Results | None:
 # --------------------------------------------------------------------------- chunked running
 
 
-def chunk_sizes(total: int, first: int | None = None) -> list[int]:
-    """Growing chunks (≈ 1/10 of the runs first, then doubling): a first chart comes fast and
-    the per-chunk overhead stays small.
+def first_chunk_size(total: int) -> int:
+    """About a tenth of the runs (1 … 25): the first chart comes quickly."""
+    return max(1, min(25, -(-total // 10)))
+
+
+def next_chunk_size(remaining: int, big: int = 200) -> int:
+    """After the first chunk: the rest at once, or thirds (≥ 100 runs) when more than ``big``.
+
+    Every chunk pays the per-epoch Python overhead of every filter once (at ≈ 100 runs that
+    overhead dominates), so after the quick first chunk the fewer chunks the faster; only long
+    runs are split further so the page still updates while they work.
     """
-    first = first or max(1, min(25, -(-total // 10)))
-    out, size, done = [], first, 0
-    while done < total:
-        n = min(size, total - done)
-        out.append(n)
-        done += n
-        size *= 2
-    return out
+    if remaining <= big:
+        return remaining
+    return max(100, -(-remaining // 3))
 
 
 def _concat_data(a: Any, b: Any) -> Any:
@@ -130,7 +133,8 @@ def iter_chunks(
     done = 0 if start is None else start.done_runs
     acc = start
     elapsed = 0.0 if start is None else start.elapsed_s
-    for n in chunk_sizes(spec.runs - done, first_chunk) if done < spec.runs else []:
+    n = min(spec.runs - done, first_chunk or first_chunk_size(spec.runs))
+    while done < spec.runs:
         t0 = time.perf_counter()
         runs = list(range(done, done + n))
         data = p.scenario.simulate(p.schedule, p.outliers, runs, spec.seed)
@@ -145,6 +149,8 @@ def iter_chunks(
         acc = Results(spec=spec, data=acc_data, runs=acc_runs, complete=done >= spec.runs,
                       elapsed_s=elapsed)
         yield acc
+        if done < spec.runs:
+            n = next_chunk_size(spec.runs - done)
 
 
 def _partials() -> dict[str, tuple[str, Results]]:

@@ -1,0 +1,206 @@
+"""Result views shared by pages: live-updating chart/table panels and view-only controls.
+
+A view is created (placeholders laid out) before a run starts and its :meth:`render` is called
+with the accumulated results after every chunk, so curves and tables fill in while the Monte Carlo
+runs. View controls (which error group, which channel, log scale) are ordinary widgets created on
+the first render; changing one reruns the page, which finds the finished results in the store and
+only redraws (no recomputation).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import streamlit as st
+
+from navlab.scenarios import scenario_registry
+from navlab.ui import figures as F
+
+if TYPE_CHECKING:
+    from navlab.experiment import Results
+
+PLOTLY_CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}}
+
+
+def chart(container: Any, fig: Any, alt: str) -> None:
+    """``st.plotly_chart`` with navlab's defaults."""
+    container.plotly_chart(fig, width="stretch", config=PLOTLY_CONFIG, theme=None, alt=alt)
+
+
+def divergence_warnings(res: Results, container: Any = None) -> None:
+    """One warning line per filter with diverged runs (they are excluded from every curve)."""
+    c = container if container is not None else st
+    notes = [f"**{fr.label}**: {F.divergence_note(fr)}" for fr in res.runs.values()
+             if F.divergence_note(fr)]
+    if notes:
+        c.warning("Diverged (non-finite state; excluded from curves and metrics) — "
+                  + "; ".join(notes))
+
+
+def headline_groups(res: Results) -> list[str]:
+    """The scenario's headline error groups that exist in the data (else all groups)."""
+    try:
+        want = scenario_registry()[res.spec.scenario].headline
+    except KeyError:
+        want = ()
+    got = [g for g in want if g in res.data.groups]
+    return got or list(res.data.groups)
+
+
+def channel_label(res: Results, ch: int) -> str:
+    d = res.data
+    name = d.channel_names[ch] if ch < len(d.channel_names) else str(ch)
+    unit = d.channel_units[ch] if ch < len(d.channel_units) else ""
+    return f"{ch}: {name}" + (f" ({unit})" if unit else "")
+
+
+class CompareView:
+    """Error vs time, RMSE table, true R(t) vs R̂, NIS vs χ² — laid out once, redrawn per chunk."""
+
+    def __init__(self, page: str) -> None:
+        self.page = page
+        self.controls = st.container()
+        self.status = st.empty()
+        self.err = st.empty()
+        st.markdown("##### Summary over the analysis window")
+        self.table = st.empty()
+        self.notes = st.empty()
+        left, right = st.columns(2)
+        self.rhat = left.empty()
+        self.nis = right.empty()
+        self._made = False
+        self.group = self.channel = None
+        self.log_err = self.log_r = False
+        self.as_std = False
+
+    def _controls(self, res: Results) -> None:
+        if self._made:
+            return
+        self._made = True
+        c1, c2, c3, c4, c5 = self.controls.columns([2, 1, 2, 1, 1])
+        groups = list(res.data.groups)
+        first = headline_groups(res)[0]
+        self.group = c1.selectbox("Error of", groups, index=groups.index(first),
+                                  format_func=lambda g: f"{res.data.groups[g].label} "
+                                                        f"({res.data.groups[g].unit})",
+                                  key=f"{self.page}_v_group")
+        self.log_err = c2.toggle("log error", key=f"{self.page}_v_logerr")
+        m = res.data.z.shape[2]
+        self.channel = c3.selectbox("R̂ channel", list(range(m)),
+                                    format_func=lambda ch: channel_label(res, ch),
+                                    key=f"{self.page}_v_ch")
+        self.as_std = c4.toggle("σ not R", key=f"{self.page}_v_std",
+                                help="show standard deviations instead of variances")
+        self.log_r = c5.toggle("log R", key=f"{self.page}_v_logr")
+
+    def render(self, res: Results) -> None:
+        self._controls(res)
+        state = "complete" if res.complete else "partial"
+        self.status.caption(
+            f"{res.done_runs}/{res.spec.runs} runs ({state}) · {res.elapsed_s:.2f} s compute · "
+            f"scenario `{res.spec.scenario}`, {res.data.K} epochs"
+        )
+        group = self.group if self.group in res.data.groups else headline_groups(res)[0]
+        chart(self.err, F.error_vs_time(res, group, log_y=self.log_err),
+              "RMSE over time per filter with spread bands")
+        self.table.dataframe(F.summary_table(res, headline_groups(res)), width="stretch")
+        with self.notes.container():
+            divergence_warnings(res)
+        ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
+        chart(self.rhat, F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std),
+              "true R(t) against each filter's R-hat")
+        chart(self.nis, F.nis_vs_chi2(res), "average NIS against its chi-square band")
+
+
+def outlier_summary(res: Results, ch: int) -> str:
+    """One line on the outlier epochs of channel ``ch`` (for captions)."""
+    frac = res.data.outlier_mask[:, :, ch].mean(axis=0)
+    if not frac.any():
+        return "no outliers on this channel"
+    ep = F.outlier_epochs(res, ch)
+    share = float(res.data.outlier_mask[:, 1:, ch].mean())
+    s = f"{100 * share:.1f} % of measurements contaminated"
+    if ep.size:
+        shown = ", ".join(map(str, ep[:12].tolist())) + (" …" if ep.size > 12 else "")
+        s += f"; epochs contaminated in most runs: {shown}"
+    return s
+
+
+def rhat_error_table(res: Results) -> Any:
+    """Per filter and channel: mean |σ̂/σ − 1| (%) against the schedule, for filters with R̂."""
+    import pandas as pd
+
+    d = res.data
+    W = d.window
+    rows = []
+    for key, fr in res.runs.items():
+        if fr.R_hat is None:
+            continue
+        ok = F.ok_runs(fr)
+        row = {"filter": fr.label, "key": key}
+        for ch in range(d.z.shape[2]):
+            with np.errstate(all="ignore"):
+                ratio = np.sqrt(fr.R_hat[ok][:, W, ch]) / np.sqrt(d.R_schedule[W, ch])[None]
+            ratio = ratio[np.isfinite(ratio)]
+            row[channel_label(res, ch)] = (float(100 * np.mean(np.abs(ratio - 1)))
+                                           if ratio.size else float("nan"))
+        rows.append(row)
+    return pd.DataFrame(rows).set_index("filter") if rows else pd.DataFrame()
+
+
+class NoiseView:
+    """R̂ inspection: per channel, true R(t) vs each filter's R̂ (median + band), outlier epochs
+    marked on the time axis, and the R̂ error metric — laid out once, redrawn per chunk.
+    """
+
+    def __init__(self, page: str) -> None:
+        self.page = page
+        self.controls = st.container()
+        self.status = st.empty()
+        self.fig = st.empty()
+        self.outliers = st.empty()
+        st.markdown("##### R̂ error against the schedule: mean |σ̂/σ − 1| over the window (%)")
+        self.table = st.empty()
+        self.notes = st.empty()
+        self._made = False
+        self.channel = 0
+        self.log_r = self.as_std = False
+        self.show_used = True
+
+    def _controls(self, res: Results) -> None:
+        if self._made:
+            return
+        self._made = True
+        c1, c2, c3, c4 = self.controls.columns([3, 1, 1, 2])
+        m = res.data.z.shape[2]
+        self.channel = c1.selectbox("Channel", list(range(m)),
+                                    format_func=lambda ch: channel_label(res, ch),
+                                    key=f"{self.page}_v_ch")
+        self.as_std = c2.toggle("σ not R", key=f"{self.page}_v_std",
+                                help="show standard deviations instead of variances")
+        self.log_r = c3.toggle("log scale", key=f"{self.page}_v_log")
+        self.show_used = c4.toggle("R used by non-adaptive filters", value=True,
+                                   key=f"{self.page}_v_used")
+
+    def render(self, res: Results) -> None:
+        self._controls(res)
+        state = "complete" if res.complete else "partial"
+        self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · "
+                            f"{res.elapsed_s:.2f} s compute")
+        ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
+        fig = F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std,
+                          show_used=self.show_used, outlier_strip=True)
+        chart(self.fig, fig, "true R(t) against each filter's R-hat with outlier epochs")
+        self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
+        tab = rhat_error_table(res)
+        if tab.empty:
+            from navlab.filters import registry
+
+            est = ", ".join(f"`{k}`" for k, c in registry().items() if c.estimates_R)
+            self.table.info("None of the chosen filters estimates R; add one that does "
+                            f"({est or 'none registered yet'}) to see R̂ tracking.")
+        else:
+            self.table.dataframe(tab.drop(columns="key"), width="stretch")
+        with self.notes.container():
+            divergence_warnings(res)

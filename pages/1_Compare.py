@@ -1,0 +1,64 @@
+"""Compare: several filters on the same Monte Carlo data, streamed in as batches of runs finish."""
+
+import streamlit as st
+
+from navlab.metrics import summarize
+from navlab.ui import figures as F
+from navlab.ui.frame import frame
+from navlab.ui.runner import (
+    cached_results,
+    partial_results,
+    request_run,
+    run_live,
+    run_requested,
+)
+from navlab.ui.share import config_download, config_upload, csv_download
+from navlab.ui.views import CompareView
+from navlab.ui.widgets import PageDefaults, experiment_config
+
+PAGE = "compare"
+
+frame("Compare filters", "⚖️",
+      "Every chosen filter runs on the same simulated measurements. Set the experiment in the "
+      "sidebar, press Run; the curves update as batches of Monte Carlo runs finish.")
+
+with st.sidebar:
+    st.header("Experiment")
+cfg = experiment_config(PageDefaults())
+with st.sidebar.expander("Load / save configuration"):
+    config_upload(key="up_cfg_compare")
+
+for key, why in cfg.skipped.items():
+    st.warning(f"`{key}` is left out: it {why}.")
+if cfg.error:
+    st.error(cfg.error)
+    st.stop()
+spec = cfg.spec
+
+c1, c2, c3 = st.columns([1, 1, 4])
+if c1.button("Run", type="primary", key="run_compare"):
+    request_run(PAGE, spec)
+config_download(spec, key="dl_cfg_compare", container=c2)
+c3.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "
+           f"noise `{spec.noise_schedule}` · outliers `{spec.outliers}`")
+
+view = CompareView(PAGE)
+res = None
+if run_requested(PAGE, spec):
+    res = run_live(spec, PAGE, view.render)
+else:
+    res = cached_results(spec) or partial_results(PAGE, spec)
+    if res is not None:
+        view.render(res)
+        if not res.complete:
+            st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
+    else:
+        view.status.info("Press **Run** to simulate this configuration.")
+
+if res is not None and res.complete:
+    st.markdown("##### Downloads")
+    d1, d2, _ = st.columns([1, 1, 3])
+    csv_download(lambda: summarize(res), "Metrics (CSV)", "navlab-metrics.csv",
+                 "dl_metrics_compare", container=d1)
+    csv_download(lambda: F.rmse_curves(res), "RMSE per epoch (CSV)", "navlab-rmse-per-epoch.csv",
+                 "dl_curves_compare", container=d2)

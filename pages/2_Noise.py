@@ -1,0 +1,63 @@
+"""Noise: how each adaptive filter's R̂ follows the true R(t), channel by channel."""
+
+import streamlit as st
+
+from navlab.filters import registry
+from navlab.ui.frame import frame
+from navlab.ui.runner import (
+    cached_results,
+    partial_results,
+    request_run,
+    run_live,
+    run_requested,
+)
+from navlab.ui.share import config_download, config_upload
+from navlab.ui.views import NoiseView
+from navlab.ui.widgets import PageDefaults, experiment_config
+
+PAGE = "noise"
+
+
+def noise_defaults() -> PageDefaults:
+    """A step in σ plus isolated outliers, the KF and (up to 5) filters that estimate R."""
+    reg = registry()
+    est = [k for k, c in reg.items() if c.estimates_R and k != "oracle-kf"][:4]
+    filters = tuple(k for k in ("kf", "oracle-kf", *est) if k in reg)
+    return PageDefaults(filters=filters, runs=50, noise_schedule="step", outliers="isolated")
+
+
+frame("Noise: R̂ inspection", "📈",
+      "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
+      "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.")
+
+with st.sidebar:
+    st.header("Experiment")
+cfg = experiment_config(noise_defaults())
+with st.sidebar.expander("Load / save configuration"):
+    config_upload(key="up_cfg_noise")
+
+for key, why in cfg.skipped.items():
+    st.warning(f"`{key}` is left out: it {why}.")
+if cfg.error:
+    st.error(cfg.error)
+    st.stop()
+spec = cfg.spec
+
+c1, c2, c3 = st.columns([1, 1, 4])
+if c1.button("Run", type="primary", key="run_noise"):
+    request_run(PAGE, spec)
+config_download(spec, key="dl_cfg_noise", container=c2)
+c3.caption(f"{len(spec.filters)} filters × {spec.runs} runs · noise `{spec.noise_schedule}` · "
+           f"outliers `{spec.outliers}`")
+
+view = NoiseView(PAGE)
+if run_requested(PAGE, spec):
+    run_live(spec, PAGE, view.render)
+else:
+    res = cached_results(spec) or partial_results(PAGE, spec)
+    if res is not None:
+        view.render(res)
+        if not res.complete:
+            st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
+    else:
+        view.status.info("Press **Run** to simulate this configuration.")
