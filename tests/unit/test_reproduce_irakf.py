@@ -81,10 +81,15 @@ def test_notes_explain_misses(table):
 def test_curves_written(table):
     _, out = table
     for exp in ("isolated", "continuous"):
-        c = pd.read_csv(out / f"irakf_{exp}_rmse_curves.csv")
-        assert {"epoch", "filter", "rmse_x_pos", "rmse_x_vel"} <= set(c.columns)
+        c = pd.read_csv(out / f"irakf_{exp}_rmse_x_pos.csv")
         assert c.epoch.max() == 100
-        assert set(c["filter"]) >= {"kf", "irakf"}
+        assert {"kf_rmse_x_pos_m", "irakf_rmse_x_pos_m", "oracle-kf_rmse_x_pos_m"} <= set(c.columns)
+        v = pd.read_csv(out / f"irakf_{exp}_rmse_x_vel.csv")
+        assert "irakf_rmse_x_vel_mps" in v.columns
+        s = pd.read_csv(out / f"irakf_{exp}_sigma_x.csv")
+        assert s.true_sigma_x_m.iloc[1] == pytest.approx(2.0)
+        assert s.true_sigma_x_m.max() == pytest.approx(np.sqrt(68.0))  # outlier epochs
+        assert np.isfinite(s.irakf_sigma_hat_x_m.iloc[1:]).all()
 
 
 def test_cli_json(capsys):
