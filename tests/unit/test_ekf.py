@@ -6,6 +6,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, run_experiment
 from navlab.filters import LinearModel, SideInfo, make_filter
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios import make_scenario
@@ -177,3 +179,38 @@ def test_pseudorange_transition_has_the_mixed_order():
     np.testing.assert_array_equal(F[[0, 1], [3, 4]], 0.0)
     np.testing.assert_allclose(model.Q(1), model.Q(1).T)
     assert np.all(np.linalg.eigvalsh(model.Q(1)) > 0)
+
+
+def test_pseudorange_interference_and_schedules():
+    scen = make_scenario("gps-ins-pseudorange")
+    data = scen.simulate(make_schedule("constant"), make_outliers("none"), [0], seed=1)
+    sig = np.sqrt(data.R_schedule)
+    np.testing.assert_allclose(sig[0], 3.0, rtol=1e-6)  # nominal at the start …
+    b100 = 0.5 * (np.tanh(50 / 5) - np.tanh(-50 / 5))
+    np.testing.assert_allclose(sig[100, [1, 3, 6]], 3.0 * (1 + 9 * b100))  # … 10× at the peak
+    np.testing.assert_allclose(sig[100, [0, 2, 4, 5, 7]], 3.0)
+    np.testing.assert_allclose(data.R_true[0], data.R_schedule)  # no outliers: R_true = schedule
+    # the foundation's schedule multiplies on top of the interference
+    d2 = scen.simulate(make_schedule("constant", {"factor": 2.0}), make_outliers("none"), [0], 1)
+    np.testing.assert_allclose(d2.R_schedule, 4 * data.R_schedule)
+    with pytest.raises(NavlabError, match="interfered"):
+        make_scenario("gps-ins-pseudorange", {"interfered": [9]}).simulate(
+            make_schedule("constant"), make_outliers("none"), [0], 1)
+
+
+def test_pseudorange_run_is_the_same_alone_or_in_a_batch():
+    scen = make_scenario("gps-ins-pseudorange", {"epochs": 20})
+    sched, outl = make_schedule("constant"), make_outliers("mixture", {"contamination": 0.1})
+    both = scen.simulate(sched, outl, [0, 1, 2], seed=5)
+    one = scen.simulate(sched, outl, [2], seed=5)
+    np.testing.assert_array_equal(both.x_true[2], one.x_true[0])
+    np.testing.assert_array_equal(both.z[2], one.z[0])
+
+
+def test_ekf_is_consistent_on_the_pseudorange_model_without_interference():
+    """Truth and filter model agree: with R0 right, the EKF's ANEES lies in the χ² band."""
+    spec = ExperimentSpec(scenario="gps-ins-pseudorange", filters=("ekf",), runs=20,
+                          outliers="none", scenario_params={"interference": 1.0, "epochs": 100})
+    df = run_experiment(spec).metrics().set_index("metric").value
+    assert 7.0 < df["anees"] < 9.0  # n = 8
+    assert 7.0 < df["anis"] < 9.0  # m = 8
