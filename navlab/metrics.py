@@ -142,6 +142,10 @@ def summarize(res: Results) -> pd.DataFrame:
             r = flag_rates(fr, data.outlier_mask, W, ok)
             add("detected_pct", r["detected_pct"], "%")
             add("false_alarm_pct", r["false_alarm_pct"], "%")
+        # scenario-specific metrics (real data): data.extras["metrics"] = {name: (fn, unit)},
+        # fn(x_hat (B, K+1, n), data, ok_runs) -> float
+        for name, (fn, unit) in data.extras.get("metrics", {}).items():
+            add(name, fn(fr.x, data, ok), unit)
         add("diverged", int((~ok).sum()), "runs")
         add("runs", B, "runs")
         add("us_per_run_step", 1e6 * fr.runtime_s / max(B * K, 1), "µs")
@@ -153,6 +157,7 @@ def headline_table(res: Results) -> pd.DataFrame:
     """Wide table for display: one row per filter, columns the headline metrics."""
     df = summarize(res)
     wanted = [f"rmse_{g}" for g in res.data.groups]
+    wanted += list(res.data.extras.get("metrics", {}))
     wanted += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "diverged",
                "us_per_run_step"]
     df = df[df.metric.isin(wanted)]
