@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import streamlit as st
 
 PAGES = (
@@ -35,4 +37,6 @@ def page_links(container=None) -> None:
     root = Path(__file__).resolve().parents[2]
     for path, label, icon in PAGES:
         if (root / path).exists():
-            c.page_link(path, label=label, icon=icon)
+            # a page file added after the server started is not registered yet: no link
+            with contextlib.suppress(st.errors.StreamlitAPIException):
+                c.page_link(path, label=label, icon=icon)
