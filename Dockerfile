@@ -3,7 +3,7 @@
 # Build:  docker build -t navlab .
 # Run:    docker run --rm -p 8501:8501 navlab            -> http://localhost:8501
 # Data:   the real data sets are NOT in the image; mount them read-only and point the app at them:
-#         docker run --rm -p 8501:8501 -v /path/to/shared/data:/data:ro -e NAVLAB_DATA_DIR=/data navlab
+#         docker run --rm -p 8501:8501 -v /path/to/shared/data:/data:ro -e NAVLAB_DATA=/data navlab
 # Extra streamlit flags are appended to the ENTRYPOINT (the last one wins).
 # No Docker engine here? ../shared/tools/verify-docker.sh . builds and runs it with buildah/podman,
 # passing a locally built stand-in as BASE_IMAGE.
@@ -18,7 +18,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     STREAMLIT_SERVER_HEADLESS=true \
     STREAMLIT_BROWSER_GATHER_USAGE_STATS=false \
     STREAMLIT_SERVER_FILE_WATCHER_TYPE=none \
-    NAVLAB_DATA_DIR=/data
+    NAVLAB_DATA=/data
 
 # unprivileged runtime user (numeric uid/gid 1000; code stays root-owned and read-only for it)
 RUN groupadd --gid 1000 app \
