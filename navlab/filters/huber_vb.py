@@ -29,6 +29,7 @@ doi:10.1109/MLSP.2012.6349794.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -66,71 +67,71 @@ def _diag_embed(d: Array) -> Array:
     return d[..., :, None] * np.eye(d.shape[-1])
 
 
-def _cyclic_cofactor_index() -> tuple[Array, Array, Array, Array]:
-    """Flat indices so that cof_ij = A[i+1,j+1]A[i+2,j+2] − A[i+1,j+2]A[i+2,j+1] (mod 3)."""
-    i, j = np.divmod(np.arange(9), 3)
-    f = lambda a, b: 3 * ((i + a) % 3) + (j + b) % 3  # noqa: E731
-    return f(1, 1), f(2, 2), f(1, 2), f(2, 1)
+@functools.cache
+def _cofactor_index(m: int) -> tuple[Array, Array]:
+    """Gather indices and signs giving the cofactor matrix C of an m×m matrix (m = 2, 3).
 
-
-_COF3 = _cyclic_cofactor_index()
-
-
-def _solve_small(S: Array, Y: Array) -> tuple[Array, Array]:
-    """Solve S X = Y for stacks of small SPD S (m ≤ 3) by the adjugate, else by LU.
-
-    A closed-form inverse costs a few vectorised operations instead of one LAPACK call per
-    stack, which dominates the many m×m solves of the VB iterations. Falls back to
-    :func:`solve_sym` (with its numerical-fix flag) for m > 3 or a nearly singular S.
+    m = 3 (cyclic rule): C_ij = A[i+1,j+1]A[i+2,j+2] − A[i+1,j+2]A[i+2,j+1], indices mod 3;
+    the four factors are gathered in ONE fancy-index operation from the flattened matrix.
     """
-    B, m = S.shape[0], S.shape[-1]
-    if m > 3:
-        return solve_sym(S, Y)
-    Sf = S.reshape(B, m * m)
-    if m == 1:
-        det = Sf[:, 0]
-        inv = 1.0 / np.where(det > 0, det, 1.0)
-        Sinv = inv[:, None, None]
-        scale = det
-    elif m == 2:
-        cof = Sf[:, [3, 1, 2, 0]] * np.array([1.0, -1.0, -1.0, 1.0])
-        det = Sf[:, 0] * Sf[:, 3] - Sf[:, 1] * Sf[:, 2]
-        scale = Sf[:, 0] * Sf[:, 3]
-        Sinv = (cof / np.where(det > 0, det, 1.0)[:, None]).reshape(B, 2, 2)
-    else:
-        a, b, c, d = _COF3
-        cof = Sf[:, a] * Sf[:, b] - Sf[:, c] * Sf[:, d]
-        det = np.einsum("bi,bi->b", Sf[:, :3], cof[:, :3])
-        scale = Sf[:, 0] * Sf[:, 4] * Sf[:, 8]
-        Sinv = (cof / np.where(det > 0, det, 1.0)[:, None]).reshape(B, 3, 3)
-    if not np.all(det > 1e-10 * np.abs(scale)):
-        return solve_sym(S, Y)
-    return Sinv @ Y, np.zeros(B, dtype=bool)
+    if m == 3:
+        i, j = np.divmod(np.arange(9), 3)
+        f = lambda a, b: 3 * ((i + a) % 3) + (j + b) % 3  # noqa: E731
+        return np.concatenate([f(1, 1), f(2, 2), f(1, 2), f(2, 1)]), np.ones(9)
+    return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
 
 
 class _MeasSpace:
     """The VB/IRLS iterations in measurement space for a fixed prior (M = H P⁻ Hᵀ, ν).
 
-    ``step(R̃)`` returns, for S = M + diag(R̃) (R̃ (B, m) diagonal): the posterior residual
-    z − H x⁺ = R̃ S⁻¹ ν, diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M) and the numerical-fix flag (B,).
-    Everything that does not change between iterations is formed once (Python overhead, not
-    arithmetic, dominates these m×m problems).
+    ``step(R̃)`` returns, for S = M + diag(R̃) (R̃ (B, m) diagonal, > 0): the posterior residual
+    z − H x⁺ = R̃ S⁻¹ ν and diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M). Everything that does not change
+    between iterations is formed once, and for m ≤ 3 S⁻¹ is the closed-form adjugate/det: Python
+    overhead, not arithmetic, dominates these tiny problems (a LAPACK call per iteration cost
+    ≈ 3× more). S is SPD (M ⪰ 0, R̃ > 0); ``ill`` records an S whose det is tiny against the
+    product of its diagonal, and the final gain is always formed by an LU solve (:func:`_finish`).
     """
 
     def __init__(self, M: Array, nu: Array) -> None:
         B, m = nu.shape
+        self.B, self.m = B, m
         self.Mb = np.broadcast_to(M, (B, m, m))
         self.rhs = np.concatenate([nu[..., None], self.Mb], axis=-1)
         self.dM = diag(self.Mb).copy()
-        self.ii = np.arange(m)
+        self.Mf = np.ascontiguousarray(self.Mb).reshape(B, m * m)
+        self.E = np.eye(m * m)[:: m + 1]  # (m, m²): diagonal entries of a flattened matrix
+        self.ill = np.zeros(B, dtype=bool)
+        if 2 <= m <= 3:
+            self.idx, self.sgn = _cofactor_index(m)
 
-    def step(self, Rt: Array) -> tuple[Array, Array, Array]:
-        S = self.Mb.copy()
-        S[:, self.ii, self.ii] += Rt
-        X, fixed = _solve_small(S, self.rhs)
-        resid = Rt * X[..., 0]
-        hph = self.dM - np.einsum("bij,bji->bi", self.Mb, X[..., 1:])
-        return resid, hph, fixed
+    def step(self, Rt: Array) -> tuple[Array, Array]:
+        B, m = self.B, self.m
+        if m > 3:
+            S = self.Mb + _diag_embed(Rt)
+            X, fixed = solve_sym(S, self.rhs)
+            self.ill |= fixed
+            return Rt * X[..., 0], self.dM - np.einsum("bij,bji->bi", self.Mb, X[..., 1:])
+        Sf = self.Mf + Rt @ self.E
+        if m == 3:
+            G = Sf[:, self.idx]
+            cof = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]
+        elif m == 2:
+            cof = Sf[:, self.idx] * self.sgn
+        else:
+            cof = np.ones((B, 1))
+        det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
+        inv = (1.0 / det)[:, None]
+        Y = cof.reshape(B, m, m) @ self.rhs  # adj(S) [ν, M]
+        resid = Rt * Y[..., 0] * inv
+        hph = self.dM - np.einsum("bij,bji->bi", self.Mb, Y[..., 1:]) * inv
+        return resid, hph
+
+    def check(self, Rt: Array) -> Array:
+        """(B,) True where the last S was nearly singular (det < 1e-12 · Π diag)."""
+        if self.m > 3:
+            return self.ill
+        S = self.Mb + _diag_embed(Rt)
+        return self.ill | (np.linalg.det(S) <= 1e-12 * np.prod(diag(S), axis=-1))
 
 
 def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array):
@@ -236,9 +237,8 @@ class VBParams:
     )
     adapt: bool = param(True, help="estimate R; off = R̂ fixed at the nominal R0 (then a plain KF)")
     tol: float = param(
-        0.0, lo=0.0, hi=1.0,
-        help="stop the iterations early once max |ΔR̂/R̂| < tol in every run (0: always N)",
-        ui=False,
+        1e-6, lo=0.0, hi=1.0,
+        help="stop before N iterations once max |Δβ/β| < tol in every run (0: always exactly N)",
     )
 
 
@@ -283,13 +283,17 @@ class _VBBase(Filter):
         beta_minus = state.beta
         alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         beta = beta_minus
-        w = np.ones_like(nu)
+        B = z.shape[0]
         prev_resid = nu
-        it_done = 0
-        delta = np.zeros(z.shape[0])
-        any_fixed = np.zeros(z.shape[0], dtype=bool)
+        # per-run convergence: a run whose β changed by < tol is frozen (its β, R̃ and weights
+        # are those of its last iteration), so a run's result never depends on its batch
+        active = np.ones(B, dtype=bool)
+        iters = np.zeros(B)
+        delta = np.zeros(B)
+        Rt_last = w_last = None
         for it in range(p.iters):
             Rhat = beta / alpha  # (15) R̂^(it) = diag(β^(it)/α)
+            w = np.ones_like(nu)
             if self.huber:
                 r_e = prev_resid if (p.irls and it > 0) else nu
                 w = self._weights(r_e / np.sqrt(Rhat))  # (16) e = R̂^{-1/2}(z − H x⁻); (9)
@@ -298,9 +302,13 @@ class _VBBase(Filter):
             Rt = Rhat / w if self.huber else Rhat  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2} (diagonal)
             if not all_ok:
                 Rt = np.where(ok, Rt, 1.0)
-            resid, hph, fixed = ms.step(Rt)  # (18)–(20) in measurement space
-            any_fixed |= fixed
-            it_done = it + 1
+            resid, hph = ms.step(Rt)  # (18)–(20) in measurement space
+            iters += active
+            if it == 0:
+                Rt_last, w_last = Rt, w
+            else:
+                Rt_last = np.where(active[:, None], Rt, Rt_last)
+                w_last = np.where(active[:, None], w, w_last)
             if not p.adapt:
                 break
             r2 = resid * resid
@@ -309,20 +317,23 @@ class _VBBase(Filter):
             beta_new = beta_minus + 0.5 * (r2 + hph)  # (21)
             if not all_ok:
                 beta_new = np.where(ok, beta_new, beta_minus)
-            if p.tol > 0 or it == p.iters - 1:
-                delta = np.max(np.abs(beta_new - beta) / beta, axis=-1)
-            beta = beta_new
+            d = np.max(np.abs(beta_new - beta) / beta, axis=-1)
+            delta = np.where(active, d, delta)
+            beta = np.where(active[:, None], beta_new, beta)
             prev_resid = resid
-            if p.tol > 0 and np.all(delta < p.tol):
-                break
+            if p.tol > 0:
+                active &= d >= p.tol
+                if not active.any():
+                    break
+        Rt, w = Rt_last, w_last
+        any_fixed = ms.check(Rt)
         R_used = _diag_embed(Rt)  # the R in the last gain (R̃^(N−1))
         _, _, H_u, R_used = mask_missing(z, nu, H, R_used)
         x, P, S, fixed = _finish(model, x0, P0, H_u, nu, R_used)
         any_fixed |= fixed
         R_hat = _diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
-        B = z.shape[0]
         stats = {
-            "vb_iters": np.full(B, float(it_done)),
+            "vb_iters": iters,
             "vb_delta": delta,
             "alpha": alpha.copy(),
         }
@@ -436,7 +447,7 @@ class StudentTKF(Filter):
         for _ in range(p.iters):
             Reff = R0b / lam[:, None, None]
             S = M + Reff
-            X, fixed = _solve_small(S, np.concatenate([nu[..., None], M], axis=-1))
+            X, fixed = solve_sym(S, np.concatenate([nu[..., None], M], axis=-1))
             any_fixed |= fixed
             resid = np.where(ok, mv(Reff, X[..., 0]), 0.0)  # z − H x⁺ = R_eff S⁻¹ ν
             HPH = M - M @ X[..., 1:]  # H P⁺ Hᵀ = M − M S⁻¹ M
