@@ -1,0 +1,309 @@
+"""NNMFUKF: RBF-network-aided multiple-fading-factor SVD-UKF (ALGORITHMS.md §6; S2 §2.3–2.4, Fig. 1).
+
+Tan, Wang, Zhao, "RBF-neural-network-aided multiple-fading-factor adaptive SVD-UKF for GPS/INS",
+Acta Geodaetica et Cartographica Sinica 44(4): 384–391, 2015 (S2).
+
+Per epoch (S2 Fig. 1 steps 1–4): SVD-UKF prediction and the χ² test of §5; if the test passes, an
+ordinary update (and, inside the training window, a training pair for the network); if it fails and
+the network is trained, the GPS observation is replaced by the network's prediction
+``ĝ_k = g_{k−1}^used + ŷ(u_k)`` (z'_k = r_k − ĝ_k, R'_ii = max(R_ii, σ²_NN,i)), and the fading factors
+of §5 are then computed from the replaced residual.
+
+What the network sees comes from two optional hooks of the scenario's model (the GPS/INS scenario
+``gps-ins-rtk`` provides both):
+
+* ``model.nn_features(x_prev, k) -> (B, d)``: the input u_k from the corrected navigation solution at
+  k−1 (``x_prev`` = the filter's own x̂⁺_{k−1}) and the IMU increments over (t_{k−1}, t_k] (§6.1);
+* ``model.nn_reference(k) -> (B, m)``: the INS-side value r_k of each measured quantity, so that the
+  raw GPS value is g_k = r_k − z_k (z = INS − GPS).
+
+Without them the network learns z itself (r = 0, so it predicts increments of −z) from the filter's
+previous estimate x̂⁺_{k−1}: a generic fallback for other models, not S2's design.
+
+RECONSTRUCTION (§5, §6, §10 items 20–28): S2's equations are lost; clustering radius, J range, width
+search and R' are navlab's readings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from navlab.filters.base import (
+    EPOCH_ANOMALY,
+    NUMERICAL_FIX,
+    REPLACED,
+    Model,
+    SideInfo,
+    StepOut,
+    register,
+)
+from navlab.filters.linalg import Array, sym
+from navlab.filters.rbf import RBFNet, train
+from navlab.filters.ukf import (
+    MFUKFParams,
+    UKFState,
+    _FadingBase,
+    mask_channels,
+)
+from navlab.params import param
+
+
+class NNState(NamedTuple):
+    """UKF state + what the network needs. Shapes: (B, …)."""
+
+    x: Array
+    P: Array
+    chi_f: Array | None
+    neg: Array | None
+    x_prev: Array  # x̂⁺_{k−1} (set by predict)
+    g_prev: Array  # (B, m) GPS value used at k−1 (raw or predicted)
+    pass_prev: Array  # (B,) χ² test passed at k−1
+    buf_u: Array | None  # (B, W, d) training inputs, chronological
+    buf_y: Array | None  # (B, W, m) training targets
+    buf_ok: Array | None  # (B, W) admissible
+    net: RBFNet | None
+    run_len: Array  # (B,) consecutive replaced epochs
+
+
+@dataclass(frozen=True)
+class NNMFUKFParams(MFUKFParams):
+    """NNMFUKF options (ALGORITHMS.md §6, §10 items 24–28)."""
+
+    use_network: bool = param(True, help="off: the filter is exactly the MFUKF")
+    mode: str = param(
+        "frozen", choices=("frozen", "online"),
+        help="frozen: train once at the end of the window (S2 experiment); online: also refit on a "
+        "sliding window of admissible pairs (S2 §2.4 step 3)",
+    )
+    train_start: int = param(200, lo=1, hi=10**7, help="first epoch of the training window (S2: 200 s)")
+    train_end: int = param(600, lo=2, hi=10**7, help="epoch at which the network is trained (S2: 600 s)")
+    window: int = param(400, lo=10, hi=100000, help="online mode: sliding window of training pairs")
+    retrain_every: int = param(10, lo=1, hi=100000, help="online mode: refit every this many epochs")
+    j_min: int = param(10, lo=1, hi=1000, help="fewest RBF centres")
+    j_max: int = param(100, lo=1, hi=1000, help="most RBF centres")
+    ridge: float = param(1e-6, lo=0.0, hi=1e3, help="ridge λ of the output weights (standardised units)")
+    linear_tail: str = param(
+        "off", choices=("off", "on", "auto"),
+        help="navlab option: add a linear term to the RBF output (auto: per output, chosen on the "
+        "hold-out); S2's network has none",
+    )
+    width_per_output: bool = param(
+        False, help="navlab option: search the kernel width separately for each output"
+    )
+    clip_inputs: bool = param(
+        True, help="navlab guard: clip the network's inputs to their training range (no extrapolation)"
+    )
+    min_pairs: int = param(20, lo=2, hi=100000, help="train only with at least this many admissible pairs")
+    replace: str = param(
+        "all", choices=("all", "flagged"),
+        help="all: replace the whole observation (S2); flagged: only channels with "
+        "|V_i|/√Pyy_ii > c_replace (navlab option)",
+    )
+    c_replace: float = param(3.0, lo=0.5, hi=100.0, help="per-channel replacement gate (flagged mode)")
+    max_run: int = param(
+        0, lo=0, hi=100000,
+        help="0: no limit (S2); n: after n consecutive replaced epochs use the raw observation once",
+    )
+    retest_after_replace: bool = param(
+        False, help="skip the fading factors when the replaced residual passes the χ² test"
+    )
+
+
+@register
+class NNMFUKF(_FadingBase):
+    """MFUKF whose rejected GPS observations are replaced by an RBF network's prediction (§6.4).
+
+    Stats per step: ``gamma``, ``gamma_threshold``, ``fading`` (B, m), ``rejected``, ``replaced``
+    (B,), ``run_len`` (consecutive replacements), ``nn_trained``; flag 4 on replaced channels, 5 on
+    rejected epochs left unreplaced, 9 on numerical repairs; ``R_used`` is R' on replaced epochs.
+    """
+
+    key = "nnmfukf"
+    label = "NNMFUKF"
+    family = "robust-adaptive"
+    spec_section = "§6"
+    reconstruction = True
+    summary = (
+        "MFUKF plus an RBF neural network trained on clean epochs: when the χ² test fails it "
+        "replaces the GPS observation by the network's prediction, then fades what remains."
+    )
+    Params = NNMFUKFParams
+
+    def _init_state(self, model: Model, x0: Array, P0: Array) -> Any:
+        p = self.params
+        if p.train_end <= p.train_start:
+            from navlab.errors import NavlabError
+
+            raise NavlabError(
+                f"nnmfukf: train_end ({p.train_end}) must be after train_start ({p.train_start})"
+            )
+        if p.j_min > p.j_max:
+            from navlab.errors import NavlabError
+
+            raise NavlabError(f"nnmfukf: j_min ({p.j_min}) must not exceed j_max ({p.j_max})")
+        B = x0.shape[0]
+        m = np.asarray(model.R0).shape[-1]
+        return NNState(
+            x=x0, P=P0, chi_f=None, neg=None, x_prev=x0, g_prev=np.full((B, m), np.nan),
+            pass_prev=np.zeros(B, dtype=bool), buf_u=None, buf_y=None, buf_ok=None, net=None,
+            run_len=np.zeros(B, dtype=int),
+        )
+
+    def predict(self, model: Model, state: NNState, k: int) -> NNState:
+        x_prev = state.x
+        state = super().predict(model, state, k)
+        return state._replace(x_prev=x_prev)
+
+    # -- network hooks --------------------------------------------------------------------
+    @staticmethod
+    def _features(model: Model, x_prev: Array, k: int) -> Array:
+        fn = getattr(model, "nn_features", None)
+        return np.asarray(fn(x_prev, k), dtype=float) if fn is not None else x_prev
+
+    @staticmethod
+    def _reference(model: Model, k: int, z: Array) -> Array:
+        fn = getattr(model, "nn_reference", None)
+        return np.asarray(fn(k), dtype=float) if fn is not None else np.zeros_like(z)
+
+    def _buffer_len(self) -> int:
+        p = self.params
+        if p.mode == "online":
+            return int(p.window)
+        return int(p.train_end - p.train_start + 1)
+
+    def _store(self, st: NNState, u: Array, y: Array, adm: Array) -> NNState:
+        """Append one (possibly inadmissible) pair per run to the chronological buffers."""
+        if st.buf_u is None:
+            W = self._buffer_len()
+            B = u.shape[0]
+            bu = np.zeros((B, 0, u.shape[1]))
+            by = np.zeros((B, 0, y.shape[1]))
+            bo = np.zeros((B, 0), dtype=bool)
+            st = st._replace(buf_u=bu, buf_y=by, buf_ok=bo)
+        W = self._buffer_len()
+        bu = np.concatenate([st.buf_u, u[:, None]], axis=1)[:, -W:]
+        by = np.concatenate([st.buf_y, np.where(adm[:, None], y, 0.0)[:, None]], axis=1)[:, -W:]
+        bo = np.concatenate([st.buf_ok, adm[:, None]], axis=1)[:, -W:]
+        return st._replace(buf_u=bu, buf_y=by, buf_ok=bo)
+
+    def _train(self, st: NNState, refit: bool) -> NNState:
+        p = self.params
+        if st.buf_u is None:
+            return st
+        old = st.net if (refit and st.net is not None) else None
+        linear = {"off": False, "on": True, "auto": "auto"}[p.linear_tail]
+        net = train(
+            st.buf_u, st.buf_y, st.buf_ok, j_min=p.j_min, j_max=p.j_max, lam=p.ridge,
+            min_samples=p.min_pairs, s_w=None if old is None else old.s_w, linear=linear,
+            per_output=p.width_per_output, lin_on=None if old is None else old.lin_on,
+            clip=p.clip_inputs,
+        )
+        if refit and st.net is not None:
+            # keep σ_NN from the full search (a refit has no hold-out) and never untrain a run
+            net = RBFNet(**{**net.__dict__, "sigma_nn": st.net.sigma_nn})
+            keep = ~net.trained & st.net.trained
+            if keep.any():
+                net = _merge(net, st.net, keep)
+        return st._replace(net=net)
+
+    # -- the step -------------------------------------------------------------------------
+    def update(self, model: Model, state: NNState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        mp = self._predict_measurement(model, state, k)
+        V = z - mp.z_hat
+        ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
+        Pyy0 = sym(A + R)
+        gamma, thr, reject = self._test(V, Pyy0, ok)
+        B, m = z.shape
+        replaced = np.zeros(B, dtype=bool)
+        rep_mask = np.zeros((B, m), dtype=bool)
+        st = state
+        g_raw = None
+        if p.use_network:
+            u = self._features(model, state.x_prev, k)
+            g_raw = self._reference(model, k, z) - z  # raw GPS values (NaN where missing)
+            # training pair (u_k, g_k − g_{k−1}), admissible if k−1 and k both passed (§6.1)
+            collecting = k >= p.train_start and (k <= p.train_end or p.mode == "online")
+            if collecting:
+                y = g_raw - state.g_prev
+                adm = (~reject & state.pass_prev & np.all(np.isfinite(y), -1)
+                       & np.all(np.isfinite(u), -1))
+                st = self._store(st, u, y, adm)
+                if k == p.train_end:
+                    st = self._train(st, refit=False)
+                elif (p.mode == "online" and k > p.train_end
+                      and (k - p.train_end) % p.retrain_every == 0):
+                    st = self._train(st, refit=True)
+            if st.net is not None:
+                # replacement of the observation (§6.3)
+                g_hat = state.g_prev + st.net.predict(u)
+                z_rep = self._reference(model, k, z) - g_hat
+                use = reject & st.net.trained
+                if p.max_run > 0:
+                    use &= state.run_len < p.max_run
+                rep = use[:, None] & ok & np.isfinite(z_rep)
+                if p.replace == "flagged":
+                    rep &= np.abs(V) > p.c_replace * np.sqrt(np.diagonal(Pyy0, axis1=-2, axis2=-1))
+                if rep.any():
+                    r_d = np.diagonal(R, axis1=-2, axis2=-1)
+                    r_new = np.where(rep, np.maximum(r_d, st.net.sigma_nn**2), r_d)
+                    R2 = R + (r_new - r_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
+                    z2 = np.where(rep, z_rep, z)
+                    ok, V, A, Pxy, R = mask_channels(z2, z2 - mp.z_hat, mp.A, mp.Pxy, R2)
+                    replaced = rep.any(axis=1)
+                    Pyy0 = sym(A + R)
+                    if p.retest_after_replace:
+                        _, _, rej2 = self._test(V, Pyy0, ok)
+                        reject = reject & (~replaced | rej2)
+                    g_raw = np.where(rep, g_hat, g_raw)
+                rep_mask = rep
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0)
+        flags = np.zeros(z.shape, dtype=np.int8)
+        flags[reject[:, None] & ok] = EPOCH_ANOMALY
+        flags[rep_mask & ok] = REPLACED
+        flags[fixed | mp.neg] = NUMERICAL_FIX
+        trained = st.net.trained if st.net is not None else np.zeros(B, dtype=bool)
+        run_len = np.where(replaced, state.run_len + 1, 0)
+        stats = {
+            "gamma": gamma, "gamma_threshold": thr, "fading": sig,
+            "rejected": reject.astype(float), "replaced": replaced.astype(float),
+            "run_len": run_len.astype(float), "nn_trained": trained.astype(float),
+        }
+        out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
+        new = st._replace(
+            x=x, P=P, chi_f=None, neg=None,
+            g_prev=g_raw if g_raw is not None else state.g_prev,
+            pass_prev=~reject, run_len=run_len,
+        )
+        return new, out
+
+
+def _merge(a: RBFNet, b: RBFNet, take_b: Array) -> RBFNet:
+    """Per-run choice between two networks of possibly different centre counts."""
+    J = max(a.C.shape[1], b.C.shape[1])
+
+    def pad(net: RBFNet) -> RBFNet:
+        extra = J - net.C.shape[1]
+        if extra == 0:
+            return net
+        B, _, d = net.C.shape
+        p = net.W.shape[2]
+        C = np.concatenate([net.C, np.zeros((B, extra, d))], axis=1)
+        cm = np.concatenate([net.cmask, np.zeros((B, extra), bool)], axis=1)
+        J0 = net.C.shape[1]
+        W = np.concatenate([net.W[:, :J0], np.zeros((B, extra, p)), net.W[:, J0:]], axis=1)
+        return RBFNet(**{**net.__dict__, "C": C, "cmask": cm, "W": W})
+
+    a, b = pad(a), pad(b)
+    out = {}
+    for name, va in a.__dict__.items():
+        vb = b.__dict__[name]
+        sel = take_b.reshape((-1,) + (1,) * (np.ndim(va) - 1))
+        out[name] = np.where(sel, vb, va)
+    return RBFNet(**out)
+
+
+__all__ = ["NNMFUKF", "NNMFUKFParams", "NNState", "UKFState"]

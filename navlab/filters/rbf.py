@@ -1,0 +1,291 @@
+"""Batched Gaussian radial-basis-function network (ALGORITHMS.md §6.2; S2 eqs. 14–15), pure numpy.
+
+B independent networks are trained at once (one per Monte Carlo run), each on its own masked set of
+samples, so nothing loops over runs:
+
+1. z-score inputs and targets (per network, over its admissible samples);
+2. nearest-neighbour clustering for the centres (S2: 最近邻聚类), radius adjusted ×/÷ 1.25 until
+   J_min ≤ J ≤ J_max;
+3. one shared width s_w per network chosen on a grid s_w ∈ r·{0.25 … 4} by the RMSE on the last
+   20 % (chronological) of the samples, with centres and weights from the first 80 % (navlab's
+   stand-in for S2's per-node widths tuned by a genetic algorithm, §10 item 24);
+4. output weights by ridge least squares with a bias column, on all samples (centres redone on all
+   samples); the hold-out RMSE of step 3 in physical units is kept as σ_NN.
+
+Padded arrays: centres (B, J_max, d) with a mask; a run with fewer than ``min_samples`` admissible
+samples stays untrained (``trained`` False).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from navlab.errors import NavlabError
+from navlab.filters.linalg import Array, mT
+
+WIDTH_GRID = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
+
+
+@dataclass(frozen=True)
+class RBFNet:
+    """B trained networks.
+
+    Shapes: C (B, J, d), cmask (B, J), s_w (B, p) (width per output; all equal unless
+    ``per_output``), W (B, J+1[+d], p): kernels, [linear tail,] bias; lin_on (B, p) which outputs
+    use the linear tail (their other tail weights are exactly 0).
+    """
+
+    C: Array
+    cmask: Array
+    s_w: Array
+    W: Array
+    mu_u: Array
+    sd_u: Array
+    mu_y: Array
+    sd_y: Array
+    sigma_nn: Array  # (B, p) hold-out RMSE, physical units
+    train_rmse: Array  # (B, p) fit RMSE on all training samples, physical units
+    trained: Array  # (B,) bool
+    n_centres: Array  # (B,) int
+    linear: bool = False  # W has linear-tail rows (navlab option)
+    lin_on: Array | None = None
+    u_lo: Array | None = None  # (B, d) standardised input range of the training set; inputs are
+    u_hi: Array | None = None  # clipped to it before evaluation (None: no clipping)
+
+    def predict(self, u: Array) -> Array:
+        """ŷ(u) for u (B, d) or (B, N, d) -> (B, p) or (B, N, p); NaN for untrained networks."""
+        single = u.ndim == 2
+        U = u[:, None, :] if single else u
+        Us = (U - self.mu_u[:, None, :]) / self.sd_u[:, None, :]
+        if self.u_lo is not None:
+            Us = np.clip(Us, self.u_lo[:, None, :], self.u_hi[:, None, :])
+        p = self.W.shape[2]
+        if np.all(self.s_w == self.s_w[:, :1]):
+            Ys = design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear) @ self.W
+        else:
+            Ys = np.concatenate(
+                [design(Us, self.C, self.cmask, self.s_w[:, j], self.linear) @ self.W[..., j : j + 1]
+                 for j in range(p)], axis=-1,
+            )
+        Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
+        Y = np.where(self.trained[:, None, None], Y, np.nan)
+        return Y[:, 0] if single else Y
+
+
+def sq_dist(U: Array, C: Array) -> Array:
+    """‖U_i − C_j‖² for U (B, N, d), C (B, J, d) -> (B, N, J), clipped at 0."""
+    d2 = np.sum(U**2, -1)[:, :, None] + np.sum(C**2, -1)[:, None, :] - 2.0 * U @ mT(C)
+    return np.maximum(d2, 0.0)
+
+
+def design(
+    Us: Array, C: Array, cmask: Array, s_w: Array, linear: bool = False, lin_on: Array | None = None
+) -> Array:
+    """Φ (B, N, J+1[+d]): Gaussian kernels exp(−‖u − C_j‖²/(2 s_w²)) (S2 eq. 14), the inputs
+    themselves if ``linear`` (a linear tail; zeroed for runs where ``lin_on`` (B,) is False) and a
+    column of ones (the bias, last).
+    """
+    K = np.exp(-sq_dist(Us, C) / (2.0 * s_w[:, None, None] ** 2)) * cmask[:, None, :]
+    tail = Us if lin_on is None else Us * lin_on[:, None, None]
+    parts = [K, tail] if linear else [K]
+    return np.concatenate([*parts, np.ones((*K.shape[:2], 1))], axis=-1)
+
+
+def cluster(U: Array, mask: Array, r: Array, j_max: int) -> tuple[Array, Array, Array]:
+    """Nearest-neighbour clustering of the masked samples, in order (§6.2 step 1).
+
+    First sample → first centre; each next sample joins its nearest centre (running mean) unless
+    it is farther than r, then it opens a new centre. At most ``j_max`` centres: when full, a far
+    sample joins its nearest centre and ``overflow`` is set (radius too small).
+
+    Returns C (B, j_max, d), cmask (B, j_max), overflow (B,).
+    """
+    B, N, d = U.shape
+    C = np.zeros((B, j_max, d))
+    S = np.zeros((B, j_max, d))
+    cnt = np.zeros((B, j_max))
+    C2 = np.zeros((B, j_max))  # ‖C_j‖²
+    J = np.zeros(B, dtype=int)
+    overflow = np.zeros(B, dtype=bool)
+    rows = np.arange(B)
+    r2 = r**2
+    jr = np.arange(j_max)
+    U2 = np.sum(U**2, axis=-1)
+    for i in range(N):
+        valid = mask[:, i]
+        if not valid.any():
+            continue
+        u = U[:, i]
+        jt = max(int(J.max()), 1)  # only the centres that exist somewhere
+        d2 = U2[:, i, None] + C2[:, :jt] - 2.0 * (C[:, :jt] @ u[:, :, None])[..., 0]
+        d2 = np.where(jr[None, :jt] < J[:, None], d2, np.inf)
+        j = np.argmin(d2, axis=1)
+        far = d2[rows, j] > r2
+        new = valid & far & (j_max > J)
+        overflow |= valid & far & (j_max <= J)
+        jn = np.where(new, J, j)
+        b = rows[valid]
+        jb = jn[valid]
+        S[b, jb] += u[valid]
+        cnt[b, jb] += 1.0
+        c = S[b, jb] / cnt[b, jb][:, None]
+        C[b, jb] = c
+        C2[b, jb] = np.sum(c * c, axis=-1)
+        J = J + new
+    cmask = np.arange(j_max)[None, :] < J[:, None]
+    return C, cmask, overflow
+
+
+def cluster_adaptive(
+    U: Array, mask: Array, r0: Array, j_min: int, j_max: int, max_iter: int = 40
+) -> tuple[Array, Array, Array]:
+    """Clustering with the radius adjusted (×1.25 too many, ÷1.25 too few) until J_min ≤ J ≤ J_max.
+
+    J_min is lowered to the number of admissible samples where there are fewer. Returns C, cmask, r.
+    """
+    r = np.array(r0, dtype=float)
+    need = np.minimum(j_min, mask.sum(axis=1))
+    done = need < 1  # nothing to cluster
+    last = np.zeros(U.shape[0], dtype=int)  # last adjustment: +1 grew r, −1 shrank r
+    C = cmask = None
+    for _ in range(max_iter):
+        C1, m1, over = cluster(U, mask, r, j_max)
+        J = m1.sum(axis=1)
+        if C is None:
+            C, cmask = C1, m1
+        upd = ~done
+        C = np.where(upd[:, None, None], C1, C)
+        cmask = np.where(upd[:, None], m1, cmask)
+        too_many = over & upd
+        too_few = (need > J) & upd
+        # a radius that flips between too many and too few centres: keep the current clustering
+        flip = (too_many & (last < 0)) | (too_few & (last > 0))
+        done |= upd & ((~too_many & ~too_few) | flip)
+        if done.all():
+            break
+        step = np.where(too_many, 1, np.where(too_few, -1, 0)) * ~done
+        last = np.where(step != 0, step, last)
+        r = np.where(step > 0, r * 1.25, np.where(step < 0, r / 1.25, r))
+    return C, cmask, r
+
+
+def ridge(Phi: Array, Y: Array, rows: Array, lam: float) -> Array:
+    """W = argmin ‖Φ W − Y‖² + λ‖W‖² over the rows marked True (B, N) (§6.2 step 3)."""
+    Pm = Phi * rows[:, :, None]
+    G = mT(Pm) @ Pm + lam * np.eye(Phi.shape[-1])
+    return np.linalg.solve(G, mT(Pm) @ Y)
+
+
+def _masked_rmse(E: Array, rows: Array) -> Array:
+    """Per-output RMSE over masked rows: E (B, N, p), rows (B, N) -> (B, p) (NaN if no rows)."""
+    n = rows.sum(axis=1)[:, None]
+    ss = np.sum(E**2 * rows[:, :, None], axis=1)
+    return np.sqrt(np.divide(ss, n, out=np.full(ss.shape, np.nan), where=n > 0))
+
+
+def _fit_outputs(
+    Us: Array, Ys: Array, C: Array, cm: Array, s_w: Array, lin: Array, rows: Array, lam: float,
+    linear: bool,
+) -> tuple[Array, Array]:
+    """Ridge weights (B, J+1[+d], p) with a width s_w (B, p) and tail flag lin (B, p) per output;
+    residuals on every sample.
+    """
+    p = Ys.shape[2]
+    if np.all(s_w == s_w[:, :1]) and np.all(lin == lin[:, :1]):  # one design for every output
+        Phi = design(Us, C, cm, s_w[:, 0], linear, lin[:, 0])
+        W = ridge(Phi, Ys, rows, lam)
+        return W, Phi @ W - Ys
+    Ws, Es = [], []
+    for j in range(p):
+        Phi = design(Us, C, cm, s_w[:, j], linear, lin[:, j])
+        Wj = ridge(Phi, Ys[..., j : j + 1], rows, lam)
+        Ws.append(Wj)
+        Es.append(Phi @ Wj - Ys[..., j : j + 1])
+    return np.concatenate(Ws, axis=-1), np.concatenate(Es, axis=-1)
+
+
+def train(
+    U: Array, Y: Array, mask: Array, *, j_min: int = 10, j_max: int = 100, r0: float | None = None,
+    lam: float = 1e-6, holdout: float = 0.2, min_samples: int = 20,
+    width_grid: tuple[float, ...] = WIDTH_GRID, s_w: Array | None = None,
+    linear: bool | str = False, per_output: bool = False, lin_on: Array | None = None,
+    clip: bool = True,
+) -> RBFNet:
+    """Train B networks on samples U (B, N, d) → Y (B, N, p) where ``mask`` (B, N) is True.
+
+    Samples are in chronological order. ``s_w`` given ((B,) or (B, p)): skip the width search
+    (online refits; then ``lin_on`` (B, p) too). ``linear``: add a linear tail to the output layer
+    (True), or let the hold-out choose per output between with and without it ("auto");
+    ``per_output``: choose the width separately for each output; ``clip``: clip inputs to the
+    training range when predicting (a guard against extrapolation, e.g. an IMU input disturbed far
+    beyond anything seen in training). These are navlab options, not S2.
+    """
+    U = np.asarray(U, dtype=float)
+    Y = np.asarray(Y, dtype=float)
+    mask = np.asarray(mask, dtype=bool) & np.all(np.isfinite(U), -1) & np.all(np.isfinite(Y), -1)
+    if U.ndim != 3 or Y.ndim != 3 or U.shape[:2] != Y.shape[:2] or mask.shape != U.shape[:2]:
+        raise NavlabError("RBF training data must be U (B, N, d), Y (B, N, p) and a (B, N) mask")
+    if not 1 <= j_min <= j_max:
+        raise NavlabError(f"RBF network: need 1 ≤ J_min ≤ J_max, got {j_min}, {j_max}")
+    B, _N, d = U.shape
+    p = Y.shape[2]
+    n = mask.sum(axis=1)
+    trained = n >= max(min_samples, 2)
+    m = mask[:, :, None]
+    nn = np.maximum(n, 1)[:, None]
+    mu_u = np.sum(np.where(m, U, 0.0), 1) / nn
+    mu_y = np.sum(np.where(m, Y, 0.0), 1) / nn
+    sd_u = np.sqrt(np.sum(np.where(m, (U - mu_u[:, None]) ** 2, 0.0), 1) / nn)
+    sd_y = np.sqrt(np.sum(np.where(m, (Y - mu_y[:, None]) ** 2, 0.0), 1) / nn)
+    sd_u = np.where(sd_u > 1e-12 * (1 + np.abs(mu_u)), sd_u, 1.0)  # constant inputs: no scaling
+    sd_y = np.where(sd_y > 1e-12 * (1 + np.abs(mu_y)), sd_y, 1.0)
+    Us = np.where(m, (U - mu_u[:, None]) / sd_u[:, None], 0.0)
+    Ys = np.where(m, (Y - mu_y[:, None]) / sd_y[:, None], 0.0)
+    r_init = np.full(B, 0.5 * np.sqrt(d) if r0 is None else float(r0))
+
+    # chronological split of each network's own admissible samples
+    rank = np.cumsum(mask, axis=1) - 1
+    n_fit = np.floor((1.0 - holdout) * n).astype(int)
+    fit = mask & (rank < n_fit[:, None])
+    val = mask & ~fit
+    tail = bool(linear)  # "auto" and True both carry tail rows
+    lin_opts = (False, True) if linear == "auto" else (bool(linear),)
+    if s_w is None:
+        C, cm, r = cluster_adaptive(Us, fit, r_init, j_min, j_max)
+        best = np.full((B, p), np.inf)
+        s_best = np.repeat(r[:, None], p, axis=1)
+        l_best = np.full((B, p), lin_opts[0])
+        for lo in lin_opts:
+            lon = np.full(B, lo)
+            for g in width_grid:
+                sw = r * g
+                Phi = design(Us, C, cm, sw, tail, lon)
+                W = ridge(Phi, Ys, fit, lam)
+                score = _masked_rmse(Phi @ W - Ys, val)  # (B, p), standardised
+                if not per_output:
+                    score = np.repeat(np.mean(score, axis=1, keepdims=True), p, axis=1)
+                score = np.where(np.isfinite(score), score, np.inf)
+                better = score < best
+                best = np.where(better, score, best)
+                s_best = np.where(better, sw[:, None], s_best)
+                l_best = np.where(better, lo, l_best)
+        _, E = _fit_outputs(Us, Ys, C, cm, s_best, l_best, fit, lam, tail)
+        sigma_nn = _masked_rmse(E, val) * sd_y
+        s_w, lin_on = s_best, l_best
+    else:
+        s_w = np.broadcast_to(np.asarray(s_w, dtype=float).reshape(B, -1), (B, p)).copy()
+        lin_on = np.full((B, p), tail) if lin_on is None else np.asarray(lin_on, dtype=bool)
+        sigma_nn = np.full((B, p), np.nan)
+    C, cm, _ = cluster_adaptive(Us, mask, r_init, j_min, j_max)
+    W, E = _fit_outputs(Us, Ys, C, cm, s_w, lin_on, mask, lam, tail)
+    train_rmse = _masked_rmse(E, mask) * sd_y
+    sigma_nn = np.where(np.isfinite(sigma_nn), sigma_nn, train_rmse)
+    return RBFNet(
+        C=C, cmask=cm, s_w=s_w, W=W, mu_u=mu_u, sd_u=sd_u, mu_y=mu_y, sd_y=sd_y,
+        sigma_nn=sigma_nn, train_rmse=train_rmse, trained=trained, n_centres=cm.sum(axis=1),
+        linear=tail, lin_on=lin_on,
+        u_lo=np.min(np.where(m, Us, np.inf), axis=1) if clip else None,
+        u_hi=np.max(np.where(m, Us, -np.inf), axis=1) if clip else None,
+    )
