@@ -7,19 +7,19 @@ import streamlit as st
 from navlab.errors import NavlabError
 from navlab.reproduce import REPRODUCTIONS
 from navlab.ui import reproduce as ui
+from navlab.ui.frame import frame
 
-st.set_page_config(page_title="navlab · Reproduce", page_icon=":material/science:", layout="wide")
-
-SMALL_RUNS = 10  # default Monte Carlo size in the browser; the paper's count is one tick away
-for k, v in {"seed": 1, "runs": SMALL_RUNS, "full": False}.items():
-    st.session_state.setdefault(k, v)
-
-st.title("Reproduce")
-st.caption(
+frame(
+    "Reproduce the papers", ":material/article:",
     "Each reproduction runs a paper's experiment with navlab and lays the paper's numbers beside "
     "navlab's: the relative difference, and a note on why they differ (a reconstruction, an "
-    "undefined metric, a typo in the paper). The URL keeps the selection."
+    "undefined metric, a typo in the paper). The URL keeps the selection.",
 )
+
+SMALL_RUNS = 10  # default Monte Carlo size in the browser; the paper's count is one tick away
+# page-specific widget keys (session_state is shared with the other pages' flt/runs/seed)
+for k, v in {"rep_seed": 1, "rep_runs": SMALL_RUNS, "rep_full": False}.items():
+    st.session_state.setdefault(k, v)
 
 keys = sorted(REPRODUCTIONS)
 if not keys:
@@ -40,13 +40,13 @@ c1, c2, c3 = st.columns([2, 1, 1])
 full = c1.checkbox(
     f"Use the paper's Monte Carlo count ({n_paper} runs)" if n_paper else
     "Use the paper's Monte Carlo count",
-    key="full", bind="query-params",
+    key="rep_full", bind="query-params",
     help="Slower; the small default is enough to see the picture.",
 )
 runs = c2.number_input(
-    "Monte Carlo runs", 1, 5000, step=1, key="runs", bind="query-params", disabled=full,
+    "Monte Carlo runs", 1, 5000, step=1, key="rep_runs", bind="query-params", disabled=full,
 )
-seed = c3.number_input("Seed", 0, 2**31 - 1, step=1, key="seed", bind="query-params")
+seed = c3.number_input("Seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params")
 config = (key, None if full else int(runs), int(seed))
 
 done = st.session_state.setdefault("repro_done", set())

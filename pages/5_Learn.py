@@ -4,31 +4,34 @@ import streamlit as st
 
 from navlab.learn import TinySpec
 from navlab.ui import learn as ui
+from navlab.ui.frame import frame
 
-st.set_page_config(page_title="navlab · Learn", page_icon=":material/school:", layout="wide")
+frame(
+    "Learn: filters step by step", ":material/school:",
+    "Pick a filter: its idea, its key equations and the paper, then step through its updates on "
+    "a tiny constant-velocity example with an outlier you place. The URL keeps the filter, the "
+    "example and the step, so a link shows the same update.",
+)
 
-# Widget defaults live in session_state (no value= on the widgets): the URL still initialises
-# them (bind="query-params"), and the ◀/▶ buttons and range clamping can move them freely.
-DEFAULTS = {"flt": "kf", "dims": "1-D", "ep": 8, "oe": 5, "os": 10.0, "oall": False,
-            "ns": 1.0, "seed": 0, "step": 1}
+# Widget keys are page-specific (session_state is shared by all pages; other pages use
+# flt/runs/seed). Widget defaults live in session_state (no value= on the widgets): the URL
+# still initialises them (bind="query-params"), and the ◀/▶ buttons and range clamping can move
+# them freely.
+DEFAULTS = {
+    "filter": "kf", "ex_dims": "1-D", "ex_epochs": 8, "ex_outk": 5, "ex_outsize": 10.0,
+    "ex_outall": False, "ex_noise": 1.0, "ex_seed": 0, "step": 1,
+}
 for k, v in DEFAULTS.items():
     st.session_state.setdefault(k, v)
-
-st.title("Learn")
-st.caption(
-    "Pick a filter: its idea, its key equations and the paper, then step through its updates on "
-    "a tiny constant-velocity example with an outlier you place. The URL keeps the filter and "
-    "the step, so a link shows the same update."
-)
 
 keys = ui.filter_keys()
 if not keys:
     st.info("No filters are registered.")
     st.stop()
-if st.session_state["flt"] not in keys:
-    st.session_state["flt"] = keys[0]
+if st.session_state["filter"] not in keys:
+    st.session_state["filter"] = keys[0]
 # no format_func: a bound selectbox puts the formatted option in the URL; keys keep it short
-key = st.selectbox("Filter (registry key)", keys, key="flt", bind="query-params")
+key = st.selectbox("Filter (registry key)", keys, key="filter", bind="query-params")
 
 ui.render_filter_card(key)
 
@@ -37,23 +40,23 @@ st.subheader("Step through single updates")
 with st.expander("The tiny example", expanded=True):
     c1, c2, c3 = st.columns(3)
     dims = c1.segmented_control(
-        "Model", ["1-D", "2-D"], key="dims", bind="query-params",
+        "Model", ["1-D", "2-D"], key="ex_dims", bind="query-params",
         help="1-D: state [p, v], p measured; 2-D: state [x, y, v_x, v_y], x and y measured",
     ) or "1-D"
-    epochs = c1.slider("Epochs", 2, 30, key="ep", bind="query-params")
-    if st.session_state["oe"] > epochs:
-        st.session_state["oe"] = epochs
-    oe = c2.slider("Outlier at epoch (0 = none)", 0, epochs, key="oe", bind="query-params")
+    epochs = c1.slider("Epochs", 2, 30, key="ex_epochs", bind="query-params")
+    if st.session_state["ex_outk"] > epochs:
+        st.session_state["ex_outk"] = epochs
+    oe = c2.slider("Outlier at epoch (0 = none)", 0, epochs, key="ex_outk", bind="query-params")
     os_ = c2.slider(
-        "Outlier size (measurement σ)", -30.0, 30.0, step=0.5, key="os", bind="query-params",
+        "Outlier size (measurement σ)", -30.0, 30.0, step=0.5, key="ex_outsize", bind="query-params",
     )
-    oall = c2.checkbox("Outlier on every channel", key="oall", bind="query-params",
+    oall = c2.checkbox("Outlier on every channel", key="ex_outall", bind="query-params",
                        help="Otherwise only the first channel (p or x) is hit.")
     ns = c3.slider(
-        "True noise σ / assumed σ", 0.25, 5.0, step=0.25, key="ns", bind="query-params",
+        "True noise σ / assumed σ", 0.25, 5.0, step=0.25, key="ex_noise", bind="query-params",
         help="Above 1 the filters' R is too small: watch the adaptive filters' R̂ grow.",
     )
-    seed = c3.number_input("Noise seed", 0, 10_000, step=1, key="seed", bind="query-params")
+    seed = c3.number_input("Noise seed", 0, 10_000, step=1, key="ex_seed", bind="query-params")
 
 spec = TinySpec(
     dims=2 if dims == "2-D" else 1, epochs=int(epochs), outlier_epoch=int(oe),

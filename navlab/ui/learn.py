@@ -6,9 +6,6 @@ The maths lives in :mod:`navlab.learn` (no streamlit); here are the Plotly figur
 
 from __future__ import annotations
 
-import dataclasses
-from typing import Any
-
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
@@ -203,20 +200,6 @@ def render_filter_card(key: str) -> None:
             st.dataframe(p, hide_index=True, width="stretch")
 
 
-def spec_from_state(ss: Any) -> TinySpec:
-    """The TinySpec described by the page's widgets (session-state keys below)."""
-    epochs = int(ss.get("ep", 8))
-    return TinySpec(
-        dims=2 if ss.get("dims", "1-D") == "2-D" else 1,
-        epochs=epochs,
-        outlier_epoch=min(int(ss.get("oe", 5)), epochs),
-        outlier_size=float(ss.get("os", 10.0)),
-        outlier_channel="all" if ss.get("oall", False) else "first",
-        noise_scale=float(ss.get("ns", 1.0)),
-        seed=int(ss.get("seed", 0)),
-    )
-
-
 def render_step(res: StepThrough, step: int) -> None:
     """What happened at one epoch: NIS against the threshold, the channels, the states."""
     ep = res.epoch_table().set_index("epoch")
@@ -236,8 +219,9 @@ def render_step(res: StepThrough, step: int) -> None:
     c5.metric("flags", ", ".join(flags))
     if row["nis_exceeds"] or row["nis_nominal_exceeds"]:
         which = row["nis"] if row["nis_exceeds"] else row["nis_nominal"]
-        st.error(f"Epoch {step}: the NIS {which:.3g} exceeds the χ² threshold "
-                 f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.")
+        st.warning(f"Epoch {step}: the NIS {which:.3g} exceeds the χ² threshold "
+                   f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.",
+                   icon=":material/priority_high:")
     st.markdown("**Per channel** (innovation, its normalised size, the weight/flag the filter "
                 "gave it, the R it used, its R̂ and the filter's own stats)")
     st.dataframe(step_channels(res, step), hide_index=True, width="stretch")
@@ -268,8 +252,3 @@ def safe_step_through(key: str, spec: TinySpec) -> StepThrough | None:
     except NavlabError as exc:
         st.error(str(exc))
         return None
-
-
-def spec_summary(spec: TinySpec) -> str:
-    d = dataclasses.asdict(spec)
-    return ", ".join(f"{k}={v}" for k, v in d.items())

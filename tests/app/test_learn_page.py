@@ -1,0 +1,87 @@
+"""AppTest of the Learn page: filter card, step-through, URL state, every filter renders."""
+
+from __future__ import annotations
+
+from conftest import assert_clean, plotly_figs
+
+from navlab.filters import registry
+
+PAGE = "pages/5_Learn.py"
+
+
+def channel_table(at):
+    """The per-channel table of the current step (the one with the innovation column)."""
+    (df,) = [d.value for d in at.dataframe if "innovation ν" in d.value.columns]
+    return df
+
+
+def test_learn_page_renders_the_kf_and_its_step_through(open_page):
+    at = open_page(PAGE)
+    assert_clean(at)
+    assert at.selectbox(key="filter").value == "kf"
+    assert len(at.latex) >= 4  # the KF's key equations
+    (fig,) = plotly_figs(at)
+    types = {t["type"] for t in fig["data"]}
+    assert {"bar", "scatter"} <= types  # NIS bars, curves
+    names = [t.get("name", "") for t in fig["data"]]
+    assert "χ² threshold" in names and any(n.startswith("outlier") for n in names)
+    assert at.slider(key="step").value == 1
+    # the per-channel table of the step and the states table
+    chan = channel_table(at)
+    assert {"innovation ν", "ν/√S", "weight", "flag", "R used"} <= set(chan.columns)
+
+
+def test_deep_link_sets_filter_step_and_outlier(open_page):
+    at = open_page(PAGE, filter="chi2-kf", step="4", ex_outk="4", ex_outsize="15")
+    assert_clean(at)
+    assert at.selectbox(key="filter").value == "chi2-kf"
+    assert at.slider(key="step").value == 4
+    chan = channel_table(at)
+    assert (chan["flag"] == "rejected").all()  # the χ² gate rejected the outlier epoch
+    labels = [m.label for m in at.metric]
+    assert "χ² threshold" in labels
+
+
+def test_step_buttons_move_the_step(open_page):
+    at = open_page(PAGE, step="2")
+    at.button(key="step_next").click().run()
+    assert at.slider(key="step").value == 3
+    at.button(key="step_prev").click().run()
+    at.button(key="step_prev").click().run()
+    assert at.slider(key="step").value == 1
+    at.button(key="step_prev").click().run()  # clamped at 1
+    assert at.slider(key="step").value == 1
+    assert_clean(at)
+
+
+def test_fewer_epochs_clamp_the_step_and_the_outlier(open_page):
+    at = open_page(PAGE, step="8", ex_outk="8")
+    at.slider(key="ex_epochs").set_value(4).run()
+    assert_clean(at)
+    assert at.slider(key="step").value == 4
+    assert at.slider(key="ex_outk").value == 4
+
+
+def test_every_registered_filter_renders(open_page):
+    at = open_page(PAGE, ex_dims="2-D", ex_epochs="5", ex_outk="3")
+    for key in sorted(registry()):
+        at.selectbox(key="filter").set_value(key).run()
+        assert not at.exception, (key, [e.value for e in at.exception])
+        if plotly_figs(at):
+            continue
+        # not applicable: the page says why instead of drawing
+        assert any("cannot be stepped through" in w.value for w in at.warning), key
+
+
+def test_a_filter_that_cannot_run_is_explained(open_page, monkeypatch):
+    from navlab.filters import kalman
+
+    def needs_ins(self, model, state, k, z, side):
+        raise AttributeError("'LinearModel' object has no attribute 'imu'")
+
+    monkeypatch.setattr(kalman.Chi2KF, "update", needs_ins)
+    at = open_page(PAGE, filter="chi2-kf")
+    assert not at.exception
+    assert any("cannot be stepped through" in w.value and "AttributeError" in w.value
+               for w in at.warning)
+    assert not plotly_figs(at)
