@@ -197,11 +197,13 @@ EQUATIONS: dict[str, list[str]] = {
         r"K = \hat P H^\top(H\hat P H^\top + \hat R)^{-1}, \quad "
         r"x^{(it+1)} = x^- + K(z - h(x^-)), \quad P^{(it+1)} = \hat P - K H \hat P",
     ],
-    # epoch-wise least squares (no dynamics)
+    # navlab/filters/wls.py (not in the papers): per-epoch Gauss–Newton, vague prior
     "wls": [
-        r"W = R^{-1}, \qquad \hat x_k = \hat x^{(0)} + (H^\top W H)^{-1} H^\top W "
-        r"\left(z_k - h(\hat x^{(0)})\right)\quad(\text{iterated})",
-        r"P_k = (H^\top W H)^{-1}\qquad\text{(no dynamics: each epoch stands alone)}",
+        r"\nu = z_k - h(x), \qquad \Lambda = I/\sigma^2_{\mathrm{prior}}",
+        r"x \leftarrow x + (H^\top R_0^{-1} H + \Lambda)^{-1}\left(H^\top R_0^{-1}\nu "
+        r"+ \Lambda (x_{\mathrm{prev}} - x)\right)\quad(\text{iterated})",
+        r"P_k = (H^\top R_0^{-1} H + \Lambda)^{-1}\qquad"
+        r"\text{(no dynamics: each epoch stands alone)}",
     ],
 }
 
@@ -320,6 +322,23 @@ IDEAS: dict[str, str] = {
         "no motion model, no memory. It is the reference a filter must beat and a quick sanity "
         "check on real data."
     ),
+}
+
+
+# What the tiny example cannot show for a filter that otherwise runs on it.
+CAVEATS: dict[str, str] = {
+    "nnmfukf": (
+        "On the tiny example the RBF network is never trained (it needs IMU increments and "
+        "hundreds of clean epochs), so a failed χ² test falls back to the fading factors: the "
+        "steps are those of the MFUKF."
+    ),
+    "ekf": "The tiny example is linear, so the EKF's steps are exactly the KF's.",
+    "svd-ukf": "The tiny example is linear, so the SVD-UKF's steps equal the KF's (to round-off).",
+    "oracle-kf": (
+        "The oracle is told the outlier: its innovation is formed after subtracting it, so its "
+        "NIS stays small at the outlier epoch."
+    ),
+    "wls": "WLS has no dynamics: each step is the measurement alone (the prior is vague).",
 }
 
 
@@ -699,5 +718,6 @@ def filter_info(cls: type[Filter]) -> dict[str, Any]:
         "reconstruction": bool(cls.reconstruction),
         "idea": idea(cls),
         "equations": equations(cls.key),
+        "caveat": CAVEATS.get(cls.key, ""),
         "params": describe(cls.Params) if dataclasses.is_dataclass(cls.Params) else [],
     }

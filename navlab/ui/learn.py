@@ -117,15 +117,19 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
 
 
 def step_channels(res: StepThrough, step: int) -> pd.DataFrame:
-    """The per-channel table of one epoch, with readable column names."""
+    """The per-channel table of one epoch, with readable column names (R̂ change: since k−1)."""
     rows = res.steps[res.steps["epoch"] == step].copy()
     if rows.empty:
         return rows
     rows["√S"] = np.sqrt(rows["S"].to_numpy(dtype=float))
+    prev = res.steps[res.steps["epoch"] == step - 1].set_index("channel")["R_hat"]
+    rows["R̂ change"] = rows["R_hat"].to_numpy(dtype=float) - (
+        prev.reindex(rows["channel"]).to_numpy(dtype=float) if len(prev) else np.nan)
     cols = {
         "channel": "channel", "z": "z", "z_pred": "ẑ⁻ (predicted)", "innov": "innovation ν",
         "√S": "√S", "innov_norm": "ν/√S", "weight": "weight", "flag_name": "flag",
-        "R_true": "true R", "R_used": "R used", "R_hat": "R̂", "outlier": "outlier added",
+        "R_true": "true R", "R_used": "R used", "R_hat": "R̂", "R̂ change": "R̂ change",
+        "outlier": "outlier added",
     }
     stat_cols = [c for c in rows.columns if c.startswith("stat:")]
     out = rows[list(cols) + stat_cols].rename(columns=cols)
