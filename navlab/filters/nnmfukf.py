@@ -94,7 +94,7 @@ class NNMFUKFParams(MFUKFParams):
         False, help="navlab option: search the kernel width separately for each output"
     )
     clip_inputs: bool = param(
-        True, help="navlab guard: clip the network's inputs to their training range (no extrapolation)"
+        False, help="navlab guard: clip the network's inputs to their training range (no extrapolation)"
     )
     min_pairs: int = param(20, lo=2, hi=100000, help="train only with at least this many admissible pairs")
     replace: str = param(
@@ -281,6 +281,50 @@ class NNMFUKF(_FadingBase):
         return new, out
 
 
+@dataclass(frozen=True)
+class NNMFUKFGuardedParams(NNMFUKFParams):
+    """NNMFUKF with navlab's guards on (same options, other defaults)."""
+
+    linear_tail: str = param(
+        "auto", choices=("off", "on", "auto"),
+        help="add a linear term to the RBF output (auto: per output, chosen on the hold-out)",
+    )
+    width_per_output: bool = param(True, help="search the kernel width separately for each output")
+    clip_inputs: bool = param(True, help="clip the network's inputs to their training range")
+    replace: str = param(
+        "flagged", choices=("all", "flagged"),
+        help="all: replace the whole observation (S2); flagged: only channels with "
+        "|V_i|/√Pyy_ii > c_replace",
+    )
+    max_run: int = param(
+        3, lo=0, hi=100000,
+        help="after this many consecutive replaced epochs use the raw observation once (0: never)",
+    )
+
+
+@register
+class NNMFUKFGuarded(NNMFUKF):
+    """NNMFUKF with navlab's guards against the failure modes found in the S2 scenario.
+
+    Same algorithm and options as ``nnmfukf``; only the defaults differ. The faithful §6 filter
+    locks out in ``gps-ins-rtk``: one poor network prediction (the 600–615 s right turn at 14 m/s
+    and the disturbed Δv_z input lie outside the training data) is amplified by the fading factors
+    computed after the replacement, the next raw GPS then fails the χ² test, so it is replaced
+    again from a chain of predictions whose inputs (the corrected velocity) are already wrong. The
+    guards: inputs clipped to the training range, a linear term in the network where the hold-out
+    prefers it and a width per output, replacement of the flagged channels only, and the raw
+    observation after 3 consecutive replacements. Not in S2; a navlab variant.
+    """
+
+    key = "nnmfukf-guarded"
+    label = "NNMFUKF (guarded)"
+    summary = (
+        "NNMFUKF with navlab's guards: per-channel replacement, a cap on consecutive "
+        "replacements, a network that does not extrapolate wildly."
+    )
+    Params = NNMFUKFGuardedParams
+
+
 def _merge(a: RBFNet, b: RBFNet, take_b: Array) -> RBFNet:
     """Per-run choice between two networks of possibly different centre counts."""
     J = max(a.C.shape[1], b.C.shape[1])
@@ -306,4 +350,4 @@ def _merge(a: RBFNet, b: RBFNet, take_b: Array) -> RBFNet:
     return RBFNet(**out)
 
 
-__all__ = ["NNMFUKF", "NNMFUKFParams", "NNState", "UKFState"]
+__all__ = ["NNMFUKF", "NNMFUKFGuarded", "NNMFUKFGuardedParams", "NNMFUKFParams", "NNState", "UKFState"]

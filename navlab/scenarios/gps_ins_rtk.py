@@ -265,7 +265,7 @@ class GpsInsRtk(Scenario):
         "isolated": {"start": 620, "stop": 780, "every": 20, "mean": 30.0, "scale": 1.0, "channels": [0]},
         "continuous": {"start": 700, "stop": 720, "mean": 0.0, "scale": 10.0, "channels": [0]},
     }
-    default_filters = ("svd-ukf", "mfukf", "nnmfukf", "oracle-kf")
+    default_filters = ("svd-ukf", "mfukf", "nnmfukf", "nnmfukf-guarded", "oracle-kf")
     default_runs = 20
     headline = ("pos", "vel", "att")
 

@@ -1,0 +1,152 @@
+"""RBF network (§6.2), NNMFUKF (§6.4) and the gps-ins-rtk scenario (§8.3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from navlab.experiment import run_filters
+from navlab.filters.base import make_filter
+from navlab.filters.rbf import cluster, train
+from navlab.noise import make_outliers, make_schedule
+from navlab.scenarios.base import make_scenario
+
+
+def _smooth(U):
+    return np.stack(
+        [np.sin(U[..., 0]) + 0.5 * np.cos(2 * U[..., 1]) + 0.1 * U[..., 2], U[..., 0] * U[..., 1]],
+        axis=-1,
+    )
+
+
+def test_rbf_fits_and_predicts_a_smooth_function():
+    rng = np.random.default_rng(0)
+    B, N, d = 3, 300, 3
+    U = rng.uniform(-2, 2, (B, N, d))
+    Y = _smooth(U) + 0.01 * rng.standard_normal((B, N, 2))
+    net = train(U, Y, np.ones((B, N), bool))
+    assert np.all(net.trained)
+    assert np.all((net.n_centres >= 10) & (net.n_centres <= 100))
+    spread = np.std(Y, axis=1)
+    assert np.all(net.train_rmse < 0.15 * spread)  # fits to 15 % of the target spread
+    Ut = rng.uniform(-1.8, 1.8, (B, 200, d))  # held-out points inside the training region
+    err = np.sqrt(np.mean((net.predict(Ut) - _smooth(Ut)) ** 2, axis=1))
+    assert np.all(err < 0.15 * spread)
+    # a constant predictor would be far worse: the network learned the function
+    assert np.all(err < 0.3 * np.std(_smooth(Ut), axis=1))
+
+
+def test_rbf_is_batched_per_run_independently():
+    rng = np.random.default_rng(1)
+    B, N, d = 4, 150, 2
+    U = rng.normal(size=(B, N, d)) * np.array([1.0, 3.0])
+    Y = _smooth(np.concatenate([U, U[..., :1]], -1))
+    mask = rng.random((B, N)) < 0.8
+    mask[3, 12:] = False  # too few samples: stays untrained
+    net = train(U, Y, mask)
+    assert list(net.trained) == [True, True, True, False]
+    assert np.all(np.isnan(net.predict(U[:, :5])[3]))
+    for b in range(3):
+        one = train(U[b : b + 1], Y[b : b + 1], mask[b : b + 1])
+        assert np.allclose(one.predict(U[b : b + 1]), net.predict(U)[b : b + 1], atol=1e-8)
+        assert one.n_centres[0] == net.n_centres[b]
+
+
+def test_clustering_respects_radius_and_capacity():
+    U = np.array([[[0.0, 0], [0.1, 0], [5.0, 0], [5.1, 0], [10.0, 0]]])
+    C, cm, over = cluster(U, np.ones((1, 5), bool), np.array([1.0]), 10)
+    assert cm.sum() == 3 and not over[0]
+    assert np.allclose(C[0, :3], [[0.05, 0], [5.05, 0], [10.0, 0]])
+    C, cm, over = cluster(U, np.ones((1, 5), bool), np.array([1.0]), 2)
+    assert cm.sum() == 2 and over[0]
+
+
+def _cv_data(runs=3):
+    sc = make_scenario("cv2d", {"epochs": 60})
+    out = make_outliers("isolated", {"start": 45, "stop": 60, "every": 3, "mean": 10.0})
+    return sc.simulate(make_schedule("constant"), out, list(range(runs)), 4)
+
+
+NN_SMALL = {"train_start": 5, "train_end": 40, "min_pairs": 10, "j_min": 3, "j_max": 20}
+
+
+def test_nnmfukf_without_network_equals_mfukf():
+    data = _cv_data()
+    out = run_filters(data, [make_filter("mfukf"), make_filter("nnmfukf", {"use_network": False})])
+    assert np.array_equal(out["mfukf"].x, out["nnmfukf"].x)
+    assert np.array_equal(out["mfukf"].stats["fading"], out["nnmfukf"].stats["fading"], equal_nan=True)
+
+
+def test_nnmfukf_replaces_after_training_and_batched_equals_per_run():
+    data = _cv_data()
+    f = make_filter("nnmfukf", NN_SMALL)
+    full = run_filters(data, [f])["nnmfukf"]
+    rep = full.stats["replaced"]
+    assert np.nansum(rep[:, :40]) == 0  # nothing replaced before the network exists (k = 40)
+    assert np.nansum(rep[:, 40:]) > 0
+    assert np.all((full.flags[:, 40:] == 4).any(axis=-1) == (rep[:, 40:] == 1))
+    for b in range(data.B):
+        one = run_filters(data.subset(slice(b, b + 1)), [make_filter("nnmfukf", NN_SMALL)])["nnmfukf"]
+        assert np.allclose(one.x, full.x[b : b + 1], rtol=1e-9, atol=1e-8)
+
+
+def test_nnmfukf_rejects_bad_window():
+    from navlab.errors import NavlabError
+
+    data = _cv_data(1)
+    with pytest.raises(NavlabError):
+        make_filter("nnmfukf", {"train_start": 50, "train_end": 40}).init(data.model, data.x0, data.P0)
+
+
+# ---------------------------------------------------------------------------------------------
+# gps-ins-rtk
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rtk():
+    sc = make_scenario("gps-ins-rtk")
+    return sc.simulate(make_schedule("constant"), make_outliers("none"), [0, 1], 2)
+
+
+def test_rtk_error_model_signs_in_ned(rtk):
+    Phi = rtk.model.F(300)  # level, heading north, 14 m/s
+    g = 9.79
+    assert Phi[0, 3] == pytest.approx(1.0, abs=1e-3)  # δṗ_N = δv_N
+    assert Phi[2, 5] == pytest.approx(1.0, abs=1e-3)  # δṗ_D = δv_D
+    assert Phi[3, 7] == pytest.approx(g, rel=1e-2)  # δv̇_N = +g φ_E  (f^n = [0, 0, −g])
+    assert Phi[4, 6] == pytest.approx(-g, rel=1e-2)  # δv̇_E = −g φ_N
+    assert Phi[6, 9] == pytest.approx(-1.0, abs=1e-2)  # φ̇ = −C_b^n ε, body forward = north
+    assert Phi[3, 12] == pytest.approx(1.0, abs=1e-2)  # δv̇ = C_b^n ∇
+
+
+def test_rtk_hooks_give_gps_truth_plus_noise(rtk):
+    k = 700
+    g_raw = rtk.model.nn_reference(k) - rtk.z[:, k]
+    truth = np.concatenate([rtk.model.pos_ned[k], rtk.model.vel_ned[k]])
+    err = g_raw - truth
+    gross = rtk.extras["gross_mask"][:, k]
+    assert np.all(np.abs(err[~gross]) < 5 * np.sqrt(np.diag(rtk.model.R0))[None].repeat(2, 0)[~gross])
+    assert np.all(np.abs(err[:, 0] - 3.0) < 0.5)  # t = 700: +3 m latitude gross error
+    assert np.all(np.abs(err[:, 4] - 0.3) < 0.05)  # and +0.3 m/s east velocity
+    u = rtk.model.nn_features(rtk.x_true[:, k - 1], k)  # perfect estimate: true nav
+    assert u.shape == (2, 13)
+    assert np.allclose(u[:, :3], rtk.model.vel_ned[k - 1])
+    assert np.allclose(u[:, 5] ** 2 + u[:, 6] ** 2, 1.0)
+
+
+def test_rtk_qualitative_claims_of_the_paper(rtk):
+    """SVD-UKF hurt vertically by the state anomaly; MFUKF fixes it but amplifies the latitude
+    gross errors (σ_1 = O(10³)); the oracle is the floor."""
+    from navlab.metrics import pooled_rmse, sq_error
+
+    out = run_filters(rtk, [make_filter(k) for k in ("svd-ukf", "mfukf", "oracle-kf")])
+    W = rtk.window
+    r = {k: {g: pooled_rmse(sq_error(fr.x, rtk.x_true, rtk.groups[g]), W)
+             for g in ("pos", "pos_N", "pos_D")} for k, fr in out.items()}
+    assert r["mfukf"]["pos_D"] < 0.5 * r["svd-ukf"]["pos_D"]
+    assert r["mfukf"]["pos_N"] > 1.5 * r["svd-ukf"]["pos_N"]
+    gm = rtk.extras["gross_mask"][:, :, 0]
+    assert np.median(out["mfukf"].stats["fading"][:, :, 0][gm]) > 300
+    for k in ("svd-ukf", "mfukf"):
+        assert r["oracle-kf"]["pos"] < r[k]["pos"]
