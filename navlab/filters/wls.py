@@ -1,0 +1,69 @@
+"""Per-epoch weighted least squares (``wls``): the reference a user would try first.
+
+No dynamics: every epoch is solved on its own by Gauss–Newton on the nominal model,
+
+    x ← x + (Hᵀ R0⁻¹ H + Λ)⁻¹ (Hᵀ R0⁻¹ ν + Λ (x_prev − x)),   ν = z − h(x),
+
+started from the previous epoch's solution. Λ = I/σ_prior² is a vague prior (σ_prior = 10 km by
+default) that only keeps states the epoch does not observe (e.g. velocity from pseudoranges)
+at their previous value; for observed states its influence is ~1e-8 relative. The reported P is
+the inverse normal matrix. Works on any model (linear or not); with a position measurement it
+returns the measured position.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from navlab.filters.base import Filter, KFState, Model, SideInfo, StepOut, register
+from navlab.filters.linalg import Array, mask_missing, mT, mv, sym
+from navlab.params import param
+
+
+@dataclass(frozen=True)
+class WlsParams:
+    iterations: int = param(5, lo=1, hi=50, help="Gauss–Newton iterations per epoch")
+    sigma_prior: float = param(
+        1e4, lo=1.0, hi=1e9, help="vague prior σ on every state (keeps unobserved states)")
+
+
+@register
+class WLS(Filter):
+    """Per-epoch Gauss–Newton weighted least squares with a vague prior (no dynamics)."""
+
+    key = "wls"
+    label = "WLS (per epoch)"
+    family = "baseline"
+    spec_section = "—"
+    summary = "Solves every epoch on its own by weighted least squares with the nominal R: no motion model."
+    Params = WlsParams
+
+    def predict(self, model: Model, state: KFState, k: int) -> KFState:
+        return state  # no dynamics
+
+    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        x_prev = np.array(state.x, dtype=float)
+        n = x_prev.shape[1]
+        lam = np.eye(n) / p.sigma_prior**2
+        x = x_prev.copy()
+        Rinv = np.linalg.inv(model.R0)
+        N = None
+        for _ in range(p.iterations):
+            H = model.H(x, k)
+            nu = z - model.h(x, k)
+            ok, nu, H, R = mask_missing(z, nu, H, model.R0)
+            Ri = Rinv if ok.all() else np.linalg.inv(R) * (ok[:, :, None] & ok[:, None, :])
+            HtRi = mT(H) @ Ri
+            N = HtRi @ H + lam
+            rhs = mv(HtRi, nu) + mv(lam, x_prev - x)
+            x = x + np.linalg.solve(N, rhs[..., None])[..., 0]
+        H = model.H(x, k)
+        nu = z - model.h(x, k)
+        ok, nu, H, R = mask_missing(z, nu, H, model.R0)
+        P = sym(np.linalg.inv(N))
+        S = sym(H @ P @ mT(H) + R)
+        flags = np.zeros(z.shape, dtype=np.int8)
+        return KFState(x, P), StepOut(x=x, P=P, innov=nu, S=S, R_used=R, flags=flags)
