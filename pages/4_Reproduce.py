@@ -116,10 +116,14 @@ if curves:
     tabs = st.tabs(list(curves))
     for tab, (name, df) in zip(tabs, curves.items(), strict=True):
         with tab:
-            measure = None
+            measure, cols = None, None
+            groups = ui.wide_groups(df)
             if ui.is_long(df):
                 measure = st.selectbox("Quantity", ui.curve_measures(df), key=f"curve_{name}")
-            st.plotly_chart(ui.curve_figure(df, name, measure), width="stretch",
+            elif groups:
+                measure = st.selectbox("Quantity", list(groups), key=f"curve_{name}")
+                cols = groups[measure]
+            st.plotly_chart(ui.curve_figure(df, name, measure, cols), width="stretch",
                             config=ui.CONFIG, alt=f"Curves from {name}")
             st.download_button(f"Download {name}", df.to_csv(index=False).encode(),
                                file_name=name.replace("/", "_"), mime="text/csv",

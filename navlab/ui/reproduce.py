@@ -188,10 +188,39 @@ def _key_of(name: str, keys: list[str]) -> str | None:
     return next((k for k in keys if name == k or name.startswith((k + "_", k + " "))), None)
 
 
-def curve_figure(df: pd.DataFrame, title: str, measure: str | None = None) -> go.Figure:
+def wide_groups(df: pd.DataFrame) -> dict[str, list[str]]:
+    """Columns of a wide curves table grouped by quantity: ``<filter key>_<quantity>``.
+
+    A variant's column (``vb-ekf_tauP3_rmse_pos_m``) joins the group whose quantity its own ends
+    with (``rmse_pos_m``). Returns {} when grouping would not help (one group, or one column per
+    group): then every column goes in one chart.
+    """
+    if is_long(df):
+        return {}
+    keys = sorted(filter_colors(), key=len, reverse=True)
+    cols = curve_measures(df)
+    suffix = {}
+    for c in cols:
+        k = _key_of(c, keys)
+        suffix[c] = c[len(k) + 1:] if k and len(c) > len(k) else c
+    bases = sorted(set(suffix.values()), key=len)
+    groups: dict[str, list[str]] = {}
+    for c in cols:
+        q = suffix[c]
+        base = next((b for b in bases if b != q and q.endswith("_" + b)), q)
+        groups.setdefault(base, []).append(c)
+    if len(groups) <= 1 or len(groups) == len(cols):
+        return {}
+    return groups
+
+
+def curve_figure(
+    df: pd.DataFrame, title: str, measure: str | None = None, columns: list[str] | None = None
+) -> go.Figure:
     """Curves of a reproduction's CSV against its time/epoch column (decimated, float32).
 
-    Wide table: every numeric column is a line. Tidy table (a ``filter`` column): one line per
+    Wide table: every numeric column (or those in ``columns``; ``measure`` then names the group)
+    is a line. Tidy table (a ``filter`` column): one line per
     filter of ``measure`` (default: the first numeric column). A line named after a registered
     filter key takes that filter's colour.
     """
@@ -207,7 +236,7 @@ def curve_figure(df: pd.DataFrame, title: str, measure: str | None = None) -> go
                 series.append((str(f), x, g[measure].to_numpy(dtype=float)))
     else:
         x = df[x_col].to_numpy(dtype=float) if x_col else np.arange(len(df), dtype=float)
-        series = [(c, x, df[c].to_numpy(dtype=float)) for c in curve_measures(df)]
+        series = [(c, x, df[c].to_numpy(dtype=float)) for c in (columns or curve_measures(df))]
     fig = go.Figure()
     for i, (name, x, y) in enumerate(series):
         key = _key_of(name, keys)

@@ -139,4 +139,10 @@ def test_pure_helpers():
                          "rmse": [1.0, 2.0, 3.0, 4.0], "bias": [0.0, 0, 0, 0]})
     assert R.is_long(long) and R.curve_measures(long) == ["rmse", "bias"]
     assert [t.name for t in R.curve_figure(long, "c", "rmse").data] == ["kf", "ekf"]
+    wide = pd.DataFrame({c: [0.0, 1.0] for c in (
+        "t", "ekf_rmse_pos", "ekf_rmse_vel", "vb-ekf_rmse_pos", "vb-ekf_tauP3_rmse_pos")})
+    assert R.wide_groups(wide) == {"rmse_pos": ["ekf_rmse_pos", "vb-ekf_rmse_pos",
+                                                "vb-ekf_tauP3_rmse_pos"],
+                                   "rmse_vel": ["ekf_rmse_vel"]}
+    assert R.wide_groups(pd.DataFrame({"epoch": [0], "kf": [1.0], "ekf": [2.0]})) == {}
     assert R.accepts(fake_run, "on_progress") and not R.accepts(failing_run, "on_progress")
