@@ -1,0 +1,243 @@
+"""Helpers of the Real data page: specs, uploads, a per-epoch progress runner, figures, tables.
+
+The figures are plain plotly (``Scattergl`` on local east/north metres, no map tiles: the app
+works offline). Everything but :func:`run_with_progress` is a pure function of its arguments.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import tempfile
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import plotly.graph_objects as go
+
+from navlab.data.loaders import RTKX_SOURCE, SMARTLOC_SOURCE, load_generic
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
+from navlab.filters.base import FLAG_NAMES, registry
+from navlab.metrics import summarize
+from navlab.ui.colors import filter_colors
+
+RECORDINGS = {
+    "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
+    "smartloc-berlin": "Urban pseudoranges: smartLoc Berlin Potsdamer Platz",
+    "upload": "Upload your own drive (generic CSV)",
+}
+LICENCES = {
+    "drive0708": RTKX_SOURCE,
+    "smartloc-berlin": SMARTLOC_SOURCE,
+    "upload": "Your own files (generic navlab CSV format); nothing is stored beyond this session.",
+}
+TABLE_METRICS = (
+    ("h_err_median", "median horizontal error (m)"),
+    ("h_err_p90", "90 % horizontal error (m)"),
+    ("rmse_hpos", "RMSE horizontal (m)"),
+    ("rmse_pos", "RMSE 3-D (m)"),
+    ("diverged", "diverged runs"),
+    ("runtime_s", "runtime (s)"),
+)
+MAX_POINTS = 4000
+
+
+def scenario_of(recording: str) -> str:
+    return "drive0708" if recording in ("drive0708", "upload") else recording
+
+
+def usable_filters(scenario: str) -> list[str]:
+    """Registered filters that can run on real data (no oracle: it needs simulator truth)."""
+    out = [k for k, c in registry().items() if c.family != "oracle"]
+    if scenario == "drive0708":
+        # the INS model's F is exact only through f(x); a model-free per-epoch solve still works
+        out = [k for k in out if not getattr(registry()[k], "linear_only", False)]
+    return out
+
+
+def build_spec(recording: str, filters: Sequence[str], *, epochs: int, runs: int = 1, seed: int = 1,
+               contamination: float = 0.0, outlier_scale: float = 10.0,
+               scenario_params: Mapping[str, Any] | None = None) -> ExperimentSpec:
+    """The experiment spec the page runs (CLI equivalent: ``python -m navlab run --config``)."""
+    sp = dict(scenario_params or {})
+    sp["epochs"] = int(epochs)
+    return ExperimentSpec(
+        scenario=scenario_of(recording), filters=tuple(filters), runs=int(runs), seed=int(seed),
+        outliers="mixture", contamination=float(contamination), outlier_scale=float(outlier_scale),
+        scenario_params=sp,
+    )
+
+
+def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
+    """Write uploaded generic-format files to a content-addressed temp folder and validate them.
+
+    Raises NavlabError (naming the file, line and column) if a file is malformed.
+    """
+    h = hashlib.sha256(imu + b"|" + gnss + b"|" + (truth or b"")).hexdigest()[:16]
+    d = Path(tempfile.gettempdir()) / f"navlab-upload-{h}"
+    d.mkdir(exist_ok=True)
+    (d / "imu.csv").write_bytes(imu)
+    (d / "gnss.csv").write_bytes(gnss)
+    if truth:
+        (d / "truth.csv").write_bytes(truth)
+    elif (d / "truth.csv").exists():
+        (d / "truth.csv").unlink()
+    try:
+        load_generic(d / "imu.csv", d / "gnss.csv", (d / "truth.csv") if truth else None,
+                     name="upload")
+    except NavlabError as exc:  # the user sees the uploaded names, not the temp paths
+        raise NavlabError(str(exc).replace(str(d) + "/", "uploaded ")) from None
+    return d
+
+
+def run_with_progress(spec: ExperimentSpec,
+                      on_progress: Callable[[float, str], None] | None = None) -> Results:
+    """Load/prepare the data, then run every filter in one time loop, reporting per epoch."""
+    t0 = time.perf_counter()
+    if on_progress:
+        on_progress(0.0, "loading the recording and aligning the INS…")
+    p = plan(spec)
+    data = p.scenario.simulate(p.schedule, p.outliers, list(range(spec.runs)), spec.seed)
+    K = data.K
+    every = max(1, K // 50)
+
+    def cb(k: int, total: int) -> None:
+        if on_progress and (k % every == 0 or k == total):
+            on_progress(k / total, f"epoch {k}/{total} · {time.perf_counter() - t0:.1f} s")
+
+    runs = run_filters(data, p.filters, on_epoch=cb)
+    return Results(spec=spec, data=data, runs=runs, complete=True,
+                   elapsed_s=time.perf_counter() - t0)
+
+
+def _dec(n: int) -> slice:
+    return slice(None, None, max(1, -(-n // MAX_POINTS)))
+
+
+def track_figure(res: Results, run: int = 0) -> go.Figure:
+    """Truth vs estimates (and the aiding fixes) in local east/north metres."""
+    d = res.data
+    ie, inn = d.extras.get("xy_idx", (0, 1))
+    colors = filter_colors(list(res.runs))
+    fig = go.Figure()
+    sl = _dec(d.K + 1)
+    if d.has_truth:
+        xt = d.x_true[run]
+        fig.add_trace(go.Scattergl(x=xt[sl, ie].astype(np.float32), y=xt[sl, inn].astype(np.float32),
+                                   mode="lines", name="truth", line={"color": "black", "width": 3}))
+    if d.scenario == "drive0708":
+        z = d.z[run]
+        fig.add_trace(go.Scattergl(x=z[sl, 1].astype(np.float32), y=z[sl, 0].astype(np.float32),
+                                   mode="markers", name="GNSS fixes (aiding)",
+                                   marker={"size": 4, "color": "rgba(120,120,120,0.5)"}))
+    for key, fr in res.runs.items():
+        x = fr.x[run]
+        fig.add_trace(go.Scattergl(x=x[sl, ie].astype(np.float32), y=x[sl, inn].astype(np.float32),
+                                   mode="lines", name=fr.label, line={"color": colors[key], "width": 1.5}))
+    fig.update_layout(title=f"Track (run {run}) — local east/north, metres", height=520,
+                      xaxis_title="east (m)", yaxis_title="north (m)",
+                      yaxis={"scaleanchor": "x", "scaleratio": 1}, margin={"t": 50, "b": 40})
+    return fig
+
+
+def horizontal_error(res: Results, fr: FilterRun) -> np.ndarray:
+    """(B, K+1) horizontal error norm [m]."""
+    d = res.data
+    idx = list(d.groups["hpos"].idx)
+    return np.linalg.norm(fr.x[..., idx] - d.x_true[..., idx], axis=-1)
+
+
+def error_figure(res: Results, run: int = 0, log_y: bool = False) -> go.Figure:
+    """Horizontal error against time per filter (run ``run``)."""
+    d = res.data
+    colors = filter_colors(list(res.runs))
+    fig = go.Figure()
+    sl = _dec(d.K + 1)
+    for key, fr in res.runs.items():
+        e = horizontal_error(res, fr)[run]
+        fig.add_trace(go.Scattergl(x=d.t[sl].astype(np.float32), y=e[sl].astype(np.float32),
+                                   mode="lines", name=fr.label, line={"color": colors[key]}))
+    fig.update_layout(title=f"Horizontal error (run {run})", height=380, xaxis_title="time (s)",
+                      yaxis_title="horizontal error (m)", yaxis_type="log" if log_y else "linear",
+                      margin={"t": 50, "b": 40})
+    return fig
+
+
+def rhat_figure(res: Results, channel: int, run: int = 0) -> go.Figure:
+    """√R̂ of one channel for the filters that estimate R, with √R0 (nominal) for reference."""
+    d = res.data
+    colors = filter_colors(list(res.runs))
+    fig = go.Figure()
+    sl = _dec(d.K + 1)
+    unit = d.channel_units[channel]
+    r0 = float(np.sqrt(d.model.R0[channel, channel]))
+    fig.add_trace(go.Scattergl(x=d.t[[0, -1]], y=[r0, r0], mode="lines", name="nominal √R0",
+                               line={"color": "black", "dash": "dash"}))
+    for key, fr in res.runs.items():
+        if fr.R_hat is None:
+            continue
+        with np.errstate(invalid="ignore"):
+            s = np.sqrt(fr.R_hat[run, :, channel])
+        fig.add_trace(go.Scattergl(x=d.t[sl].astype(np.float32), y=s[sl].astype(np.float32),
+                                   mode="lines", name=fr.label, line={"color": colors[key]}))
+    fig.update_layout(title=f"Estimated noise √R̂ — channel {d.channel_names[channel]} ({unit})",
+                      height=340, xaxis_title="time (s)", yaxis_title=f"√R̂ ({unit})",
+                      margin={"t": 50, "b": 40})
+    return fig
+
+
+def flags_figure(res: Results, run: int = 0) -> go.Figure:
+    """Epochs where each filter rejected or down-weighted at least one channel."""
+    d = res.data
+    colors = filter_colors(list(res.runs))
+    fig = go.Figure()
+    labels = []
+    for i, (key, fr) in enumerate(res.runs.items()):
+        labels.append(fr.label)
+        fl = fr.flags[run]
+        w = fr.weights[run]
+        rej = ((fl == 2) | (fl == 3) | (fl == 4)).sum(axis=1)
+        down = ((fl == 1) | ((w < 0.999) & (fl == 0))).sum(axis=1)
+        for cnt, name, sym in ((rej, "rejected", "x"), (down, "down-weighted", "circle-open")):
+            k = np.flatnonzero(cnt > 0)
+            if k.size:
+                fig.add_trace(go.Scattergl(
+                    x=d.t[k].astype(np.float32), y=np.full(k.size, i, np.float32), mode="markers",
+                    name=f"{fr.label}: {name}", marker={"symbol": sym, "color": colors[key], "size": 6},
+                    text=[f"{c} channel(s)" for c in cnt[k]], showlegend=False))
+    fig.update_layout(title=f"Epochs a filter rejected (×) or down-weighted (○) channels (run {run})",
+                      height=120 + 30 * len(labels), xaxis_title="time (s)",
+                      yaxis={"tickvals": list(range(len(labels))), "ticktext": labels},
+                      margin={"t": 50, "b": 40})
+    return fig
+
+
+def flag_table(res: Results) -> pd.DataFrame:
+    """Share of (epoch, channel) entries per flag code and filter, in %."""
+    rows = []
+    for fr in res.runs.values():
+        present = np.isfinite(res.data.z[:, 1:])
+        fl = fr.flags[:, 1:][present]
+        row = {"filter": fr.label}
+        for code, name in FLAG_NAMES.items():
+            if code:
+                row[name] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
+        rows.append(row)
+    df = pd.DataFrame(rows).set_index("filter")
+    return df.loc[:, (df != 0).any(axis=0)] if not df.empty else df
+
+
+def metrics_table(res: Results) -> pd.DataFrame:
+    """One row per filter: the real-data headline metrics and the runtime."""
+    df = summarize(res)
+    wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
+    B, K = res.data.B, res.data.K
+    if "us_per_run_step" in wide:
+        wide["runtime_s"] = wide["us_per_run_step"] * B * K / 1e6
+    cols = [(m, lab) for m, lab in TABLE_METRICS if m in wide.columns]
+    out = wide[[m for m, _ in cols]].rename(columns=dict(cols))
+    out.index.name = "filter"
+    return out

@@ -1,0 +1,132 @@
+"""Real data: navlab's filters on a real car drive (INS + GNSS) and real urban pseudoranges."""
+
+import streamlit as st
+
+from navlab.errors import NavlabError
+from navlab.filters.base import registry
+from navlab.scenarios.base import get_scenario_class
+from navlab.ui import realdata as R
+from navlab.ui.frame import frame
+from navlab.ui.runner import result_store, show_error
+
+frame("Real data", "🚗",
+      "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
+      "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.")
+
+with st.sidebar:
+    st.header("Recording")
+    rec = st.selectbox("Recording", list(R.RECORDINGS), format_func=R.RECORDINGS.get, key="rd_rec")
+    scen = R.scenario_of(rec)
+    options = R.usable_filters(scen)
+    defaults = [k for k in get_scenario_class(scen).default_filters if k in options]
+    filters = st.multiselect("Filters", options, default=defaults, key=f"rd_flt_{scen}",
+                             format_func=lambda k: f"{k} — {registry()[k].label}")
+    is_drive = scen == "drive0708"
+    epochs = st.number_input("Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
+                             0, 100000, 120 if is_drive else 300, step=10, key=f"rd_ep_{scen}")
+    runs = st.number_input("Noise/outlier injections (runs)", 1, 50, 1, key=f"rd_runs_{scen}",
+                           help="each run adds an independent draw of noise and outliers to the "
+                                "same real measurements")
+    seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed")
+    sp = {}
+    if is_drive:
+        sp["sigma_m"] = st.number_input("GNSS σ (m)", 0.1, 100.0, 3.0, key="rd_sigma")
+        contamination = st.slider("Outlier ratio α", 0.0, 0.5, 0.1, 0.01, key="rd_alpha")
+        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa")
+        o1, o2 = st.columns(2)
+        sp["outage_start_s"] = o1.number_input("Outage start (s)", 0.0, 1e4, 0.0, key="rd_out0")
+        sp["outage_len_s"] = o2.number_input("Outage length (s)", 0.0, 1e4, 0.0, key="rd_outlen")
+    else:
+        sp["variance_model"] = st.selectbox("Variance model", ["cn0-elevation", "file"],
+                                            key="rd_varmodel")
+        contamination = st.slider("Extra injected outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_sl")
+        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_sl")
+
+upload_error = None
+if rec == "upload":
+    st.markdown(
+        "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`, "
+        "vehicle axes x right, y forward, z up), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m`, "
+        "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
+        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). The drive must start at rest.")
+    u1, u2, u3 = st.columns(3)
+    f_imu = u1.file_uploader("imu.csv", type=["csv", "txt"], key="rd_up_imu")
+    f_gnss = u2.file_uploader("gnss.csv", type=["csv", "txt"], key="rd_up_gnss")
+    f_truth = u3.file_uploader("truth.csv (optional)", type=["csv", "txt"], key="rd_up_truth")
+    if f_imu is None or f_gnss is None:
+        st.info("Upload at least imu.csv and gnss.csv.")
+        st.stop()
+    try:
+        folder = R.save_upload(f_imu.getvalue(), f_gnss.getvalue(),
+                               f_truth.getvalue() if f_truth is not None else None)
+    except NavlabError as exc:
+        st.error(str(exc))
+        st.stop()
+    sp["data_dir"] = str(folder)
+    sp["add_noise"] = st.toggle("Add the σ / outliers above to the uploaded GNSS", False,
+                                key="rd_addnoise")
+
+if not filters:
+    st.warning("Choose at least one filter.")
+    st.stop()
+
+spec = R.build_spec(rec, filters, epochs=int(epochs), runs=int(runs), seed=int(seed),
+                    contamination=float(contamination), outlier_scale=float(scale),
+                    scenario_params=sp)
+key = spec.to_json()
+store = result_store()
+
+c1, c2 = st.columns([1, 5])
+run_clicked = c1.button("Run", type="primary", key="rd_run")
+c2.caption(f"{len(filters)} filters × {runs} run(s) · scenario `{spec.scenario}` · "
+           f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`")
+
+res = store.get(key)
+if run_clicked and res is None:
+    bar = st.progress(0.0, text="starting…")
+    try:
+        res = R.run_with_progress(spec, lambda f, msg: bar.progress(min(f, 1.0), text=msg))
+    except NavlabError as exc:
+        bar.empty()
+        st.error(str(exc))
+        st.stop()
+    except Exception as exc:  # never a traceback
+        bar.empty()
+        show_error(exc)
+        st.stop()
+    bar.empty()
+    store.put(key, res)
+
+if res is None:
+    st.info("Press **Run** to run the chosen filters on this recording.")
+else:
+    d = res.data
+    run = 0
+    if d.B > 1:
+        run = st.number_input("Show run", 0, d.B - 1, 0, key="rd_show_run")
+    st.subheader("Results")
+    st.dataframe(R.metrics_table(res).round(3), key="rd_table")
+    st.caption(f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
+               "Median/90 % horizontal errors pool every epoch and run.")
+    st.plotly_chart(R.track_figure(res, run), width="stretch", config={"displaylogo": False},
+                    key="rd_track")
+    log_y = st.toggle("log scale", False, key="rd_log")
+    st.plotly_chart(R.error_figure(res, run, log_y), width="stretch",
+                    config={"displaylogo": False}, key="rd_err")
+    if any(fr.R_hat is not None for fr in res.runs.values()):
+        ch = st.selectbox("Channel (satellite or axis) for R̂", list(range(len(d.channel_names))),
+                          format_func=lambda i: d.channel_names[i], key="rd_ch")
+        st.plotly_chart(R.rhat_figure(res, ch, run), width="stretch",
+                        config={"displaylogo": False}, key="rd_rhat")
+        if d.scenario == "smartloc-berlin":
+            st.caption("Pseudorange channels are whitened by the variance model: R̂ is a variance "
+                       "multiplier (1 = the model is right).")
+    st.plotly_chart(R.flags_figure(res, run), width="stretch", config={"displaylogo": False},
+                    key="rd_flags")
+    ft = R.flag_table(res)
+    if not ft.empty and ft.shape[1]:
+        st.caption("Share of measurement entries per decision (%)")
+        st.dataframe(ft.round(2), key="rd_flagtable")
+
+st.markdown("##### Data source and licence")
+st.info(R.LICENCES[rec])

@@ -1,0 +1,70 @@
+"""AppTest of the Real data page: renders, runs short segments, reports bad uploads."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import assert_clean, plotly_figs
+
+from navlab.data import data_root
+from navlab.data.loaders import RTKX_DIR, SMARTLOC_DIR
+
+PAGE = "pages/6_Real_data.py"
+ROOT = data_root()
+needs_data = pytest.mark.skipif(
+    not ((ROOT / RTKX_DIR).is_dir() and (ROOT / SMARTLOC_DIR).is_dir()),
+    reason=f"real data not found under {ROOT} (set NAVLAB_DATA)",
+)
+
+
+def test_renders_without_running(open_page):
+    at = open_page(PAGE)
+    assert_clean(at)
+    assert at.selectbox(key="rd_rec").value == "drive0708"
+    assert at.button(key="rd_run")
+    assert not plotly_figs(at)
+    assert any("BSD-3-Clause" in i.value for i in at.info)  # source and licence shown
+
+
+@needs_data
+def test_short_drive_segment_runs(open_page):
+    at = open_page(PAGE)
+    at.number_input(key="rd_ep_drive0708").set_value(15).run()
+    at.multiselect(key="rd_flt_drive0708").set_value(["kf", "huber-kf", "vb-akf"]).run()
+    at.button(key="rd_run").click().run()
+    assert_clean(at)
+    table = at.dataframe[0].value
+    assert list(table.index) == ["KF", "HKF (Huber)", "AKF (VB)"]
+    med = table["median horizontal error (m)"].to_numpy()
+    assert np.all(np.isfinite(med)) and np.all(med < 10)
+    figs = plotly_figs(at)
+    assert len(figs) >= 3  # track, error vs time, R̂, flags
+    track = figs[0]
+    names = [t.get("name") for t in track["data"]]
+    assert "truth" in names and "GNSS fixes (aiding)" in names
+    assert track["layout"]["xaxis"]["title"]["text"] == "east (m)"
+    assert all(t["type"] == "scattergl" for f in figs for t in f["data"])
+
+
+@needs_data
+def test_short_smartloc_segment_runs(open_page):
+    at = open_page(PAGE)
+    at.selectbox(key="rd_rec").set_value("smartloc-berlin").run()
+    at.number_input(key="rd_ep_smartloc-berlin").set_value(40).run()
+    at.multiselect(key="rd_flt_smartloc-berlin").set_value(["wls", "ekf", "huber-kf"]).run()
+    at.button(key="rd_run").click().run()
+    assert_clean(at)
+    table = at.dataframe[0].value
+    assert "WLS (per epoch)" in table.index
+    assert np.all(np.isfinite(table["median horizontal error (m)"].to_numpy()))
+    assert any("CC BY-SA 4.0" in i.value for i in at.info)
+
+
+def test_bad_upload_names_the_file_line_and_column():
+    """The page shows this message with st.error (AppTest cannot drive file_uploader)."""
+    from navlab.errors import NavlabError
+    from navlab.ui import realdata as R
+
+    imu = b"t_s,f_x_mps2,f_y_mps2,f_z_mps2,w_x_radps,w_y_radps\n0,0,0,9.8,0,0\n"
+    with pytest.raises(NavlabError, match=r"uploaded imu.csv: line 1 \(header\) lacks column\(s\) w_z_radps"):
+        R.save_upload(imu, b"t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n")
