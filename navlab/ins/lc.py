@@ -28,7 +28,7 @@ only see the noisy 1 Hz aiding.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,7 +36,7 @@ from navlab.data.loaders import DriveRecording
 from navlab.errors import NavlabError
 from navlab.filters.linalg import Array
 from navlab.ins.align import AlignmentResult, align_static, course_heading, motion_start_time
-from navlab.ins.earth import dcm_to_rotvec, radii, rotvec_to_dcm
+from navlab.ins.earth import dcm_to_rotvec, radii, rotvec_to_dcm, skew
 from navlab.ins.strapdown import (
     InsState,
     apply_correction,
@@ -100,6 +100,7 @@ class DriveSetup:
     x0: Array
     P0: Array
     C0: Array
+    C_bv: Array = field(default_factory=lambda: np.eye(3))
 
     @property
     def K(self) -> int:
@@ -224,7 +225,8 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     P0 = np.diag(np.r_[np.radians([0.5, 0.5, 3.0]) ** 2, [0.1**2] * 3, [1.0**2] * 3,
                        [np.radians(0.05) ** 2] * 3, [0.1**2] * 3])
     return DriveSetup(t=t, **setup_origin, p_true=p_true, v_true=v_true, gnss_pos=gnss_pos,
-                      t_imu=t_imu, f_b=f_b, w_b=w_b, align=al, x0=x0, P0=P0, C0=al.C_bn)
+                      t_imu=t_imu, f_b=f_b, w_b=w_b, align=al, x0=x0, P0=P0, C0=al.C_bn,
+                      C_bv=np.asarray(rec.C_bv, float))
 
 
 def _state_from_total(setup: DriveSetup, x: Array, C_ref: Array, t_s: float) -> InsState:
@@ -316,18 +318,22 @@ def run_closed_loop(setup: DriveSetup, z: Array | None, sigma_m: float | Array,
 class InsGnssModel:
     """Total-state loosely coupled INS/GNSS model for navlab's filters (see the module docstring).
 
-    Position measurements z = p + v (N, E, U metres), R0 = diag(σ²).
+    Measurements: GNSS positions z = p + v (N, E, U metres), R0 = diag(σ²), and, with
+    ``nhc_sigma_mps`` > 0, the non-holonomic constraints of a car — zero velocity along the
+    vehicle's right and up axes, z = 0 = [C_bv C_bnᵀ v]_{x,z} + v_nhc (two more channels).
     """
 
     n = 15
-    m = 3
     linear = False
 
     def __init__(self, setup: DriveSetup, ref: ClosedLoopResult, sigma_m: Array,
-                 noise: ImuNoise = ImuNoise()) -> None:
+                 noise: ImuNoise = ImuNoise(), nhc_sigma_mps: float = 0.0) -> None:
         self.setup = setup
         self.C_ref = ref.C_bn[0]  # (K+1, 3, 3)
-        self.R0 = np.diag(np.asarray(sigma_m, float) ** 2)
+        self.nhc = nhc_sigma_mps > 0
+        self.m = 5 if self.nhc else 3
+        sig2 = np.asarray(sigma_m, float) ** 2
+        self.R0 = np.diag(np.r_[sig2, [nhc_sigma_mps**2] * 2] if self.nhc else sig2)
         self._H = np.zeros((3, 15))
         self._H[:, 6:9] = np.eye(3)
         K = setup.K
@@ -357,11 +363,28 @@ class InsGnssModel:
         s, _ = propagate_block(s, st.t_imu[sl], st.f_b[sl], st.w_b[sl], t_end_s=float(st.t[k]))
         return _total_from_state(st, s, self.C_ref[k])
 
+    def _C_vn(self, x: Array, k: int) -> Array:
+        """(B, 3, 3) rotation ENU -> vehicle, C_bv C_bnᵀ with C_bn = exp(−[a×]) C_ref,k."""
+        C_bn = rotvec_to_dcm(-x[:, 0:3]) @ self.C_ref[k]
+        return self.setup.C_bv @ np.swapaxes(C_bn, -1, -2)
+
     def H(self, x: Array | None, k: int) -> Array:
-        return self._H
+        if not self.nhc:
+            return self._H
+        B = x.shape[0]
+        Cvn = self._C_vn(x, k)[:, [0, 2]]  # right and up rows
+        H = np.zeros((B, 5, 15))
+        H[:, 0:3, 6:9] = np.eye(3)
+        H[:, 3:5, 3:6] = Cvn
+        # C_bnᵀ v = C_refᵀ exp([a×]) v ≈ C_refᵀ (v + a × v) → ∂/∂a = −C_vn [v×]
+        H[:, 3:5, 0:3] = -Cvn @ skew(x[:, 3:6])
+        return H
 
     def h(self, x: Array, k: int) -> Array:
-        return x[:, 6:9]
+        if not self.nhc:
+            return x[:, 6:9]
+        v_v = (self._C_vn(x, k) @ x[:, 3:6, None])[:, :, 0]
+        return np.concatenate([x[:, 6:9], v_v[:, [0, 2]]], axis=1)
 
 
 def reference_solution(setup: DriveSetup, noise: ImuNoise = ImuNoise()) -> ClosedLoopResult:

@@ -83,6 +83,10 @@ class Drive0708Params:
     imu_rate_hz: float = param(
         10.0, lo=0.0, hi=1000.0, help="mechanisation rate: IMU averaged into bins (0: raw 100 Hz)")
     add_noise: bool = param(True, help="add the schedule's noise and outliers to the aiding positions")
+    nhc_sigma_mps: float = param(
+        0.2, lo=0.0, hi=100.0,
+        help="σ of the car's non-holonomic constraints (zero lateral/vertical velocity) as two "
+             "extra channels (0: off)")
     data_dir: str = param(
         "", help="data directory (default ../shared/data or $NAVLAB_DATA), or a generic-CSV folder",
         ui=False)
@@ -113,7 +117,7 @@ class Drive0708(Scenario):
         rec, setup, ref = drive_setup(p.data_dir, int(p.epochs), float(p.imu_rate_hz))
         K = setup.K
         sigma = np.full(3, p.sigma_m)
-        model = InsGnssModel(setup, ref, sigma)
+        model = InsGnssModel(setup, ref, sigma, nhc_sigma_mps=p.nhc_sigma_mps)
         streams = [run_streams(seed, r) for r in runs]
         B = len(streams)
         std = schedule.std(sigma, K)
@@ -126,6 +130,17 @@ class Drive0708(Scenario):
         if p.outage_len_s > 0 and p.outage_start_s > 0:
             dt = setup.t - setup.t[0]
             z[:, (dt >= p.outage_start_s) & (dt < p.outage_start_s + p.outage_len_s)] = np.nan
+        std2 = std**2
+        channels = ("p_N", "p_E", "p_U")
+        if model.nhc:  # pseudo-measurements 0 = lateral / vertical vehicle velocity: real noise only
+            nh = np.full((B, K + 1, 2), p.nhc_sigma_mps**2)
+            z = np.concatenate([z, np.zeros((B, K + 1, 2))], axis=2)
+            z[:, 0] = np.nan
+            var = np.concatenate([var, nh], axis=2)
+            bias = np.concatenate([bias, np.zeros((B, K + 1, 2))], axis=2)
+            mask = np.concatenate([mask, np.zeros((B, K + 1, 2), bool)], axis=2)
+            std2 = np.concatenate([std2, nh[0]], axis=1)
+            channels += ("v_right", "v_up")
         x_true = np.concatenate(
             [np.zeros((K + 1, 3)), setup.v_true, setup.p_true, ref.bias_g[0], ref.bias_a[0]], axis=1
         )
@@ -137,15 +152,15 @@ class Drive0708(Scenario):
             x_true=x_true,
             z=z,
             R_true=var,
-            R_schedule=std**2,
+            R_schedule=std2,
             outlier_mask=mask,
             bias=bias,
             x0=np.broadcast_to(setup.x0, (B, 15)).copy(),
             P0=setup.P0,
             runs=np.asarray(runs),
             state_names=STATE_NAMES,
-            channel_names=("p_N", "p_E", "p_U"),
-            channel_units=("m", "m", "m"),
+            channel_names=channels,
+            channel_units=("m", "m", "m", "m/s", "m/s")[: len(channels)],
             groups={
                 "pos": MetricGroup((6, 7, 8), "m", "position (3-D)"),
                 "hpos": MetricGroup((6, 7), "m", "horizontal position"),
