@@ -52,14 +52,22 @@ config = (key, None if full else int(runs), int(seed))
 done = st.session_state.setdefault("repro_done", set())
 if ui.is_cached(*config):  # computed before on this server (e.g. by whoever shared the link)
     done.add(config)
+else:  # never run, or evicted from the bounded cache: ask for Run rather than block silently
+    done.discard(config)
 if st.button("Run", type="primary", icon=":material/play_arrow:"):
     label = f"{key}: {'the paper’s count' if full else f'{int(runs)} runs'}, seed {int(seed)}"
     with st.status(f"Running {label} …", expanded=True) as status:
-        bar = st.progress(0.0, text="running (results are cached per configuration)")
         t0 = time.perf_counter()
+        progress = None
+        if ui.accepts(rep.run, "on_progress"):
+            bar = st.progress(0.0, text="starting")
+
+            def progress(d: int, n: int) -> None:
+                bar.progress(min(1.0, d / max(n, 1)), text=f"{d}/{n} runs")
+        else:
+            st.write("This reproduction reports no progress; the status turns green when done.")
         try:
-            ui.cached_run(*config, on_progress=lambda d, n: bar.progress(
-                min(1.0, d / max(n, 1)), text=f"{d}/{n}"))
+            ui.cached_run(*config, on_progress=progress)
         except NavlabError as exc:
             status.update(label=f"{label}: {exc}", state="error")
             st.error(str(exc))
@@ -67,7 +75,6 @@ if st.button("Run", type="primary", icon=":material/play_arrow:"):
             status.update(label=f"{label} failed", state="error")
             st.error(f"The reproduction '{key}' failed: {type(exc).__name__}: {exc}")
         else:
-            bar.progress(1.0, text="done")
             done.add(config)
             status.update(
                 label=f"{label}: done in {time.perf_counter() - t0:.1f} s", state="complete",
