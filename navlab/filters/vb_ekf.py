@@ -51,7 +51,7 @@ import numpy as np
 
 from navlab.filters.base import NUMERICAL_FIX, Filter, Model, SideInfo, StepOut, register
 from navlab.filters.ekf import ekf_predict
-from navlab.filters.linalg import Array, gain, joseph, mask_missing, mT, mv, sym
+from navlab.filters.linalg import Array, joseph, mask_missing, mT, mv, solve_sym, sym
 from navlab.params import param
 
 
@@ -169,9 +169,11 @@ class VBEKF(Filter):
                 R_hat = sym(U_new / (u - m - 1))
                 # missing channels get a zero gain column
                 _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
-            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹
-            S = sym(H_m @ P_hat @ mT(H_m) + R_m)
-            K, fixed = gain(P_hat, H_m, S)
+            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹ via a solve with S
+            PHt = P_hat @ mT(H_m)
+            S = sym(H_m @ PHt + R_m)
+            Kt, fixed = solve_sym(S, mT(PHt))
+            K = mT(Kt)
             x_new = x_pr + mv(K, nu_m)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
             P_new = joseph(P_hat, K, H_m, R_m)  # = P̂ − K H P̂ for this optimal gain
             fixed_any |= np.broadcast_to(fixed, (B,)) & active

@@ -116,6 +116,10 @@ class PseudorangeModel:
     d: Array
     linear: bool = False
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rho", np.linalg.norm(self.d, axis=1))  # ‖d_j‖ (m,)
+        object.__setattr__(self, "dT2", 2.0 * self.d.T)  # (3, m)
+
     @property
     def n(self) -> int:
         return 8
@@ -136,8 +140,8 @@ class PseudorangeModel:
     def h(self, x: Array, k: int) -> Array:
         """h_j(x) = ‖d_j + δr‖ − ‖d_j‖ + c_b, evaluated without cancellation (B, m)."""
         dr = x[..., _POS_ENU]  # (B, 3) INS position error, ENU
-        rho = np.linalg.norm(self.d, axis=1)
-        num = 2.0 * dr @ self.d.T + np.sum(dr**2, axis=-1, keepdims=True)
+        rho = self.rho
+        num = dr @ self.dT2 + np.sum(dr * dr, axis=-1, keepdims=True)
         # ‖d+δr‖ − ‖d‖ = (2 d·δr + |δr|²) / (‖d+δr‖ + ‖d‖)
         return num / (np.sqrt(rho**2 + num) + rho) + x[..., 6:7]
 
