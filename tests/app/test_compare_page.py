@@ -1,0 +1,82 @@
+import numpy as np
+from conftest import SMALL, assert_clean, plotly_figs
+
+import navlab.ui.runner as runner
+
+PAGE = "pages/1_Compare.py"
+
+
+def test_compare_renders_defaults_without_running(open_page):
+    at = open_page(PAGE)
+    assert_clean(at)
+    assert at.multiselect(key="flt").value == ["kf", "oracle-kf", "chi2-kf"]
+    assert at.button(key="run_compare")
+    assert not plotly_figs(at)  # nothing runs before Run is pressed
+
+
+def test_query_params_initialise_the_widgets(open_page):
+    at = open_page(PAGE, runs="17", seed="5", flt=["kf", "chi2-kf"], noise="step",
+                   **{"ol.mixture.contamination": "0.2", "ns.step.factor": "4"})
+    assert_clean(at)
+    assert at.number_input(key="runs").value == 17
+    assert at.number_input(key="seed").value == 5
+    assert at.multiselect(key="flt").value == ["kf", "chi2-kf"]
+    assert at.selectbox(key="noise").value == "step"
+    assert at.number_input(key="ol.mixture.contamination").value == 0.2
+    assert at.number_input(key="ns.step.factor").value == 4.0
+
+
+def test_small_run_completes_with_charts_and_table(open_page):
+    at = open_page(PAGE, seed="11", **SMALL)
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    figs = plotly_figs(at)
+    assert len(figs) == 3  # error vs time, R vs R-hat, NIS vs chi2
+    types = {t["type"] for f in figs for t in f["data"]}
+    assert types <= {"scatter", "scattergl"}
+    names = [t.get("name", "") for t in figs[0]["data"]]
+    assert {"KF", "Oracle KF", "χ²-gated KF"} <= set(names)
+    # a spread band: a trace filled to the previous one
+    assert any(t.get("fill") == "tonexty" for t in figs[0]["data"])
+    table = at.dataframe[0].value
+    assert list(table.index) == ["KF", "Oracle KF", "χ²-gated KF"]
+    rmse = table["RMSE position (m)"].to_numpy()
+    assert np.all(np.isfinite(rmse)) and rmse[1] < rmse[0]  # the oracle beats the KF
+    assert any("6/6 runs (complete)" in c.value for c in at.caption)
+    labels = [b.label for b in at.get("download_button")]
+    assert {"Configuration (JSON)", "Metrics (CSV)", "RMSE per epoch (CSV)"} <= set(labels)
+
+
+def test_view_controls_do_not_recompute(open_page, monkeypatch):
+    at = open_page(PAGE, seed="12", **SMALL)
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    calls = []
+    real = runner.iter_chunks
+    monkeypatch.setattr(runner, "iter_chunks", lambda *a, **k: calls.append(1) or real(*a, **k))
+    at.toggle(key="compare_v_logerr").set_value(True).run()
+    at.selectbox(key="compare_v_ch").set_value(1).run()
+    at.selectbox(key="compare_v_group").set_value("vel").run()
+    assert_clean(at)
+    assert calls == []
+    figs = plotly_figs(at)
+    assert figs[0]["layout"]["yaxis"]["type"] == "log"
+    assert "velocity" in figs[0]["layout"]["yaxis"]["title"]["text"]
+    assert "Channel y" in figs[1]["layout"]["title"]["text"]
+
+
+def test_changed_parameter_needs_a_new_run(open_page):
+    at = open_page(PAGE, seed="13", **SMALL)
+    at.button(key="run_compare").click().run()
+    assert len(plotly_figs(at)) == 3
+    at.number_input(key="seed").set_value(14).run()
+    assert_clean(at)
+    assert not plotly_figs(at)  # the old results are not shown for a new configuration
+    assert any("Press **Run**" in i.value for i in at.info)
+
+
+def test_bad_combination_is_a_message_not_a_traceback(open_page):
+    at = open_page(PAGE, flt=["kf"], runs="5")
+    at.multiselect(key="flt").set_value([]).run()
+    assert not at.exception
+    assert any("at least one filter" in e.value for e in at.error)

@@ -1,0 +1,23 @@
+from conftest import assert_clean, plotly_figs
+
+PAGE = "pages/2_Noise.py"
+
+
+def test_noise_page_small_run(open_page):
+    at = open_page(PAGE, runs="5", flt=["kf", "oracle-kf", "sage-husa"],
+                   **{"sc.cv2d.epochs": "80"})
+    assert_clean(at)
+    assert at.selectbox(key="noise").value == "step"
+    at.button(key="run_noise").click().run()
+    assert_clean(at)
+    (fig,) = plotly_figs(at)
+    names = [t.get("name", "") for t in fig["data"]]
+    assert "true R(t) (schedule)" in names
+    assert any("R̂ (median)" in n for n in names)
+    assert fig["data"][-1]["type"] == "bar"  # outlier epochs marked on the time axis
+    assert any("epochs contaminated in most runs: 20, 25" in c.value for c in at.caption)
+    tab = at.dataframe[0].value
+    assert "Oracle KF" in tab.index and tab.shape[1] == 2  # one R̂ error column per channel
+    at.toggle(key="noise_v_std").set_value(True).run()
+    assert_clean(at)
+    assert "σ" in plotly_figs(at)[0]["layout"]["yaxis"]["title"]["text"]
