@@ -345,6 +345,9 @@ def _merge(a: RBFNet, b: RBFNet, take_b: Array) -> RBFNet:
     out = {}
     for name, va in a.__dict__.items():
         vb = b.__dict__[name]
+        if not isinstance(va, np.ndarray) or not isinstance(vb, np.ndarray):
+            out[name] = va  # flags (linear) and optional arrays absent from one of them
+            continue
         sel = take_b.reshape((-1,) + (1,) * (np.ndim(va) - 1))
         out[name] = np.where(sel, vb, va)
     return RBFNet(**out)

@@ -148,8 +148,28 @@ class MeasPred(NamedTuple):
     neg: Array  # (B,) SVD repaired a negative-definite P (this step)
 
 
-def ukf_time_update(model: Model, x: Array, P: Array, k: int, w: UTWeights) -> UKFState:
-    """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q."""
+def _shared_linear(model: Model, P: Array, matrix) -> bool:
+    """P and the model matrix (``matrix()``) are the same in every run of a linear model: the UT
+    covariance is then run-independent.
+    """
+    return P.ndim == 2 and bool(getattr(model, "linear", False)) and np.ndim(matrix()) == 2
+
+
+def ukf_time_update(
+    model: Model, x: Array, P: Array, k: int, w: UTWeights, keep_sigma: bool = False
+) -> UKFState:
+    """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
+
+    Shared P with a shared linear F: the deviations χ*_i − x⁻ = ±F·c·L_j do not depend on the run,
+    so the sigma points are transformed once (about x = 0) and P⁻ stays shared; x⁻ = F x (the
+    weighted mean of the symmetric images, exactly). ``keep_sigma`` forces per-run sigma points.
+    """
+    B, n = x.shape
+    if not keep_sigma and _shared_linear(model, P, lambda: model.F(k)):
+        chi0, neg = sigma_points(np.zeros((1, n)), P, w.c)
+        _, P_p, _ = ut_mean_cov(propagate_f(model, chi0, k), w)
+        x_p = propagate_f(model, x[:, None, :], k)[:, 0]
+        return UKFState(x_p, sym(P_p[0] + model.Q(k)), None, np.broadcast_to(neg, (B,)).copy())
     chi, neg = sigma_points(x, P, w.c)
     chi_f = propagate_f(model, chi, k)
     x_p, P_p, _ = ut_mean_cov(chi_f, w)
@@ -161,6 +181,16 @@ def ukf_measurement_prediction(
     model: Model, state: UKFState, k: int, w: UTWeights, resample: str = "redraw"
 ) -> MeasPred:
     """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy."""
+    B, n = state.x.shape
+    if resample != "reuse" and _shared_linear(model, state.P, lambda: model.H(state.x, k)):
+        chi0, neg = sigma_points(np.zeros((1, n)), state.P, w.c)
+        _, A, dY = ut_mean_cov(propagate_h(model, chi0, k), w)
+        Pxy = ut_cross(chi0, dY, w)
+        z_hat = propagate_h(model, state.x[:, None, :], k)[:, 0]
+        neg = np.broadcast_to(neg, (B,))
+        if state.neg is not None:
+            neg = neg | state.neg
+        return MeasPred(z_hat, A[0], Pxy[0], neg)
     if resample == "reuse" and state.chi_f is not None:
         chi = state.chi_f
         neg = np.zeros(chi.shape[0], dtype=bool)
@@ -309,14 +339,14 @@ class _UKFBase(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> Any:
         x0 = np.array(x0, dtype=float)
         self._weights(x0.shape[1])  # validates n + λ > 0 before the first step
-        P0 = np.broadcast_to(np.asarray(P0, dtype=float), (x0.shape[0], x0.shape[1], x0.shape[1]))
-        return self._init_state(model, x0, P0.copy())
+        return self._init_state(model, x0, np.array(P0, dtype=float))
 
     def _init_state(self, model: Model, x0: Array, P0: Array) -> Any:
         return UKFState(x0, P0)
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
-        ts = ukf_time_update(model, state.x, state.P, k, self._weights(state.x.shape[1]))
+        w = self._weights(state.x.shape[1])
+        ts = ukf_time_update(model, state.x, state.P, k, w, self.params.resample == "reuse")
         return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg)
 
     def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
@@ -340,7 +370,15 @@ class SVDUKF(_UKFBase):
     def update(self, model: Model, state: UKFState, k: int, z: Array, side: SideInfo):
         mp = self._predict_measurement(model, state, k)
         V = z - mp.z_hat  # (§1.3 step 7)
-        _ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
+        _, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
+        if state.P.ndim == 2 and A.ndim == 2:  # shared P, all channels present: shared gain
+            Pyy = sym(A + R)
+            Kt, fixed = solve_sym(Pyy, Pxy.T)
+            x = state.x + V @ Kt
+            P = sym(state.P - Kt.T @ Pyy @ Kt)
+            flags = np.zeros(z.shape, dtype=np.int8)
+            flags[np.broadcast_to(fixed, z.shape[:1]) | mp.neg] = NUMERICAL_FIX
+            return UKFState(x, P), StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags)
         ones_n = np.ones_like(state.x)
         ones_m = np.ones_like(V)
         x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, ones_n, ones_m)

@@ -182,7 +182,7 @@ def test_mfukf_without_triggering_equals_svd_ukf():
     data = _cv2d_data(outliers="isolated", mean=8.0)
     out = run_filters(data, [make_filter("svd-ukf"), make_filter("mfukf", {"xi": 1e12})])
     a, b = out["svd-ukf"], out["mfukf"]
-    assert np.max(np.abs(a.x - b.x)) == 0.0
+    assert np.max(np.abs(a.x - b.x)) < 1e-9 * np.abs(a.x).max()  # svd-ukf takes the shared-P path
     assert np.all(b.stats["fading"][:, 1:] == 1.0)
     # and it does trigger with the default threshold on the same data
     out2 = run_filters(data, [make_filter("mfukf")])
