@@ -342,18 +342,39 @@ CAVEATS: dict[str, str] = {
 }
 
 
+def base_key(key: str) -> str | None:
+    """The documented filter a variant key builds on (``nnmfukf-guarded`` → ``nnmfukf``)."""
+    if key in EQUATIONS:
+        return key
+    bases = [b for b in EQUATIONS if key.startswith(b + "-")]
+    return max(bases, key=len) if bases else None
+
+
 def equations(key: str) -> list[str]:
-    """The LaTeX lines for filter ``key`` ([] for a key without equations: show its summary)."""
-    return list(EQUATIONS.get(key, []))
+    """The LaTeX lines for filter ``key``, or its base filter's for a variant ([] if none)."""
+    b = base_key(key)
+    return list(EQUATIONS[b]) if b else []
+
+
+def caveat(key: str) -> str:
+    """What the tiny example cannot show for ``key`` (or for the filter it is a variant of)."""
+    b = base_key(key)
+    return CAVEATS.get(key) or (CAVEATS.get(b, "") if b else "")
 
 
 def idea(cls: type[Filter]) -> str:
-    """One paragraph about the filter: :data:`IDEAS`, else its summary and docstring."""
+    """One paragraph about the filter: :data:`IDEAS`, else its summary and docstring (plus the
+    base filter's idea for a variant such as ``nnmfukf-guarded``).
+    """
     if cls.key in IDEAS:
         return IDEAS[cls.key]
     doc = (cls.__doc__ or "").strip().split("\n\n")[0].replace("\n", " ")
     parts = [s for s in (cls.summary, doc) if s]
-    return " ".join(parts) if parts else "No description yet."
+    text = " ".join(parts) if parts else "No description yet."
+    b = base_key(cls.key)
+    if b and b in IDEAS:
+        text += f" It is a variant of `{b}`: {IDEAS[b]}"
+    return text
 
 
 # ------------------------------------------------------------------------------- tiny example
@@ -718,6 +739,7 @@ def filter_info(cls: type[Filter]) -> dict[str, Any]:
         "reconstruction": bool(cls.reconstruction),
         "idea": idea(cls),
         "equations": equations(cls.key),
-        "caveat": CAVEATS.get(cls.key, ""),
+        "equations_of": base_key(cls.key),
+        "caveat": caveat(cls.key),
         "params": describe(cls.Params) if dataclasses.is_dataclass(cls.Params) else [],
     }

@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from navlab.learn import CAVEATS, TinySpec
+from navlab.learn import TinySpec, caveat
 from navlab.ui import learn as ui
 from navlab.ui.frame import frame
 
@@ -70,9 +70,9 @@ if not res.applicable:
     st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}",
                icon=":material/block:")
 else:
-    caveat = CAVEATS.get(key)
-    if caveat:
-        st.info(caveat, icon=":material/info:")
+    note = caveat(key)
+    if note:
+        st.info(note, icon=":material/info:")
     if st.session_state["step"] > res.epochs:
         st.session_state["step"] = res.epochs
     step = st.slider("Step (epoch k)", 1, res.epochs, key="step", bind="query-params")

@@ -193,6 +193,8 @@ def render_filter_card(key: str) -> None:
     st.markdown(info["idea"])
     st.subheader("Key equations")
     if info["equations"]:
+        if info["equations_of"] not in (None, key):
+            st.caption(f"The equations of `{info['equations_of']}`, which this filter varies.")
         for line in info["equations"]:
             st.latex(line)
     else:

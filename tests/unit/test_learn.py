@@ -172,6 +172,8 @@ def test_equations_and_ideas():
         assert equations(key), key
         assert key in IDEAS
     assert equations("unknown-key") == []
+    assert equations("nnmfukf-guarded") == equations("nnmfukf")  # a variant: its base's
+    assert equations("kfx") == []  # not a "<base>-" variant
     assert all(isinstance(s, str) and s for lines in EQUATIONS.values() for s in lines)
     info = filter_info(registry()["chi2-kf"])
     assert info["equations"] and info["idea"] and info["params"]
