@@ -47,7 +47,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, diag, gain, joseph, mask_missing, mT, mv, solve_sym, sym
+from navlab.filters.linalg import Array, diag, gain, mask_missing, mT, mv, solve_sym, sym
 from navlab.params import param
 
 __all__ = ["HAKF", "VBAKF", "HuberKF", "StudentTKF", "huber_weight"]
@@ -126,19 +126,98 @@ class _MeasSpace:
         hph = self.dM - np.einsum("bij,bji->bi", self.Mb, Y[..., 1:]) * inv
         return resid, hph
 
-    def check(self, Rt: Array) -> Array:
-        """(B,) True where the last S was nearly singular (det < 1e-12 · Π diag)."""
-        if self.m > 3:
-            return self.ill
-        S = self.Mb + _diag_embed(Rt)
-        return self.ill | (np.linalg.det(S) <= 1e-12 * np.prod(diag(S), axis=-1))
+
+def _inv_small(S: Array) -> tuple[Array, Array]:
+    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det.
+
+    Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU).
+    """
+    B, m = S.shape[0], S.shape[-1]
+    Sf = S.reshape(B, m * m)
+    if m == 1:
+        cof = np.ones((B, 1))
+    else:
+        idx, sgn = _cofactor_index(m)
+        G = Sf[:, idx]
+        cof = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36] if m == 3 else G * sgn
+    det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
+    ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
+    inv = 1.0 / np.where(ill, 1.0, det)
+    return cof.reshape(B, m, m) * inv[:, None, None], ill
+
+
+_SEL_CACHE: dict[tuple, Array | None] = {}
+
+
+def _selection(H: Array) -> Array | None:
+    """Column indices if H is a constant 0/1 selection matrix (one 1 per row), else None."""
+    if H.ndim != 2:
+        return None
+    key = (H.shape, H.tobytes())
+    if key not in _SEL_CACHE:
+        is_sel = np.all((H == 0.0) | (H == 1.0)) and np.all(H.sum(axis=1) == 1.0)
+        if len(_SEL_CACHE) > 64:
+            _SEL_CACHE.clear()
+        _SEL_CACHE[key] = np.argmax(H, axis=1) if is_sel else None
+    return _SEL_CACHE[key]
+
+
+def _PHt(P: Array, H: Array, sel: Array | None) -> Array:
+    """U = P Hᵀ, by indexing when H selects states (a stacked matmul costs ≈ 15× more)."""
+    return P[..., sel] if sel is not None else P @ mT(H)
 
 
 def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array):
-    """Gain, mean and Joseph covariance with the final (B, m, m) R_used (§0.2 rules 1–3)."""
-    S = sym(H @ P @ mT(H) + R_used)
-    K, fixed = gain(P, H, S)
-    return x + mv(K, nu), joseph(P, K, H, R_used), S, fixed
+    """Gain, mean and Joseph covariance with the final (B, m, m) R_used (§0.2 rules 1–3).
+
+    With U = P⁻Hᵀ and S = H U + R the Joseph form (I−KH)P⁻(I−KH)ᵀ + K R Kᵀ is evaluated as its
+    exact expansion P⁻ − K Uᵀ − U Kᵀ + K S Kᵀ (valid for any gain K): only n×m and m×n
+    products instead of three n×n×n ones per run, the dominant cost on 15-state models.
+    S⁻¹ is the closed-form inverse for m ≤ 3 (LU solve otherwise or when S is ill-conditioned).
+    """
+    B, m = nu.shape
+    sel = _selection(H)
+    U = _PHt(P, H, sel)  # (B, n, m)
+    HU = U[..., sel, :] if sel is not None else H @ U
+    S = sym(np.broadcast_to(HU + R_used, (B, m, m)))
+    fixed = np.zeros(B, dtype=bool)
+    if m <= 3:
+        Sinv, ill = _inv_small(S)
+        if ill.any():  # flag 9: an ill-conditioned S, solved by LU instead
+            Kt, fixed = solve_sym(S, mT(np.broadcast_to(U, (B, *U.shape[-2:]))))
+            K = mT(Kt)
+            fixed = fixed | ill
+        else:
+            K = U @ Sinv
+    else:
+        K, fixed = gain(P, H, S)
+    # Joseph: P − K Uᵀ − U Kᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ  (S symmetric)
+    KUt = K @ mT(U)
+    P_post = sym(P - mT(KUt) + K @ mT(K @ S - U))
+    return x + mv(K, nu), P_post, S, fixed
+
+
+def _predict_cov(F: Array, P: Array, Q: Array) -> Array:
+    """F P Fᵀ + Q for a shared F (n, n) and batched symmetric P (B, n, n), as two big GEMMs.
+
+    numpy's stacked matmul of small matrices loops over the batch; reshaping (B, n, n) to
+    (B·n, n) turns each product into one BLAS call. Uses Pᵀ = P: with X = P Fᵀ, F P Fᵀ = (Xᵀ Fᵀ).
+    """
+    if F.ndim != 2 or P.ndim != 3:
+        return sym(F @ P @ mT(F) + Q)
+    B, n, _ = P.shape
+    X = (P.reshape(B * n, n) @ F.T).reshape(B, n, n)  # P Fᵀ
+    Z = (np.ascontiguousarray(mT(X)).reshape(B * n, n) @ F.T).reshape(B, n, n)  # (F P) Fᵀ
+    return sym(Z + Q)
+
+
+class _FastPredict(Filter):
+    """The KF time update with :func:`_predict_cov` (same numbers, fewer Python-level loops)."""
+
+    def predict(self, model: Model, state, k: int):
+        return state._replace(
+            x=model.f(state.x, k), P=_predict_cov(model.F(k), state.P, model.Q(k))
+        )
 
 
 def _flags(down: Array, fixed: Array) -> Array:
@@ -169,7 +248,7 @@ class HuberParams:
 
 
 @register
-class HuberKF(Filter):
+class HuberKF(_FastPredict):
     """Huber robust KF by channel-wise re-weighted R (HKF; ALGORITHMS.md §2, S0 eqs. 7–10).
 
     Per pass: e = L⁻¹ ν (R0 = L Lᵀ), w_j = ψ_H(e_j)/e_j, R̃ = L Ψ⁻¹ Lᵀ (the consistent form of
@@ -190,18 +269,29 @@ class HuberKF(Filter):
         H = model.H(x0, k)
         nu = z - model.h(x0, k)
         R0 = np.asarray(model.R0, dtype=float)
-        L = np.linalg.cholesky(R0)
+        r0 = np.diagonal(R0)
+        diagonal = bool(np.all(np.diag(r0) == R0))
+        L = np.diag(np.sqrt(r0)) if diagonal else np.linalg.cholesky(R0)
         ok, nu_m, H_m, _ = mask_missing(z, nu, H, R0)
-        M = H_m @ P0 @ mT(H_m)
+        all_ok = bool(ok.all())
         r = nu_m  # residual the weights are computed from (prior innovation on pass 1)
         for _ in range(p.irls_iters):
             # (16) e = R^{-1/2}(z − H x); option "S": ν̃_i = r_i / sqrt(S_ii), S from R0
-            e = np.linalg.solve(L, r.T).T if p.normalize == "R" else r / np.sqrt(diag(M + R0))
-            w = np.where(ok, huber_weight(e, p.gamma), 1.0)  # (9) Ψ = diag(ψ(e)/e)
-            Rt = (L / w[:, None, :]) @ L.T  # (10) R̃ = L Ψ⁻¹ Lᵀ
+            if p.normalize == "S":
+                e = r / np.sqrt(diag(H_m @ P0 @ mT(H_m)) + r0)
+            elif diagonal:
+                e = r / np.sqrt(r0)
+            else:
+                e = np.linalg.solve(L, r.T).T
+            w = huber_weight(e, p.gamma)  # (9) Ψ = diag(ψ(e)/e)
+            if not all_ok:
+                w = np.where(ok, w, 1.0)
+            # (10) R̃ = L Ψ⁻¹ Lᵀ (for diagonal R0: R0_jj / w_j)
+            Rt = _diag_embed(r0 / w) if diagonal else (L / w[:, None, :]) @ L.T
             _, _, H_u, Rt_m = mask_missing(z, nu, H, Rt)
             x, P, S, fixed = _finish(model, x0, P0, H_u, nu_m, Rt_m)
-            r = np.where(ok, z - model.h(x, k), 0.0)
+            if p.irls_iters > 1:
+                r = np.where(ok, z - model.h(x, k), 0.0)
         out = StepOut(
             x=x, P=P, innov=nu_m, S=S, R_used=Rt_m, weights=w, flags=_flags(w < 1.0, fixed),
             stats={"huber_passes": np.full(z.shape[0], float(p.irls_iters))},
@@ -242,7 +332,7 @@ class VBParams:
     )
 
 
-class _VBBase(Filter):
+class _VBBase(_FastPredict):
     """Shared machinery of ``vb-akf`` and ``hakf`` (S0 eqs. 11–21 with/without the Huber lines)."""
 
     estimates_R = True
@@ -262,7 +352,7 @@ class _VBBase(Filter):
         return VBState(x0, np.array(P0, dtype=float), alpha, alpha * R0d)
 
     def predict(self, model: Model, state: VBState, k: int) -> VBState:
-        st = super().predict(model, state, k)  # (11)–(12)
+        st = super().predict(model, state, k)  # (11)–(12) x⁻ = F x⁺ ; P⁻ = F P⁺ Fᵀ + Q
         if not self.params.adapt:
             return st
         rho = self.params.rho
@@ -279,7 +369,8 @@ class _VBBase(Filter):
         R0 = np.asarray(model.R0, dtype=float)
         ok, nu, H, _ = mask_missing(z, nu, H, R0)
         all_ok = bool(ok.all())
-        ms = _MeasSpace(H @ P0 @ mT(H), nu)
+        sel = _selection(H)
+        ms = _MeasSpace(_PHt(P0, H, sel)[..., sel, :] if sel is not None else H @ P0 @ mT(H), nu)
         beta_minus = state.beta
         alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         beta = beta_minus
@@ -291,9 +382,10 @@ class _VBBase(Filter):
         iters = np.zeros(B)
         delta = np.zeros(B)
         Rt_last = w_last = None
+        all_active = True  # fast path: no np.where while every run is still iterating
+        w = np.ones_like(nu)
         for it in range(p.iters):
             Rhat = beta / alpha  # (15) R̂^(it) = diag(β^(it)/α)
-            w = np.ones_like(nu)
             if self.huber:
                 r_e = prev_resid if (p.irls and it > 0) else nu
                 w = self._weights(r_e / np.sqrt(Rhat))  # (16) e = R̂^{-1/2}(z − H x⁻); (9)
@@ -303,10 +395,11 @@ class _VBBase(Filter):
             if not all_ok:
                 Rt = np.where(ok, Rt, 1.0)
             resid, hph = ms.step(Rt)  # (18)–(20) in measurement space
-            iters += active
-            if it == 0:
+            if all_active:
+                iters += 1.0
                 Rt_last, w_last = Rt, w
             else:
+                iters += active
                 Rt_last = np.where(active[:, None], Rt, Rt_last)
                 w_last = np.where(active[:, None], w, w_last)
             if not p.adapt:
@@ -318,15 +411,19 @@ class _VBBase(Filter):
             if not all_ok:
                 beta_new = np.where(ok, beta_new, beta_minus)
             d = np.max(np.abs(beta_new - beta) / beta, axis=-1)
-            delta = np.where(active, d, delta)
-            beta = np.where(active[:, None], beta_new, beta)
+            if all_active:
+                delta, beta = d, beta_new
+            else:
+                delta = np.where(active, d, delta)
+                beta = np.where(active[:, None], beta_new, beta)
             prev_resid = resid
             if p.tol > 0:
                 active &= d >= p.tol
-                if not active.any():
+                all_active = bool(active.all())
+                if not all_active and not active.any():
                     break
         Rt, w = Rt_last, w_last
-        any_fixed = ms.check(Rt)
+        any_fixed = ms.ill  # (m > 3 only; for m ≤ 3 _finish checks the final S)
         R_used = _diag_embed(Rt)  # the R in the last gain (R̃^(N−1))
         _, _, H_u, R_used = mask_missing(z, nu, H, R_used)
         x, P, S, fixed = _finish(model, x0, P0, H_u, nu, R_used)
@@ -416,7 +513,7 @@ class StudentTParams:
 
 
 @register
-class StudentTKF(Filter):
+class StudentTKF(_FastPredict):
     """VB Student-t KF: R_eff = R0/λ̄ with λ̄ = (ν+m)/(ν + tr(D R0⁻¹)) iterated (§1.6).
 
     D = (z − H x⁺)(z − H x⁺)ᵀ + H P⁺ Hᵀ; λ̄ ≪ 1 marks an outlier epoch (whole-vector scaling).

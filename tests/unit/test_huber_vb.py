@@ -225,3 +225,29 @@ def test_params_validated():
         make_filter("vb-akf", {"rho": 1.5})
     with pytest.raises(NavlabError, match="unknown"):
         make_filter("hakf", {"nope": 1})
+
+
+def test_general_H_and_correlated_R_paths():
+    # a non-selection H and a correlated R0 exercise the general (matmul / Cholesky) code paths
+    import dataclasses
+
+    from navlab.filters.base import LinearModel
+
+    data = _data(runs=3, epochs=60)
+    m = data.model
+    H2 = np.array([[1.0, 0.0, 0.5, 0.0], [0.0, 0.2, 1.0, 0.0]])
+    R_full = np.array([[4.0, 1.5], [1.5, 3.0]])
+    rng = np.random.default_rng(5)
+    noise = rng.multivariate_normal(np.zeros(2), R_full, size=data.z.shape[:2])
+    z = data.x_true @ H2.T + noise
+    z[:, 0] = np.nan
+    d_full = dataclasses.replace(data, model=LinearModel(m.F_, m.Q_, H2, R_full), z=z)
+    kf, hk, st = _run(d_full, ("kf", None), ("huber-kf", {"gamma": 1e12}),
+                      ("student-t-kf", {"dof": 1e12}))
+    assert np.max(np.abs(hk.x - kf.x)) < 1e-9
+    assert np.max(np.abs(st.x - kf.x)) < 1e-6
+    with pytest.raises(NavlabError, match="DIAGONAL"):
+        _run(d_full, ("vb-akf", None))
+    d_diag = dataclasses.replace(d_full, model=LinearModel(m.F_, m.Q_, H2, np.diag([4.0, 3.0])))
+    kf, vb = _run(d_diag, ("kf", None), ("vb-akf", {"adapt": False}))
+    assert np.max(np.abs(vb.x - kf.x)) < 1e-9
