@@ -22,9 +22,14 @@ c·δt_GPS, c·δt_GLO (m), c·δṫ (m/s)] — one clock per constellation, a c
 * The filters start at epoch 0 from a robust (Huber-reweighted, C/N0-weighted) least-squares fix
   of the epoch-0 pseudoranges, with zero velocity and a large P0 (heading unknown).
 
-Monte Carlo on real data: the pseudoranges are real, so runs are identical unless the outlier
-model injects extra noise; default B = 1 with outliers ``none``-like behaviour is the user's
-choice (the CLI default mixture contamination adds extra outliers on top of the real ones).
+Monte Carlo on real data: the pseudoranges are real, so every run sees the same errors; the
+default is B = 1 and no injected contamination (``outlier_defaults`` sets the mixture's α to 0).
+With ``--contamination α`` each run adds its own independent outliers (κσ, whitened units) on
+top of the real ones — a stress test of the robust updates.
+
+Filters that gate whole epochs (``chi2-kf`` in its default mode) lock out in this canyon: nearly
+every epoch holds some non-line-of-sight range, the epoch is rejected, the prediction drifts and
+every later epoch fails the gate too. Use ``--set chi2-kf.per_channel=true`` to gate per satellite.
 """
 
 from __future__ import annotations
@@ -144,6 +149,8 @@ def variance_model(ep: PrEpochs, which: str, a: float) -> Array:
     """σ² per pseudorange: the file's column or a·10^(−C/N0/10)/sin²(el)."""
     if which == "file":
         return ep.var_file
+    if which == "cn0":
+        return a * 10.0 ** (-ep.cn0 / 10.0)
     sin_el = np.sin(np.radians(np.clip(ep.el_deg, 5.0, 90.0)))
     return a * 10.0 ** (-ep.cn0 / 10.0) / sin_el**2
 
@@ -230,7 +237,7 @@ class PseudorangeModel:
 @dataclass(frozen=True)
 class SmartlocParams:
     epochs: int = param(0, lo=0, hi=100000, help="epochs to use (0: all 1371)")
-    variance_model: str = param("cn0-elevation", choices=("cn0-elevation", "file"),
+    variance_model: str = param("cn0-elevation", choices=("cn0-elevation", "cn0", "file"),
                                 help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), or the file's column")
     cn0_a: float = param(2.0e5, lo=1.0, hi=1e9, help="a of the C/N0 model (m²): σ = 2.5 m at 45 dBHz, zenith")
     sigma_speed: float = param(0.1, lo=1e-3, hi=100.0, help="odometry speed σ (m/s)")
