@@ -212,3 +212,27 @@ def test_experiment_runs_with_default_filters():
     att = df[df.metric == "rmse_att"].set_index("filter").value
     assert att.notna().all() and (att > 0).all()
     assert {"rmse_att", "rmse_vel", "rmse_pos", "rmse_phi_U"} <= set(df.metric)
+
+
+def test_reproduction_table_shape():
+    from navlab.reproduce import COLUMNS, REPRODUCTIONS
+
+    df = REPRODUCTIONS["hakf"].run(runs=2, epochs=150)
+    assert list(df.columns) == COLUMNS
+    assert set(df.experiment) == {"case1", "case2", "case3", "case4", "kf-across-cases"}
+    att = df[(df.metric == "rmse_att")]
+    assert set(att["filter"]) == {"KF", "HKF", "AKF", "HAKF", "Oracle"}
+    assert att.paper.isna().all()  # the paper gives figures only
+    ranks = df[(df.experiment == "case4") & (df.metric == "rank_att")]
+    assert ranks.paper.notna().all() and sorted(ranks.value) == [1, 2, 3, 4]
+
+
+@pytest.mark.slow
+def test_hakf_best_attitude_in_case_4():
+    """The paper's headline (issue 4): case 4, HAKF has the lowest attitude RMSE, KF the highest."""
+    spec = ExperimentSpec(scenario="sins-gps", filters=("kf", "huber-kf", "vb-akf", "hakf"),
+                          runs=20, scenario_params={"case": 4})
+    df = run_experiment(spec).metrics()
+    att = df[df.metric == "rmse_att"].set_index("filter").value
+    assert att.idxmin() == "hakf", att.to_dict()
+    assert att.idxmax() == "kf", att.to_dict()
