@@ -131,8 +131,12 @@ def rae_estimate(
     """Residual-based windowed R estimate (S1 eqs. 3/4, §4.2–4.3), batched.
 
     R̂ = (1/M) Σ_j η_j η_jᵀ + H P_ref Hᵀ over the window, where P_ref = P⁺_{k−1} (eq. 3) or P⁻_k
-    (eq. 4). Entries whose channels were missing in some epochs average over the epochs where
-    both were present; an entry never observed in the window falls back to R0.
+    (eq. 4). With missing channels (NaN measurements) each channel i averages over the c_i epochs
+    it was present: Ŝ = D (Σ_j η_j η_jᵀ) D with D = diag(1/√c_i) and missing η entries set to 0.
+    This keeps Ŝ positive semi-definite (a congruence of a PSD sum; an entry-wise average over
+    pairwise counts is not) with the exact per-channel mean on the diagonal, shrinking only the
+    cross terms of partly overlapping channels. A channel never present in the window gets
+    R0_ii (and no cross terms). Without missing channels it is exactly S1's (1/M) Σ η ηᵀ.
 
     Parameters
     ----------
@@ -143,13 +147,14 @@ def rae_estimate(
     full : the window holds M pushed residuals.
     """
     B, _, m = eta.shape
+    R0 = np.asarray(R0, dtype=float)
     if not full:
-        return np.broadcast_to(np.asarray(R0, dtype=float), (B, m, m)).copy()
+        return np.broadcast_to(R0, (B, m, m)).copy()
     e = np.where(eta_ok, eta, 0.0)
-    okf = eta_ok.astype(float)
-    num = mT(e) @ e  # (B, m, m) Σ_j η_j η_jᵀ
-    cnt = mT(okf) @ okf  # (B, m, m) epochs where both channels were present
-    S_hat = np.where(cnt > 0, num / np.maximum(cnt, 1.0), np.broadcast_to(R0, (B, m, m)))
+    cnt = eta_ok.sum(axis=1)  # (B, m)
+    dinv = np.where(cnt > 0, 1.0 / np.sqrt(np.maximum(cnt, 1)), 0.0)
+    S_hat = (mT(e) @ e) * dinv[:, :, None] * dinv[:, None, :]
+    S_hat = S_hat + np.where(cnt == 0, np.diag(R0), 0.0)[:, :, None] * np.eye(m)
     return sym(S_hat + H @ P_ref @ mT(H))
 
 
@@ -161,11 +166,59 @@ def _batched(P: Array, B: int) -> Array:
 
 
 def _flag_fix(flags: Array, fixed: Array) -> None:
-    """Set flag 9 on every still-accepted channel of runs where a numerical fix was applied."""
-    fixed = np.broadcast_to(np.asarray(fixed, dtype=bool), flags.shape[:1])
+    """Set flag 9 on still-accepted channels where a numerical fix was applied.
+
+    ``fixed`` is (B,) (the whole run, e.g. a singular S) or (B, m) (the channels concerned).
+    """
+    fixed = np.asarray(fixed, dtype=bool)
+    fixed = np.broadcast_to(fixed[:, None] if fixed.ndim == 1 else fixed, flags.shape)
     if fixed.any():
-        sel = fixed[:, None] & (flags == ACCEPTED)
-        flags[sel] = NUMERICAL_FIX
+        flags[fixed & (flags == ACCEPTED)] = NUMERICAL_FIX
+
+
+def _clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
+    """Eigenvalue clamp of R̂ into [lo, hi] (§4.1 step 4), run by run.
+
+    Returns ``(R', changed (B, m))`` where ``changed`` marks the channels whose variance R_ii the
+    clamp moved (those get flag 9). A diverged run's non-finite R stays NaN (the experiment loop
+    records the divergence) instead of stopping the whole batch.
+    """
+    good = np.all(np.isfinite(R), axis=(-2, -1))
+    out = np.full(R.shape, np.nan)
+    if good.any():
+        out[good], _ = eigh_clamp(R[good], lo, hi)
+    with np.errstate(invalid="ignore"):
+        d0, d1 = diag(R), diag(out)
+        changed = ~good[:, None] | (np.abs(d1 - d0) > 1e-9 * np.maximum(np.abs(d0), lo))
+    return out, changed
+
+
+def _sqrt_factor(S: Array) -> tuple[Array, Array]:
+    """Lower Cholesky factor L (L Lᵀ = S) of a batch; runs where S is not numerically positive
+    definite (a diverging P) get the eigen-factor V·diag(√max(w, ε)) instead and are marked
+    (flag 9) — run by run, so a healthy run never depends on its neighbours in the batch.
+    """
+    try:
+        return np.linalg.cholesky(S), np.zeros(S.shape[0], dtype=bool)
+    except np.linalg.LinAlgError:
+        pass
+    finite = np.all(np.isfinite(S), axis=(-2, -1))
+    if not finite.all():
+        L = np.full(S.shape, np.nan)
+        bad = ~finite
+        if finite.any():
+            L[finite], bad[finite] = _sqrt_factor(S[finite])
+        return L, bad
+    w, V = np.linalg.eigh(sym(S))
+    scale = np.maximum(np.abs(w).max(axis=-1, keepdims=True), 1e-300)
+    bad = ~np.all(np.isfinite(w), axis=-1) | (w.min(axis=-1) <= 1e-12 * scale[..., 0])
+    L = np.empty_like(S)
+    if (~bad).any():
+        L[~bad] = np.linalg.cholesky(S[~bad])
+    if bad.any():
+        wb = np.maximum(np.nan_to_num(w[bad]), 1e-12 * scale[bad])
+        L[bad] = np.nan_to_num(V[bad]) * np.sqrt(wb)[:, None, :]
+    return L, bad
 
 
 def _zero_columns(K: Array, B: int, reject: Array) -> Array:
@@ -204,19 +257,19 @@ def _sage_husa_R(
 
     Entries involving a missing channel keep their previous value. ``diagonal=True`` is the
     simplified per-channel form of §4.9 (off-diagonals 0, each diagonal entry clamped).
-    Returns ``(R̂_k (B, m, m), clamped (B,))``.
+    Returns ``(R̂_k (B, m, m), clamped (B, m))``.
     """
     nu0 = np.where(ok, nu, 0.0)
     if diagonal:
         r = (1.0 - d) * diag(R_prev) + d * (nu0**2 - diag(HPHt))
         r = np.where(ok, r, diag(R_prev))
-        clamped = np.any((r < lo) | (r > hi), axis=-1)
+        clamped = (r < lo) | (r > hi)
         r = np.clip(r, lo, hi)
         return r[..., :, None] * np.eye(r.shape[-1]), clamped
     new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
     okk = ok[:, :, None] & ok[:, None, :]
     new = np.where(okk, new, R_prev)
-    return eigh_clamp(new, lo, hi)
+    return _clamp(new, lo, hi)
 
 
 def _check_k0_k1(owner: str, k0: float, k1: float) -> None:
@@ -320,7 +373,7 @@ class SageHusa(Filter):
                 Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F)
             )
             qmax = max(float(np.max(np.diag(np.asarray(model.Q(k), dtype=float)))), 1e-300)
-            Q, _ = eigh_clamp(Qn, 1e-6 * qmax, 1e6 * qmax)  # same PD guard as R̂
+            Q, _ = _clamp(Qn, 1e-6 * qmax, 1e6 * qmax)  # same PD guard as R̂
             q = (1 - d) * state.q + d * (x - model.f(state.x_prev, k))
         out = StepOut(
             x=x, P=P, innov=nu_m, S=S, R_used=Rm, R_hat=R, flags=flags,
@@ -456,7 +509,7 @@ class IRAKF(Filter):
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:  # eigenvalue guard (only bites with missing channels)
             lo, hi = rhat_bounds(model.R0)
-            R_hat, clamped = eigh_clamp(R_hat, lo, hi)
+            R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
         # 4 gain from the unmodified R̂
         nu_raw = z - model.h(x_m, k)
@@ -571,7 +624,7 @@ class RRAE(Filter):
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:
             lo, hi = rhat_bounds(model.R0)
-            R_hat, clamped = eigh_clamp(R_hat, lo, hi)
+            R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
         # 2 innovation statistics with R̂
         ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
@@ -695,11 +748,8 @@ class RAKF(Filter):
         HPHt = HPHt * lam[:, None, None]
         # 4 Huber clipping of the whitened innovation
         S = sym(HPHt + Rm)
-        try:
-            L = np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            jit = 1e-12 * np.trace(S, axis1=-2, axis2=-1)[:, None, None] / m * np.eye(m)
-            L = np.linalg.cholesky(S + jit)
+        L, sfix = _sqrt_factor(S)
+        _flag_fix(flags, sfix)
         e, _ = solve_sym(L, nu[..., None])  # L is triangular, a general solve is exact
         e = e[..., 0]
         ae = np.abs(e)

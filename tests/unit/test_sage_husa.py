@@ -276,7 +276,8 @@ def test_rae_estimate_missing_entries_fall_back():
     R = rae_estimate(eta, ok, H, np.zeros((2, 2)), R0, full=True)[0]
     assert R[0, 0] == pytest.approx((1 + 9) / 2)
     assert R[1, 1] == pytest.approx(4.0)  # only one epoch with channel 1
-    assert R[0, 1] == pytest.approx(2.0)
+    assert R[0, 1] == pytest.approx(2.0 / np.sqrt(2.0))  # D Σηηᵀ D, D = diag(1/√c_i): PSD
+    assert np.linalg.eigvalsh(R).min() >= 0
     none = np.zeros_like(ok)
     R = rae_estimate(eta, none, H, np.zeros((2, 2)), R0, full=True)[0]
     np.testing.assert_allclose(R, R0)
@@ -405,3 +406,19 @@ def test_rhat_inflates_during_outlier_burst():
         assert Rx[65:72].mean() > 3 * Rx[35:45].mean(), key  # burst: var 4 + 64 on x
         Ry = np.median(res.runs[key].R_hat[:, :, 1], axis=0)
         assert 1.0 < Ry[30:].mean() < 12.0, key  # y stays near its true 4 m²
+
+
+def test_numerical_guards_work_run_by_run():
+    from navlab.filters.sage_husa import _clamp, _sqrt_factor
+
+    good = np.array([[4.0, 1.0], [1.0, 3.0]])
+    S = np.stack([good, np.array([[1.0, 2.0], [2.0, 1.0]]), np.full((2, 2), np.nan)])
+    L, bad = _sqrt_factor(S)
+    np.testing.assert_array_equal(bad, [False, True, True])
+    np.testing.assert_allclose(L[0], np.linalg.cholesky(good))  # a healthy run is untouched
+    assert np.isfinite(L[1]).all() and np.isnan(L[2]).all()
+    R, changed = _clamp(S, 0.5, 100.0)
+    np.testing.assert_allclose(R[0], good)
+    assert not changed[0].any() and changed[1].all() and changed[2].all()
+    assert np.linalg.eigvalsh(R[1]).min() >= 0.5 - 1e-12
+    assert np.isnan(R[2]).all()
