@@ -407,6 +407,11 @@ class IRAKFParams:
         "huber", choices=("huber", "literal"),
         help="middle-zone weight: Huber ν·k0/|ν̃| (default) or the seed's literal ν/c1",
     )
+    middle_zone: str = param(
+        "innovation", choices=("innovation", "variance"),
+        help="apply the middle-zone weight to ν only, P updated as if unweighted (S1, default), "
+        "or as an inflated variance R̂ᵢᵢ/w so P agrees (avoids a lock-out when P0 ≫ R)",
+    )
     skf_gated: bool = param(
         False, help="also zero the parallel SKF's gain on its detections (locks out; spec §4.5)"
     )
@@ -524,11 +529,22 @@ class IRAKF(Filter):
         aux_reject = flag_s & ~own_reject
         reject = own_reject | aux_reject
         down = (zone == 1) & ~reject & ok
-        nu_w = np.where(down, w * nu, nu)
+        R_used = Rm
+        if p.middle_zone == "variance" and down.any():
+            # option (not S1): the Huber weight as an equivalent variance, so that K and P agree
+            # with the down-weighting (S1 shrinks ν only: P then shrinks as if ν were unweighted,
+            # which locks out when P⁻ ≫ R̂, e.g. the first epochs of an INS, see the report)
+            infl = np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)
+            R_used = np.where(np.eye(m, dtype=bool), Rm * infl[:, None, :], Rm)
+            K, fixed2 = gain(P_m, Hm, sym(Hm @ P_m @ mT(Hm) + R_used))
+            fixed = fixed | fixed2
+            nu_w = nu
+        else:
+            nu_w = np.where(down, w * nu, nu)
         K = _zero_columns(K, B, reject)
         # 6 state and Joseph covariance (P keeps the information of rejected channels out)
         x = x_m + mv(K, nu_w)
-        P = joseph(P_m, K, Hm, Rm)
+        P = joseph(P_m, K, Hm, R_used)
         # 7 raw posterior residual into the window (rejected channels included, S1)
         eta = z - model.h(x, k)
         win = state.win.push(eta, ok)
@@ -538,7 +554,7 @@ class IRAKF(Filter):
         _flag_fix(flags, fixed)
         weights = np.where(reject, 0.0, np.where(down, w, 1.0))
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=Rm, R_hat=R_hat, weights=weights, flags=flags,
+            x=x, P=P, innov=nu, S=S, R_used=R_used, R_hat=R_hat, weights=weights, flags=flags,
             stats={
                 "nu_tilde": nt,
                 "skf_nu_tilde": nt_s,

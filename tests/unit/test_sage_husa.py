@@ -422,3 +422,28 @@ def test_numerical_guards_work_run_by_run():
     assert not changed[0].any() and changed[1].all() and changed[2].all()
     assert np.linalg.eigvalsh(R[1]).min() >= 0.5 - 1e-12
     assert np.isnan(R[2]).all()
+
+
+def test_irakf_variance_middle_zone_option():
+    """middle_zone="variance": down-weighted channels enter as R̂_ii/w (gain and P agree)."""
+    data = simulate("isolated", runs=8, epochs=60)
+    H = data.model.H_
+    rec = _drive(make_filter("irakf", {"middle_zone": "variance"}), data)
+    seen = False
+    for r in rec:
+        o = r["out"]
+        x_m, P_m = r["prior"]
+        down = o.flags == 1
+        seen |= down.any()
+        w_mid = np.where(down, o.weights, 1.0)
+        R_eff = o.R_hat.copy()
+        for i in range(2):
+            R_eff[:, i, i] = o.R_hat[:, i, i] / w_mid[:, i]
+        np.testing.assert_allclose(o.R_used, R_eff, rtol=1e-12)
+        keep = o.weights > 0
+        K = P_m @ H.T @ np.linalg.inv(H @ P_m @ H.T + R_eff) * keep[:, None, :]
+        np.testing.assert_allclose(o.x - x_m, np.einsum("bij,bj->bi", K, o.innov), atol=1e-8)
+        IKH = np.eye(4) - K @ H
+        P = IKH @ P_m @ np.swapaxes(IKH, 1, 2) + K @ R_eff @ np.swapaxes(K, 1, 2)
+        np.testing.assert_allclose(o.P, P, rtol=1e-10, atol=1e-12)
+    assert seen
