@@ -106,6 +106,7 @@ class Drive0708(Scenario):
     default_filters = ("kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "sage-husa", "irakf")
     default_runs = 10
     simulated = False
+    linear = False  # nonlinear model (no probe run needed by the app)
     headline = ("pos", "hpos")
 
     def simulate(

@@ -283,6 +283,7 @@ class SmartlocBerlin(Scenario):
     default_filters = ("wls", "ekf", "huber-kf", "vb-ekf", "chi2-kf", "student-t-kf", "irakf")
     default_runs = 1
     simulated = False
+    linear = False  # nonlinear model (no probe run needed by the app)
     headline = ("hpos",)
     outlier_defaults: ClassVar[dict] = {"mixture": {"contamination": 0.0}}
 
