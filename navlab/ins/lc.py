@@ -169,12 +169,20 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     v_enu = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
     lat0, lon0, h0 = np.radians(g.lat_deg.iloc[0]), np.radians(g.lon_deg.iloc[0]), float(g.h_m.iloc[0])
     tg = g.t_s.to_numpy()
-    if np.isnan(v_enu).all():  # generic files without velocity: differentiate positions
+    vel_measured = not np.isnan(v_enu).all()
+    if not vel_measured:  # generic files without velocity: smoothed differences of positions
+        src = rec.truth if rec.truth is not None else g
+        ts = src.t_s.to_numpy()
         R_Mh, R_Nh = radii(lat0, h0)
-        pn = np.radians(g.lat_deg.to_numpy()) * R_Mh
-        pe = np.radians(g.lon_deg.to_numpy()) * R_Nh * np.cos(lat0)
-        v_enu = np.stack([np.gradient(pe, tg), np.gradient(pn, tg), np.gradient(g.h_m.to_numpy(), tg)], -1)
-    t_move = motion_start_time(tg, v_enu)
+        pos = np.stack([np.radians(src.lon_deg.to_numpy()) * R_Nh * np.cos(lat0),
+                        np.radians(src.lat_deg.to_numpy()) * R_Mh, src.h_m.to_numpy()], -1)
+        win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
+        i1 = np.searchsorted(ts, ts + win / 2).clip(max=len(ts) - 1)
+        i0 = np.searchsorted(ts, ts - win / 2)
+        dt_ = np.maximum(ts[i1] - ts[i0], 1e-9)[:, None]
+        v_src = (pos[i1] - pos[i0]) / dt_
+        v_enu = np.stack([np.interp(tg, ts, v_src[:, i]) for i in range(3)], -1)
+    t_move = motion_start_time(tg, v_enu, 0.3 if vel_measured else 1.0, 1.0 if vel_measured else 3.0)
     t_imu = imu.t_s.to_numpy()
     t_epoch0 = np.floor((t_move - static_margin_s) * rate_hz) / rate_hz
     t_epoch0 = max(t_epoch0, np.ceil(max(tg[0], t_imu[0]) * rate_hz) / rate_hz)
@@ -211,7 +219,7 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
             "the recording must start with the vehicle at rest for at least 2 s"
         )
     if heading_deg is None:
-        moving = (tg > t_move) & (np.hypot(v_enu[:, 0], v_enu[:, 1]) > 0.7)
+        moving = (tg > t_move) & (np.hypot(v_enu[:, 0], v_enu[:, 1]) > (0.7 if vel_measured else 2.0))
         heading = float(course_heading(v_enu[np.flatnonzero(moving)[0]]))
     else:
         heading = np.radians(heading_deg)
@@ -222,7 +230,8 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     # only the accelerometer bias along gravity is observable at rest: |f| − g along f
     ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
     x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
-    P0 = np.diag(np.r_[np.radians([0.5, 0.5, 3.0]) ** 2, [0.1**2] * 3, [1.0**2] * 3,
+    sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
+    P0 = np.diag(np.r_[np.radians([0.5, 0.5, sig_head]) ** 2, [0.1**2] * 3, [1.0**2] * 3,
                        [np.radians(0.05) ** 2] * 3, [0.1**2] * 3])
     return DriveSetup(t=t, **setup_origin, p_true=p_true, v_true=v_true, gnss_pos=gnss_pos,
                       t_imu=t_imu, f_b=f_b, w_b=w_b, align=al, x0=x0, P0=P0, C0=al.C_bn,

@@ -60,9 +60,29 @@ def h_err_p90(x_hat, data: ScenarioData, ok_runs) -> float:
 REAL_METRICS = {"h_err_median": (h_err_median, "m"), "h_err_p90": (h_err_p90, "m")}
 
 
-@lru_cache(maxsize=4)
+def _fingerprint(data_dir: str) -> tuple:
+    """Names, sizes and modification times of the files a drive is read from (cache key)."""
+    from pathlib import Path
+
+    from navlab.data.loaders import RTKX_DIR, data_root
+
+    d = Path(data_dir) if data_dir else data_root() / RTKX_DIR
+    if d.is_dir() and not (d / "imu.csv").exists() and (d / RTKX_DIR).is_dir():
+        d = d / RTKX_DIR
+    try:
+        return tuple(sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns)
+                            for p in d.iterdir() if p.is_file()))
+    except OSError:
+        return ()
+
+
 def drive_setup(data_dir: str, epochs: int, imu_rate_hz: float):
-    """(recording, setup, reference) for a drive — cached: the reference run takes seconds."""
+    """(recording, setup, reference) for a drive — cached while its files are unchanged."""
+    return _drive_setup(data_dir, _fingerprint(data_dir), epochs, imu_rate_hz)
+
+
+@lru_cache(maxsize=4)
+def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: float):
     from navlab.ins.lc import prepare_drive, reference_solution
 
     rec = load_drive(data_dir or None)

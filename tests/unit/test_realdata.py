@@ -139,3 +139,34 @@ def test_smartloc_robust_filter_beats_per_epoch_wls():
     best = min(_metric(res, k, "h_err_median") for k in ("huber-kf",))
     assert 8.0 < wls < 40.0  # the per-epoch fix in the canyon (README: 16 m with the C/N0 model)
     assert best < 0.85 * wls
+
+
+@needs_rtkx
+def test_generic_folder_runs_through_the_drive_scenario(tmp_path):
+    """The rtkx drive exported in the generic CSV format (vehicle axes, noisy fixes) runs end to end."""
+    import pandas as pd
+
+    from navlab.data import rtkx_drive_0708
+
+    r = rtkx_drive_0708()
+    imu = r.imu[r.imu.t_s < 90]
+    f = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy() @ r.C_bv.T
+    w = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy() @ r.C_bv.T
+    cols = ("f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps")
+    pd.DataFrame({"t_s": imu.t_s, **dict(zip(cols, np.c_[f, w].T, strict=True))}).to_csv(
+        tmp_path / "imu.csv", index=False)
+    gn = r.gnss[r.gnss.t_s < 90]
+    rng = np.random.default_rng(0)
+    pd.DataFrame({"t_s": gn.t_s, "lat_deg": gn.lat_deg + 2 * rng.standard_normal(len(gn)) / 111e3,
+                  "lon_deg": gn.lon_deg + 2 * rng.standard_normal(len(gn)) / 85e3,
+                  "h_m": gn.h_m}).to_csv(tmp_path / "gnss.csv", index=False)
+    gn[["t_s", "lat_deg", "lon_deg", "h_m"]].to_csv(tmp_path / "truth.csv", index=False)
+    spec = ExperimentSpec(scenario="drive0708", filters=("kf", "wls"), runs=1, outliers="none",
+                          scenario_params={"data_dir": str(tmp_path), "add_noise": False})
+    res = run_experiment(spec)
+    assert res.data.has_truth
+    # noisy fixes of ≈2 m per horizontal axis: the INS-aided KF smooths them, WLS returns them
+    assert _metric(res, "kf", "h_err_median") < 0.8 * _metric(res, "wls", "h_err_median")
+    (tmp_path / "truth.csv").unlink()
+    res = run_experiment(spec)
+    assert not res.data.has_truth and _metric(res, "kf", "diverged") == 0
