@@ -3,6 +3,7 @@
 * ``app_server`` starts ``python -m streamlit run app.py`` on a free loopback port for the session
   and yields its base URL. With ``NAVLAB_E2E_URL`` set (e.g. ``http://127.0.0.1:8503`` for a
   container started by ``KEEP=1 ../shared/tools/verify-docker.sh .``) it uses that server instead.
+* ``fresh_server`` starts a separate, never-visited server for one test (first-visitor checks).
 * ``base_url`` is the same URL, so ``page.goto("/?seed=42")`` works in tests.
 * Every test under tests/e2e is marked ``e2e`` and is skipped when /usr/bin/chromium is missing
   (``apt-get install -y chromium``; ``playwright install`` cannot download browsers here).
@@ -10,6 +11,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -89,16 +91,9 @@ def artifacts_dir() -> Path:
     return ARTIFACTS_DIR
 
 
-@pytest.fixture(scope="session")
-def app_server(artifacts_dir: Path) -> Iterator[str]:
-    """Base URL of a healthy navlab server, without a trailing slash."""
-    external = os.environ.get("NAVLAB_E2E_URL", "").strip()
-    if external:
-        url = external.rstrip("/")
-        _wait_healthy(url, None, None)
-        yield url
-        return
-
+@contextlib.contextmanager
+def serve(log: Path) -> Iterator[str]:
+    """Start ``streamlit run app.py`` on a free loopback port; yield its URL; stop it."""
     if not (ROOT / "app.py").exists():
         pytest.fail(f"{ROOT / 'app.py'} not found: nothing to serve")
     port = _free_port()
@@ -115,7 +110,6 @@ def app_server(artifacts_dir: Path) -> Iterator[str]:
         "--browser.gatherUsageStats=false",
         "--server.fileWatcherType=none",
     ]
-    log = artifacts_dir / "streamlit-server.log"
     with log.open("w") as out:
         proc = subprocess.Popen(
             cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT
@@ -130,6 +124,37 @@ def app_server(artifacts_dir: Path) -> Iterator[str]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def _external_url() -> str | None:
+    external = os.environ.get("NAVLAB_E2E_URL", "").strip()
+    return external.rstrip("/") if external else None
+
+
+@pytest.fixture(scope="session")
+def app_server(artifacts_dir: Path) -> Iterator[str]:
+    """Base URL of a healthy navlab server, without a trailing slash."""
+    url = _external_url()
+    if url:
+        _wait_healthy(url, None, None)
+        yield url
+        return
+    with serve(artifacts_dir / "streamlit-server.log") as url:
+        yield url
+
+
+@pytest.fixture
+def fresh_server(artifacts_dir: Path) -> Iterator[str]:
+    """A server nobody has visited yet (catches first-visitor bugs such as the pages/ deep-link
+    bug). Against an external server (``NAVLAB_E2E_URL``, e.g. a just-started container) it is
+    that server."""
+    url = _external_url()
+    if url:
+        _wait_healthy(url, None, None)
+        yield url
+        return
+    with serve(artifacts_dir / "streamlit-server-fresh.log") as url:
+        yield url
 
 
 @pytest.fixture(scope="session")
