@@ -90,9 +90,24 @@ def svd_sqrt(P: Array) -> tuple[Array, Array]:
     return U * np.sqrt(np.abs(w))[..., None, :], neg
 
 
-def sigma_points(x: Array, P: Array, c: float) -> tuple[Array, Array]:
-    """Symmetric SVD sigma points χ (B, 2n+1, n) of mean x (B, n) and P ((n, n) or (B, n, n))."""
-    L, neg = svd_sqrt(P)
+def chol_sqrt(P: Array) -> tuple[Array, Array]:
+    """Cholesky factor of (P + Pᵀ)/2 (option ``sqrt_method="cholesky"``); where any P of the stack
+    is not positive definite the whole stack falls back to :func:`svd_sqrt` (and its flag).
+    """
+    Ps = sym(P)
+    try:
+        return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
+    except np.linalg.LinAlgError:
+        return svd_sqrt(Ps)
+
+
+def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
+    """Symmetric sigma points χ (B, 2n+1, n) of mean x (B, n) and P ((n, n) or (B, n, n)).
+
+    ``method``: "svd" (S2, default) or "cholesky" (faster; identical results for linear f, h,
+    different sigma points otherwise).
+    """
+    L, neg = chol_sqrt(P) if method == "cholesky" else svd_sqrt(P)
     D = c * mT(L)  # rows = c·L_j
     B, n = x.shape
     D = np.broadcast_to(D, (B, n, n))
@@ -157,7 +172,8 @@ def _shared_linear(model: Model, P: Array, matrix) -> bool:
 
 
 def ukf_time_update(
-    model: Model, x: Array, P: Array, k: int, w: UTWeights, keep_sigma: bool = False
+    model: Model, x: Array, P: Array, k: int, w: UTWeights, keep_sigma: bool = False,
+    method: str = "svd",
 ) -> UKFState:
     """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
 
@@ -167,11 +183,11 @@ def ukf_time_update(
     """
     B, n = x.shape
     if not keep_sigma and _shared_linear(model, P, lambda: model.F(k)):
-        chi0, neg = sigma_points(np.zeros((1, n)), P, w.c)
+        chi0, neg = sigma_points(np.zeros((1, n)), P, w.c, method)
         _, P_p, _ = ut_mean_cov(propagate_f(model, chi0, k), w)
         x_p = propagate_f(model, x[:, None, :], k)[:, 0]
         return UKFState(x_p, sym(P_p[0] + model.Q(k)), None, np.broadcast_to(neg, (B,)).copy())
-    chi, neg = sigma_points(x, P, w.c)
+    chi, neg = sigma_points(x, P, w.c, method)
     chi_f = propagate_f(model, chi, k)
     x_p, P_p, _ = ut_mean_cov(chi_f, w)
     P_p = sym(P_p + model.Q(k))
@@ -179,12 +195,13 @@ def ukf_time_update(
 
 
 def ukf_measurement_prediction(
-    model: Model, state: UKFState, k: int, w: UTWeights, resample: str = "redraw"
+    model: Model, state: UKFState, k: int, w: UTWeights, resample: str = "redraw",
+    method: str = "svd",
 ) -> MeasPred:
     """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy."""
     B, n = state.x.shape
     if resample != "reuse" and _shared_linear(model, state.P, lambda: model.H(state.x, k)):
-        chi0, neg = sigma_points(np.zeros((1, n)), state.P, w.c)
+        chi0, neg = sigma_points(np.zeros((1, n)), state.P, w.c, method)
         _, A, dY = ut_mean_cov(propagate_h(model, chi0, k), w)
         Pxy = ut_cross(chi0, dY, w)
         z_hat = propagate_h(model, state.x[:, None, :], k)[:, 0]
@@ -197,7 +214,7 @@ def ukf_measurement_prediction(
         neg = np.zeros(chi.shape[0], dtype=bool)
         x_ref = state.x
     else:
-        chi, neg = sigma_points(state.x, state.P, w.c)
+        chi, neg = sigma_points(state.x, state.P, w.c, method)
         x_ref = state.x
     Y = propagate_h(model, chi, k)
     z_hat, A, dY = ut_mean_cov(Y, w)
@@ -331,6 +348,11 @@ class UKFParams:
         "redraw", choices=("redraw", "reuse"),
         help="measurement sigma points: redraw from (x⁻, P⁻) (spec default) or reuse f(χ) (FilterPy)",
     )
+    sqrt_method: str = param(
+        "svd", choices=("svd", "cholesky"),
+        help="matrix square root of the sigma points: SVD (S2) or Cholesky (≈ 2× faster step; the "
+        "same results for linear models; SVD fallback where P is not positive definite)",
+    )
 
 
 class _UKFBase(Filter):
@@ -353,12 +375,14 @@ class _UKFBase(Filter):
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         w = self._weights(state.x.shape[1])
-        ts = ukf_time_update(model, state.x, state.P, k, w, self.params.resample == "reuse")
+        ts = ukf_time_update(model, state.x, state.P, k, w, self.params.resample == "reuse",
+                             self.params.sqrt_method)
         return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg)
 
     def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
         w = self._weights(state.x.shape[1])
-        return ukf_measurement_prediction(model, state, k, w, self.params.resample)
+        return ukf_measurement_prediction(model, state, k, w, self.params.resample,
+                                          self.params.sqrt_method)
 
 
 @register
@@ -443,7 +467,8 @@ class _FadingBase(_UKFBase):
             dx = np.sqrt(s)
             P1 = dx[:, :, None] * state.P * dx[:, None, :]
             w = self._weights(state.x.shape[1])
-            mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw")
+            mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw",
+                                            p.sqrt_method)
             z_fake = np.where(ok, 0.0, np.nan)
             _, _, A1, Pxy1, _ = mask_channels(z_fake, V, mp.A, mp.Pxy, R)
             one_n, one_m = np.ones_like(s), np.ones_like(sig)

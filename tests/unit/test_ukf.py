@@ -251,3 +251,11 @@ def test_mfukf_null_hypothesis_fading_mostly_one():
     assert np.mean(fad == 1.0) >= 0.95  # per channel and epoch
     rej = res.runs["mfukf"].stats["rejected"][:, 1:]
     assert abs(rej.mean() - 0.05) < 4 * np.sqrt(0.05 * 0.95 / n)
+
+
+def test_cholesky_square_root_option_equals_svd_on_linear_model():
+    data = _cv2d_data(outliers="isolated", mean=8.0)
+    a = run_filters(data, [make_filter("mfukf")])["mfukf"]
+    b = run_filters(data, [make_filter("mfukf", {"sqrt_method": "cholesky"})])["mfukf"]
+    assert np.max(np.abs(a.x - b.x)) < 1e-8 * np.abs(a.x).max()
+    assert np.nanmax(a.stats["fading"]) > 10.0
