@@ -205,13 +205,14 @@ def test_rhat_tracks_constant_true_r():
     assert np.all(r_ha > r_vb)  # the documented direction of the HAKF bias
 
 
-def test_vb_akf_follows_step_within_its_memory():
+@pytest.mark.parametrize("key", ["vb-akf", "hakf"])
+def test_vb_filters_follow_step_within_their_memory(key):
     # σ ×3 (R ×9) at epoch 250; memory 1/(1−ρ) ≈ 55 epochs: R̂ covers ≈ 1 − e⁻¹ of the jump
     # after 55 epochs and > 90 % after 3 memories (exponential forgetting of α, β)
     K = 500
     data = _data(runs=25, epochs=K, schedule="step", sp={"at": 0.5, "factor": 3.0},
                  outliers="none", op={})
-    (fr,) = _run(data, ("vb-akf", None))
+    (fr,) = _run(data, (key, None))
     R0 = data.model.R0[0, 0]
     frac = lambda k: (np.mean(fr.R_hat[:, k]) - R0) / (9 * R0 - R0)  # noqa: E731
     assert frac(245) < 0.1
