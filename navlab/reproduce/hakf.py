@@ -17,6 +17,7 @@ in m. The Oracle KF (true R and outlier variances) is added as the accuracy floo
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ PAPER = (
     "Navigation Positioning and Timing 4(5), 2017, doi:10.19306/j.cnki.2095-8110.2017.05.008"
 )
 FILTERS = ("kf", "huber-kf", "vb-akf", "hakf")
+DEFAULT_RUNS = 50  # the paper's Monte Carlo count (§2.2: "50 次蒙特卡罗仿真")
 PAPER_NAMES = {"kf": "KF", "huber-kf": "HKF", "vb-akf": "AKF", "hakf": "HAKF", "oracle-kf": "Oracle"}
 CASES = {
     1: "case 1: Gaussian",
@@ -74,10 +76,12 @@ def _case_metrics(res, case: int, outdir: Path | None) -> tuple[list[dict], dict
         for metric, (value, unit) in vals.items():
             rows.append(dict(experiment=f"case{case}", filter=PAPER_NAMES[key], metric=metric,
                              value=value, paper=None, rel_diff=None, unit=unit, note=note))
-    if outdir is not None:
-        cols = {"k": np.arange(data.K + 1), "t_s": data.t}
+    if outdir is not None:  # wide: <filter key>_rmse_<quantity>_<unit> per epoch
+        units = {"att": "arcmin", "pitch": "arcmin", "roll": "arcmin", "heading": "arcmin",
+                 "vel": "mps", "pos": "m"}
+        cols = {"k": np.arange(data.K + 1)}  # epoch (t = k·T, T = 1 s by default)
         for key, g, curve in curves:
-            cols[f"{PAPER_NAMES[key]}_{g}"] = curve
+            cols[f"{key}_rmse_{g}_{units[g]}"] = curve
         pd.DataFrame(cols).to_csv(outdir / f"hakf_case{case}_rmse.csv", index=False)
     return rows, att
 
@@ -88,7 +92,8 @@ def _rank(values: dict[str, float]) -> dict[str, int]:
 
 
 def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
-        epochs: int | None = None) -> pd.DataFrame:
+        epochs: int | None = None,
+        on_progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
     """Run the paper's four cases with KF, HKF, AKF, HAKF (+ Oracle) and return tidy rows.
 
     Parameters
@@ -97,20 +102,28 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
     seed : base seed; run r of every case uses the same truth (the noise differs by case).
     outdir : if given, per-epoch RMSE curves ``hakf_case{1..4}_rmse.csv`` are written there.
     epochs : number of epochs (default: the paper's len = 850).
+    on_progress : called as ``on_progress(done, total)`` runs over the four cases.
     """
-    runs = 50 if runs is None else runs
+    runs = DEFAULT_RUNS if runs is None else runs
     if isinstance(runs, bool) or not isinstance(runs, int) or runs < 1:
         raise NavlabError(f"--runs must be a positive whole number, got {runs!r}")
     outdir = ensure_dir(Path(outdir)) if outdir is not None else None
     rows: list[dict] = []
     att_by_case: dict[int, dict[str, float]] = {}
-    for case in CASES:
+    total = len(CASES) * runs
+    for i, case in enumerate(CASES):
         spec = ExperimentSpec(
             scenario="sins-gps", filters=(*FILTERS, "oracle-kf"), runs=runs, seed=seed,
             epochs=epochs, outliers="mixture", contamination=0.1, outlier_scale=10.0,
             scenario_params={"case": case},
         )
-        res = run_experiment(spec)
+        prog = None
+        if on_progress is not None:
+            def prog(done: int, _n: int, off: int = i * runs) -> None:
+                on_progress(off + done, total)
+        # chunking never changes the numbers (run r has its own seed); it only feeds progress
+        res = run_experiment(spec, on_progress=prog,
+                             chunk_runs=max(1, runs // 5) if on_progress else None)
         r, att = _case_metrics(res, case, outdir)
         rows += r
         att_by_case[case] = att
