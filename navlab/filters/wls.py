@@ -7,8 +7,9 @@ No dynamics: every epoch is solved on its own by Gauss–Newton on the nominal m
 started from the previous epoch's solution. Λ = I/σ_prior² is a vague prior (σ_prior = 10 km by
 default) that only keeps states the epoch does not observe (e.g. velocity from pseudoranges)
 at their previous value; for observed states its influence is ~1e-8 relative. The reported P is
-the inverse normal matrix. Works on any model (linear or not); with a position measurement it
-returns the measured position.
+the inverse normal matrix. With ``huber_k`` > 0 the residuals are Huber-reweighted (iteratively
+reweighted least squares from the third iteration on; Huber 1964), the usual robust variant.
+Works on any model (linear or not); with a position measurement it returns the measured position.
 """
 
 from __future__ import annotations
@@ -17,7 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import Filter, KFState, Model, SideInfo, StepOut, register
+from navlab.filters.base import (
+    ACCEPTED,
+    DOWNWEIGHTED,
+    Filter,
+    KFState,
+    Model,
+    SideInfo,
+    StepOut,
+    register,
+)
 from navlab.filters.linalg import Array, mask_missing, mT, mv, sym
 from navlab.params import param
 
@@ -27,6 +37,9 @@ class WlsParams:
     iterations: int = param(5, lo=1, hi=50, help="Gauss–Newton iterations per epoch")
     sigma_prior: float = param(
         1e4, lo=1.0, hi=1e9, help="vague prior σ on every state (keeps unobserved states)")
+    huber_k: float = param(
+        0.0, lo=0.0, hi=100.0,
+        help="Huber threshold on |residual|/σ for iteratively reweighted LS (0: plain WLS)")
 
 
 @register
@@ -51,11 +64,18 @@ class WLS(Filter):
         x = x_prev.copy()
         Rinv = np.linalg.inv(model.R0)
         N = None
-        for _ in range(p.iterations):
+        sd = np.sqrt(np.diagonal(model.R0))
+        weights = np.ones(z.shape)
+        for it in range(p.iterations):
             H = model.H(x, k)
             nu = z - model.h(x, k)
             ok, nu, H, R = mask_missing(z, nu, H, model.R0)
             Ri = Rinv if ok.all() else np.linalg.inv(R) * (ok[:, :, None] & ok[:, None, :])
+            if p.huber_k > 0 and it >= 2:  # IRLS once the geometry has converged
+                u = np.abs(nu) / sd
+                weights = np.where(u <= p.huber_k, 1.0, p.huber_k / np.maximum(u, 1e-12))
+                w = np.sqrt(weights)
+                Ri = w[:, :, None] * Ri * w[:, None, :]
             HtRi = mT(H) @ Ri
             N = HtRi @ H + lam
             rhs = mv(HtRi, nu) + mv(lam, x_prev - x)
@@ -65,5 +85,7 @@ class WLS(Filter):
         ok, nu, H, R = mask_missing(z, nu, H, model.R0)
         P = sym(np.linalg.inv(N))
         S = sym(H @ P @ mT(H) + R)
-        flags = np.zeros(z.shape, dtype=np.int8)
-        return KFState(x, P), StepOut(x=x, P=P, innov=nu, S=S, R_used=R, flags=flags)
+        flags = np.where((weights < 1.0) & ok, DOWNWEIGHTED, ACCEPTED).astype(np.int8)
+        out = StepOut(x=x, P=P, innov=nu, S=S, R_used=R, weights=np.where(ok, weights, 1.0),
+                      flags=flags)
+        return KFState(x, P), out

@@ -170,3 +170,30 @@ def test_generic_folder_runs_through_the_drive_scenario(tmp_path):
     (tmp_path / "truth.csv").unlink()
     res = run_experiment(spec)
     assert not res.data.has_truth and _metric(res, "kf", "diverged") == 0
+
+
+def test_wls_huber_downweights_a_gross_range_error():
+    anchors = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [100.0, 100.0], [50.0, -80.0]])
+
+    class Ranges:
+        n, m, linear = 2, 5, False
+        R0 = np.eye(5)
+
+        def h(self, x, k):
+            return np.linalg.norm(anchors[None] - x[:, None, :], axis=-1)
+
+        def H(self, x, k):
+            d = x[:, None, :] - anchors[None]
+            return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    model = Ranges()
+    truth = np.array([[30.0, 60.0]])
+    z = model.h(truth, 1)
+    z[0, 4] += 40.0  # one gross error
+    side = SideInfo(np.ones((1, 5)), np.zeros((1, 5)), np.zeros((1, 5), bool))
+    plain, robust = make_filter("wls"), make_filter("wls", {"huber_k": 1.5, "iterations": 30})
+    _, o1 = plain.update(model, plain.init(model, np.array([[50.0, 50.0]]), np.eye(2)), 1, z, side)
+    _, o2 = robust.update(model, robust.init(model, np.array([[50.0, 50.0]]), np.eye(2)), 1, z, side)
+    e1, e2 = np.linalg.norm(o1.x - truth), np.linalg.norm(o2.x - truth)
+    assert e2 < 0.2 * e1
+    assert o2.weights[0, 4] < 0.2 and o2.flags[0, 4] == 1 and o1.weights[0, 4] == 1.0
