@@ -13,7 +13,7 @@ from navlab.ui.runner import (
     run_requested,
 )
 from navlab.ui.share import config_download, config_upload, csv_download
-from navlab.ui.views import CompareView
+from navlab.ui.views import CompareView, chart
 from navlab.ui.widgets import PageDefaults, experiment_config
 
 PAGE = "compare"
@@ -45,7 +45,9 @@ c3.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed}
 view = CompareView(PAGE)
 res = None
 if run_requested(PAGE, spec):
+    view.live = True
     res = run_live(spec, PAGE, view.render)
+    view.live = False
 else:
     res = cached_results(spec) or partial_results(PAGE, spec)
     if res is not None:
@@ -54,6 +56,7 @@ else:
             st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
     else:
         view.status.info("Press **Run** to simulate this configuration.")
+        chart(view.preview, F.schedule_preview(spec), "noise schedule preview")
 
 if res is not None and res.complete:
     st.markdown("##### Downloads")

@@ -3,6 +3,7 @@
 import streamlit as st
 
 from navlab.filters import registry
+from navlab.ui import figures as F
 from navlab.ui.frame import frame
 from navlab.ui.runner import (
     cached_results,
@@ -12,7 +13,7 @@ from navlab.ui.runner import (
     run_requested,
 )
 from navlab.ui.share import config_download, config_upload
-from navlab.ui.views import NoiseView
+from navlab.ui.views import NoiseView, chart
 from navlab.ui.widgets import PageDefaults, experiment_config
 
 PAGE = "noise"
@@ -61,3 +62,4 @@ else:
             st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
     else:
         view.status.info("Press **Run** to simulate this configuration.")
+        chart(view.preview, F.schedule_preview(spec), "noise schedule preview")

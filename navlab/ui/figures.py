@@ -400,3 +400,22 @@ def sweep_heatmap(df: pd.DataFrame, x_label: str, y_label: str) -> go.Figure:
     )
     fig.update_xaxes(title_text=x_label, type="category")
     return fig
+
+
+def schedule_preview(spec, height: int = 220) -> go.Figure:
+    """The chosen noise schedule's true σ(t)/σ_nominal over the run (cheap; shown before a run).
+
+    It also makes the browser load plotly.js while the user is still configuring.
+    """
+    from navlab.experiment import plan
+
+    p = plan(spec)
+    K = p.scenario.epochs or 100
+    f = p.schedule.std(np.ones(1), K)[:, 0]
+    k = np.arange(K + 1, dtype=float)
+    traces: list = []
+    add_line(traces, k, f, "σ(t) / σ nominal", TRUTH_COLOR, "truth", width=2)
+    fig = _figure(traces, f"Noise schedule '{spec.noise_schedule}': true σ(t) relative to the "
+                  "σ the filters assume", "epoch", "σ / σ nominal", height=height)
+    fig.update_layout(showlegend=False, hovermode="closest")
+    return fig

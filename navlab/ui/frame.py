@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import threading
 
 import streamlit as st
 
@@ -17,9 +18,37 @@ PAGES = (
 )
 
 
+def _warm() -> None:
+    """Import and exercise the heavy paths once (plotly validators, every filter, a tiny run)."""
+    try:
+        from navlab.experiment import ExperimentSpec
+        from navlab.ui import figures as F
+        from navlab.ui.runner import iter_chunks
+
+        for res in iter_chunks(ExperimentSpec(runs=2, epochs=5)):
+            F.error_vs_time(res, "pos").to_json()
+            F.r_vs_rhat(res, 0, outlier_strip=True).to_json()
+            F.nis_vs_chi2(res).to_json()
+    except Exception:  # warming is best effort; the real run reports any problem
+        return
+
+
+@st.cache_resource(show_spinner=False)
+def _warm_once() -> threading.Thread:
+    """Start warming in the background once per server process (first page view)."""
+    t = threading.Thread(target=_warm, name="navlab-warm", daemon=True)
+    t.start()
+    return t
+
+
 def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
-    """Page config + title (+ an intro line) + sidebar footer. Call first on every page."""
+    """Page config + title (+ an intro line) + sidebar footer. Call first on every page.
+
+    The first page view of a server process also warms the plotting and filtering code in a
+    background thread, so the first Run does not pay for cold imports.
+    """
     st.set_page_config(page_title=f"{title} · navlab", page_icon=icon, layout="wide")
+    _warm_once()
     st.title(title)
     if intro:
         st.caption(intro)

@@ -62,6 +62,7 @@ class CompareView:
         self.page = page
         self.controls = st.container()
         self.status = st.empty()
+        self.preview = st.empty()
         self.err = st.empty()
         st.markdown("##### Summary over the analysis window")
         self.table = st.empty()
@@ -73,6 +74,7 @@ class CompareView:
         self.group = self.channel = None
         self.log_err = self.log_r = False
         self.as_std = False
+        self.live = False  # set by the page while run_live streams chunks
 
     def _controls(self, res: Results) -> None:
         if self._made:
@@ -107,6 +109,12 @@ class CompareView:
         self.table.dataframe(F.summary_table(res, headline_groups(res)), width="stretch")
         with self.notes.container():
             divergence_warnings(res)
+        if not res.complete and self.live:
+            # while chunks stream, only the error curves and the table update: fewer browser
+            # redraws, so the first chart appears sooner
+            self.rhat.caption("R̂ against the true R(t): drawn when the run completes")
+            self.nis.caption("NIS against its χ² band: drawn when the run completes")
+            return
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
         chart(self.rhat, F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std),
               "true R(t) against each filter's R-hat")
@@ -158,6 +166,7 @@ class NoiseView:
         self.page = page
         self.controls = st.container()
         self.status = st.empty()
+        self.preview = st.empty()
         self.fig = st.empty()
         self.outliers = st.empty()
         st.markdown("##### R̂ error against the schedule: mean |σ̂/σ − 1| over the window (%)")

@@ -11,7 +11,8 @@ def test_compare_renders_defaults_without_running(open_page):
     assert_clean(at)
     assert at.multiselect(key="flt").value == ["kf", "oracle-kf", "chi2-kf"]
     assert at.button(key="run_compare")
-    assert not plotly_figs(at)  # nothing runs before Run is pressed
+    (preview,) = plotly_figs(at)  # nothing runs before Run: only the schedule preview
+    assert preview["layout"]["title"]["text"].startswith("Noise schedule 'constant'")
 
 
 def test_query_params_initialise_the_widgets(open_page):
@@ -71,7 +72,8 @@ def test_changed_parameter_needs_a_new_run(open_page):
     assert len(plotly_figs(at)) == 3
     at.number_input(key="seed").set_value(14).run()
     assert_clean(at)
-    assert not plotly_figs(at)  # the old results are not shown for a new configuration
+    # the old results are not shown for a new configuration (only the schedule preview)
+    assert len(plotly_figs(at)) == 1
     assert any("Press **Run**" in i.value for i in at.info)
 
 

@@ -20,7 +20,7 @@ from navlab.experiment import ExperimentSpec
 
 T = 90_000  # ms; the machine is shared and runs may queue
 CHART = '[data-testid="stPlotlyChart"]'
-DRAWN = f"{CHART} .main-svg"  # Plotly has drawn the figure
+DRAWN = f"{CHART} .legendtext"  # Plotly has drawn a results figure (the preview has no legend)
 COMPLETE = re.compile(r"\d+/\d+ runs \(complete\)")
 SMALL = "runs=8&sc.cv2d.epochs=40"
 ROOT = Path(__file__).resolve().parents[2]
