@@ -78,8 +78,21 @@ class PrEpochs:
     truth_ecef: Array  # (K+1, 3)
 
 
-@lru_cache(maxsize=2)
 def load_epochs(data_dir: str) -> PrEpochs:
+    """The recording on epoch grids, cached while its files are unchanged."""
+    from navlab.data.loaders import SMARTLOC_DIR, data_root
+
+    d = data_root(data_dir or None)
+    d = d / SMARTLOC_DIR if (d / SMARTLOC_DIR).is_dir() else d
+    try:
+        fp = tuple(sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in d.iterdir()))
+    except OSError:
+        fp = ()
+    return _load_epochs(data_dir, fp)
+
+
+@lru_cache(maxsize=2)
+def _load_epochs(data_dir: str, fingerprint: tuple) -> PrEpochs:
     rec = smartloc_berlin_pp(data_dir or None)
     pr = rec.pr
     t = np.unique(pr.t_s.to_numpy())
