@@ -17,6 +17,12 @@ navlab apply on top (default: none).
 The model also exposes the inputs of NNMFUKF's RBF network (§6.1): ``nn_features(x̂⁺_{k−1}, k)``
 (corrected velocity and attitude at k−1, IMU increments over (t_{k−1}, t_k]) and
 ``nn_reference(k)`` (the INS position/velocity r_k, so that GPS = r_k − z_k).
+
+Note (differs from ALGORITHMS.md §8.3's remark that the network only interpolates): the 600–615 s
+right turn at 14 m/s (lateral Δv ≈ +1.47 m/s per second; the training window 200–600 s has at most
++0.79 to the right) and the 14 m/s leg heading south lie outside the training data, and during the
+state anomaly the IMU Δv_z input is ≈ 100 training standard deviations away from anything seen in
+training; the faithful NNMFUKF is very sensitive to this (see ``nnmfukf-guarded``).
 """
 
 from __future__ import annotations
