@@ -110,6 +110,11 @@ class _MeasSpace:
         self.ill = np.zeros(B, dtype=bool)
         if 2 <= m <= 3:
             self.idx, self.sgn = _cofactor_index(m)
+        if m <= 3:
+            # S⁻¹ν = C ν / det and diag(M S⁻¹ M)_i = Σ_jk C_jk M_ij M_ik / det with the cofactor
+            # matrix C (symmetric S): flattened products, no stacked matmul per iteration
+            self.nu_f = np.tile(nu, (1, m))[:, np.arange(m * m).reshape(m, m)]  # (B, m, m): ν_k
+            self.MM = (self.Mb[:, :, :, None] * self.Mb[:, :, None, :]).reshape(B, m, m * m)
 
     def step(self, Rt: Array) -> tuple[Array, Array]:
         B, m = self.B, self.m
@@ -128,9 +133,9 @@ class _MeasSpace:
             cof = np.ones((B, 1))
         det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
         inv = (1.0 / det)[:, None]
-        Y = cof.reshape(B, m, m) @ self.rhs  # adj(S) [ν, M]
-        resid = Rt * Y[..., 0] * inv
-        hph = self.dM - np.einsum("bij,bji->bi", self.Mb, Y[..., 1:]) * inv
+        Snu = np.einsum("bij,bij->bi", cof.reshape(B, m, m), self.nu_f)  # adj(S) ν
+        resid = Rt * Snu * inv
+        hph = self.dM - np.einsum("bij,bj->bi", self.MM, cof) * inv
         return resid, hph
 
 
