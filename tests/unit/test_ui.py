@@ -1,0 +1,167 @@
+"""navlab.ui's pure parts: colours, figure builders, divergence handling, chunked runner,
+config parsing, sweeps (no browser, no script run)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, run_experiment
+from navlab.ui import figures as F
+from navlab.ui.colors import PINNED, filter_color, filter_colors
+from navlab.ui.runner import ResultStore, iter_chunks, next_chunk_size
+from navlab.ui.share import parse_config
+from navlab.ui.sweep import apply, grid, sweepables
+
+SPEC = ExperimentSpec(runs=6, epochs=30, seed=3)
+
+
+@pytest.fixture(scope="module")
+def res():
+    return run_experiment(SPEC)
+
+
+def test_colours_are_stable_and_distinct():
+    allc = filter_colors()
+    assert filter_color("kf") == PINNED["kf"] == allc["kf"]
+    assert filter_colors(["chi2-kf"])["chi2-kf"] == allc["chi2-kf"]  # independent of selection
+    non_pinned = [c for k, c in allc.items() if k not in PINNED]
+    assert len(set(non_pinned)) == len(non_pinned) or len(non_pinned) > 12
+
+
+def test_decimation_keeps_spikes():
+    v = np.zeros(10_001)
+    v[5_003] = 7.0
+    idx, vmax = F.bucket_max(v, 1000)
+    assert len(idx) <= 1001 and vmax.max() == 7.0
+    assert len(np.arange(10_001)[F.decimation(10_001, 1000)]) <= 1001
+
+
+def test_error_figure_has_bands_and_float32(res):
+    fig = F.error_vs_time(res, "pos")
+    names = [t.name for t in fig.data if t.showlegend is not False]
+    assert names == ["KF", "Oracle KF", "χ²-gated KF"]
+    fills = [t for t in fig.data if t.fill == "tonexty"]
+    assert len(fills) == 3
+    line = next(t for t in fig.data if t.name == "KF")
+    assert line.y.dtype == np.float32 and np.all(np.isfinite(line.y))
+
+
+def test_long_series_use_webgl_and_are_decimated():
+    r = run_experiment(ExperimentSpec(runs=2, epochs=4500, filters=("kf",)))
+    fig = F.error_vs_time(r, "pos")
+    assert {t.type for t in fig.data} == {"scattergl"}
+    assert max(len(t.x) for t in fig.data) <= F.MAX_POINTS + 1
+
+
+def _diverge(res, key, runs):
+    fr = res.runs[key]
+    x = fr.x.copy()
+    at = fr.diverged_at.copy()
+    x[runs, 10:] = np.nan
+    at[runs] = 10
+    runs_new = dict(res.runs)
+    runs_new[key] = dataclasses.replace(fr, x=x, diverged_at=at)
+    return dataclasses.replace(res, runs=runs_new)
+
+
+def test_partly_diverged_filter_is_reported_not_drawn_as_nan(res):
+    r = _diverge(res, "kf", [0, 2])
+    fig = F.error_vs_time(r, "pos")
+    line = next(t for t in fig.data if t.legendgroup == "kf" and t.showlegend is not False)
+    assert line.name == "KF (2/6 diverged, excluded)"
+    assert np.all(np.isfinite(line.y))
+    assert F.divergence_note(r.runs["kf"]) == "2/6 runs diverged (first at epoch 10)"
+    table = F.summary_table(r)
+    assert table.loc["KF", "diverged runs"] == 2
+
+
+def test_fully_diverged_filter_is_a_legend_entry_only(res):
+    r = _diverge(res, "chi2-kf", list(range(6)))
+    for fig in (F.error_vs_time(r, "pos"), F.r_vs_rhat(r, 0), F.nis_vs_chi2(r)):
+        stub = [t for t in fig.data if t.legendgroup == "chi2-kf"]
+        assert len(stub) == 1 and "diverged in all 6 runs" in stub[0].name
+        assert len(stub[0].y) == 0
+
+
+def test_r_vs_rhat_truth_and_outlier_strip():
+    r = run_experiment(ExperimentSpec(runs=4, epochs=80, outliers="isolated",
+                                      noise_schedule="step"))
+    fig = F.r_vs_rhat(r, 0, outlier_strip=True)
+    truth = fig.data[0]
+    assert truth.name == "true R(t) (schedule)"
+    np.testing.assert_allclose(truth.y, r.data.R_schedule[:, 0], rtol=1e-6)
+    bar = fig.data[-1]
+    assert bar.type == "bar" and bar.yaxis == "y2"
+    np.testing.assert_array_equal(F.outlier_epochs(r, 0), np.arange(20, 71, 5))
+    assert F.outlier_epochs(r, 1).size == 0  # cv2d's isolated outliers hit x only
+
+
+def test_nis_band_is_the_chi2_band(res):
+    from navlab.metrics import chi2_band
+
+    fig = F.nis_vs_chi2(res)
+    band = next(t for t in fig.data if t.legendgroup == "chi2" and t.fill == "tonexty")
+    lo, hi = chi2_band(2, 6)
+    assert band.y[0] == pytest.approx(lo, rel=1e-6)
+    upper = next(t for t in fig.data if t.legendgroup == "chi2")
+    assert upper.y[0] == pytest.approx(hi, rel=1e-6)
+
+
+def test_chunked_and_resumed_runs_equal_one_shot(res):
+    chunks = list(iter_chunks(SPEC, first_chunk=2))
+    assert [c.done_runs for c in chunks] == [2, 6] and chunks[-1].complete
+    resumed = list(iter_chunks(SPEC, start=chunks[0]))[-1]
+    for r in (chunks[-1], resumed):
+        for k in res.runs:
+            np.testing.assert_array_equal(r.runs[k].x, res.runs[k].x)
+    assert next_chunk_size(90) == 90 and next_chunk_size(900) == 300
+
+
+def test_result_store_is_bounded():
+    store = ResultStore(max_entries=2)
+    for i in range(3):
+        store.put(str(i), run_experiment(ExperimentSpec(runs=1, epochs=3, filters=("kf",))))
+    assert len(store) == 2 and store.get("0") is None and store.get("2") is not None
+
+
+@pytest.mark.parametrize(
+    ("raw", "msg"),
+    [
+        (b"", "empty"),
+        (b"\xff\xfe\x00", "not UTF-8"),
+        (b'{"runs": ', "not valid JSON"),
+        (b'{"rnus": 5}', "unknown configuration key(s) rnus"),
+        (b"[1, 2]", "must be a JSON object"),
+    ],
+)
+def test_broken_config_upload_says_what_is_wrong(raw, msg):
+    with pytest.raises(NavlabError, match=msg.replace("(", r"\(").replace(")", r"\)")):
+        parse_config(raw)
+
+
+def test_config_round_trip():
+    spec = ExperimentSpec(runs=9, filters=("kf", "chi2-kf"), filter_params={"chi2-kf": {"alpha": 0.05}})
+    assert parse_config(spec.to_json(indent=2).encode()) == spec
+
+
+def test_sweep_parameters_grid_and_apply():
+    spec = ExperimentSpec(filters=("kf", "chi2-kf"), epochs=None)
+    s = {x.id: x for x in sweepables(spec)}
+    assert {"ol.mixture.contamination", "ol.mixture.scale", "fp.chi2-kf.alpha",
+            "sc.cv2d.epochs"} <= set(s)
+    g = grid(s["ol.mixture.contamination"], 0.0, 0.3, 4, False)
+    np.testing.assert_allclose(g, [0.0, 0.1, 0.2, 0.3])
+    assert apply(spec, s["ol.mixture.contamination"], 0.2).outlier_params == {"contamination": 0.2}
+    assert apply(spec, s["fp.chi2-kf.alpha"], 0.05).filter_params == {"chi2-kf": {"alpha": 0.05}}
+    ep = grid(s["sc.cv2d.epochs"], 10, 12, 5, False)
+    np.testing.assert_array_equal(ep, [10, 11, 12])  # integers, de-duplicated
+    with pytest.raises(NavlabError, match="upper end"):
+        grid(s["ol.mixture.contamination"], 0.3, 0.1, 3, False)
+    with pytest.raises(NavlabError, match="within"):
+        grid(s["ol.mixture.contamination"], 0.0, 0.9, 3, False)
+    with pytest.raises(NavlabError, match="positive lower end"):
+        grid(s["ol.mixture.contamination"], 0.0, 0.3, 3, True)
