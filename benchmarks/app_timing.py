@@ -1,0 +1,100 @@
+"""Dashboard timings (issue 6 targets): server compute per run, and Run → first chart in a browser.
+
+    python benchmarks/app_timing.py              # server-side timings only
+    python benchmarks/app_timing.py --browser    # + headless Chromium against a fresh server
+
+Server side: the default compare run on cv2d (100 epochs, 100 runs) with every filter that runs on
+the linear model, timed one-shot (``run_experiment``) and chunked as the Compare page streams it
+(``navlab.ui.runner.iter_chunks``); and sins-gps (850 epochs, 50 runs, its 4 default filters).
+Browser: Run → first results chart drawn (a Plotly legend visible), on a freshly started server
+(cold) and again (warm). Not a test: numbers depend on the machine's load (printed first).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def server_timings(repeat: int) -> None:
+    from navlab.experiment import ExperimentSpec, run_experiment
+    from navlab.filters import registry
+    from navlab.scenarios import scenario_registry
+    from navlab.ui.runner import iter_chunks
+
+    reg = registry()
+    linear = tuple(k for k, c in reg.items() if c.family != "nonlinear")
+    every = tuple(reg)
+    cases = [
+        ("cv2d, 100 runs, linear-model filters", ExperimentSpec(filters=linear, runs=100)),
+        ("cv2d, 100 runs, every registered filter", ExperimentSpec(filters=every, runs=100)),
+        ("cv2d, 100 runs, kf/oracle-kf/chi2-kf", ExperimentSpec(runs=100)),
+    ]
+    if "sins-gps" in scenario_registry():
+        sg = scenario_registry()["sins-gps"]
+        cases.append(("sins-gps, 50 runs, its 4 default filters",
+                      ExperimentSpec(scenario="sins-gps", filters=tuple(sg.default_filters)[:4],
+                                     runs=50)))
+    for name, spec in cases:
+        print(f"\n{name}: filters {', '.join(spec.filters)}")
+        for i in range(repeat):
+            t = time.perf_counter()
+            run_experiment(spec)
+            one = time.perf_counter() - t
+            t = time.perf_counter()
+            for _r in iter_chunks(spec):
+                pass
+            chunked = time.perf_counter() - t
+            print(f"  [{i}] one-shot {one:6.2f} s   chunked as the page streams it {chunked:6.2f} s")
+
+
+def browser_timings(repeat: int) -> None:
+    sys.path.insert(0, str(ROOT / "tests" / "e2e"))
+    from conftest import CHROMIUM_ARGS, serve
+    from playwright.sync_api import expect, sync_playwright
+
+    T = 180_000
+    log = Path(os.environ.get("TMPDIR", "/tmp")) / "navlab-app-timing.log"
+    with serve(log) as url, sync_playwright() as p:
+        b = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
+        page = b.new_page(viewport={"width": 1400, "height": 1000})
+        for i in range(repeat):
+            page.goto(f"{url}/Compare?seed={1000 + i}")
+            expect(page.locator("h1").first).to_be_visible(timeout=T)
+            expect(page.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T)
+            time.sleep(2)  # a user reads the page before pressing Run
+            t0 = time.monotonic()
+            page.get_by_role("button", name="Run", exact=True).click()
+            expect(page.locator('[data-testid="stPlotlyChart"] .legendtext').first).to_be_visible(
+                timeout=T)
+            first = time.monotonic() - t0
+            expect(page.get_by_text(re.compile(r"runs \(complete\)"))).to_be_visible(timeout=T)
+            done = time.monotonic() - t0
+            cap = page.get_by_text(re.compile(r"done: \d+ runs")).inner_text()
+            kind = "cold (fresh server)" if i == 0 else "warm"
+            print(f"  [{i}] {kind}: Run → first chart {first:5.2f} s, → complete {done:5.2f} s "
+                  f"({cap})")
+        b.close()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--browser", action="store_true", help="also time Run → first chart")
+    ap.add_argument("--repeat", type=int, default=2)
+    a = ap.parse_args()
+    print(f"load average {os.getloadavg()} on {os.cpu_count()} CPUs")
+    server_timings(a.repeat)
+    if a.browser:
+        print("\nbrowser: default Compare run (cv2d, 100 runs, kf/oracle-kf/chi2-kf)")
+        browser_timings(a.repeat + 1)
+
+
+if __name__ == "__main__":
+    main()
