@@ -11,6 +11,10 @@ and trajectory (SeedSequence([seed, r]) as for the simulations); the truth is id
 run. The filters are navlab's registered filters on the total-state closed-loop model of
 :class:`navlab.ins.lc.InsGnssModel`; only the GNSS update strategy differs between them.
 
+Channels: the GNSS position (N, E, U, m) and, by default, the car's non-holonomic constraints
+(zero velocity along the vehicle's right and up axes, σ = 0.2 m/s; ``nhc_sigma_mps = 0`` turns
+them off). The constraints carry only their real violation, never injected noise or outliers.
+
 Truth of the non-position states: velocity from the RTK solution; attitude and sensor biases from
 the reference solution (the closed-loop EKF aided by the RTK truth at σ = 5 cm), so the attitude
 "error" is relative to that reference.
