@@ -60,8 +60,9 @@ def log_timing(artifacts_dir: Path, **row) -> None:
         f.write(json.dumps({"when": time.strftime("%Y-%m-%dT%H:%M:%S"), **row}) + "\n")
 
 
-def number_value(page: Page, label: str) -> str:
-    return page.get_by_label(label, exact=True).input_value()
+def expect_value(page: Page, label: str, value: str) -> None:
+    """The input labelled ``label`` shows ``value`` (retried: the page may still be updating)."""
+    expect(page.get_by_label(label, exact=True)).to_have_value(value, timeout=T)
 
 
 def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_dir: Path):
@@ -74,10 +75,10 @@ def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_di
     expect(page.locator("h1").first).to_have_text("Compare filters")
     nav = page.locator('[data-testid="stSidebarNav"]')
     expect(nav.get_by_text("Compare")).to_be_visible()
-    assert number_value(page, "Monte Carlo runs") == "12"
-    assert number_value(page, "Seed") == "7"
-    assert number_value(page, "factor") == "4"
-    assert number_value(page, "contamination") == "0.2"
+    expect_value(page, "Monte Carlo runs", "12")
+    expect_value(page, "Seed", "7")
+    expect_value(page, "factor", "4")
+    expect_value(page, "contamination", "0.2")
     ms = page.locator('[data-testid="stMultiSelect"]').first
     expect(ms).to_contain_text("kf")
     expect(ms).to_contain_text("chi2-kf")
@@ -118,8 +119,8 @@ def test_widget_change_updates_url_and_reload_restores(page: Page):
     assert "seed=42" in page.url
     page.reload()
     settle(page)
-    assert number_value(page, "Seed") == "42"
-    assert number_value(page, "Monte Carlo runs") == "33"
+    expect_value(page, "Seed", "42")
+    expect_value(page, "Monte Carlo runs", "33")
     assert_no_exception(page)
 
 
@@ -160,7 +161,7 @@ def test_config_upload_round_trip_and_broken_file(page: Page, tmp_path: Path):
     page.locator('[data-testid="stFileUploaderDropzoneInput"]').set_input_files(str(good))
     expect(page.get_by_text(re.compile("Loaded good.json"))).to_be_visible(timeout=T)
     page.wait_for_url(re.compile(r"runs=21"), timeout=T)
-    assert number_value(page, "Seed") == "9"
+    expect_value(page, "Seed", "9")
     assert_no_exception(page)
 
 
