@@ -230,6 +230,17 @@ def _selectbox(c: Any, label: str, options: list[str], default: str, key: str, *
     return c.selectbox(label, options, index=idx, key=key, bind=BIND, **kw)
 
 
+def _on_scenario_change(defaults: PageDefaults) -> None:
+    """A new scenario starts from its own default filters and runs (unless the page fixes them)."""
+    scn = st.session_state.get(SCN)
+    if scn not in scenario_registry():
+        return
+    if defaults.filters is None:
+        st.session_state[FLT] = default_filters(scn, defaults)
+    if defaults.runs is None:
+        st.session_state[RUNS] = default_runs(scn, defaults)
+
+
 def experiment_config(
     defaults: PageDefaults = PageDefaults(),
     container: Any = None,
@@ -246,7 +257,8 @@ def experiment_config(
     reg, sreg = registry(), scenario_registry()
     skeys = scenario_keys()
     scn = _selectbox(c, "Scenario", skeys, defaults.scenario, SCN,
-                     help="the simulated experiment (or real recording) every filter runs on")
+                     help="the simulated experiment (or real recording) every filter runs on",
+                     on_change=_on_scenario_change, args=(defaults,))
     scls = sreg[scn]
     c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
 

@@ -82,3 +82,16 @@ def test_bad_combination_is_a_message_not_a_traceback(open_page):
     at.multiselect(key="flt").set_value([]).run()
     assert not at.exception
     assert any("at least one filter" in e.value for e in at.error)
+
+
+def test_changing_scenario_takes_its_default_filters(open_page):
+    at = open_page(PAGE)
+    other = [o for o in at.selectbox(key="scn").options if o != "cv2d"]
+    if not other:
+        return
+    at.selectbox(key="scn").set_value(other[0]).run()
+    assert not at.exception
+    from navlab.scenarios import scenario_registry
+
+    want = [k for k in scenario_registry()[other[0]].default_filters]
+    assert at.multiselect(key="flt").value == want
