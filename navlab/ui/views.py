@@ -210,6 +210,10 @@ class NoiseView:
             self.table.info("None of the chosen filters estimates R; add one that does "
                             f"({est or 'none registered yet'}) to see R̂ tracking.")
         else:
-            self.table.dataframe(tab.drop(columns="key"), width="stretch")
+            with self.table.container():
+                st.dataframe(tab.drop(columns="key"), width="stretch")
+                if "oracle-kf" in set(tab["key"]):
+                    st.caption("The oracle's R̂ is the variance actually drawn, outliers included, "
+                               "so it leaves the schedule at outlier epochs by design.")
         with self.notes.container():
             divergence_warnings(res)
