@@ -1,48 +1,12 @@
-"""AppTest helpers shared by the page tests (streamlit.testing.v1, no browser).
-
-``open_page(path, **query)`` starts the app at its entry point (app.py), sets query parameters
-(the URL state), switches to the page and runs it; ``plotly_figs(at)`` returns the figure JSON of
-every Plotly chart on the page. Keep runs tiny: the machine is shared.
-"""
+"""Fixtures for the AppTest page tests; the helpers live in apphelpers.py (import from there)."""
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 import pytest
-from streamlit.testing.v1 import AppTest
-
-ROOT = Path(__file__).resolve().parents[2]
-TIMEOUT = 120  # seconds per script run (a loaded 2-CPU machine; small runs take ~1 s)
-
-# a small, fast configuration (URL keys of navlab.ui.widgets)
-SMALL = {"runs": "6", "sc.cv2d.epochs": "30", "flt": ["kf", "oracle-kf", "chi2-kf"]}
-
-
-def _open(page: str | None = None, **query) -> AppTest:
-    at = AppTest.from_file(str(ROOT / "app.py"), default_timeout=TIMEOUT)
-    for k, v in query.items():
-        at.query_params[k] = v
-    at.run()
-    if page is not None:
-        at.switch_page(page)
-        for k, v in query.items():
-            at.query_params[k] = v
-        at.run()
-    return at
+from apphelpers import _open
 
 
 @pytest.fixture
 def open_page():
+    """``open_page(path, **query)``: start at app.py with URL query parameters, switch, run."""
     return _open
-
-
-def plotly_figs(at: AppTest) -> list[dict]:
-    return [json.loads(el.proto.spec) for el in at.get("plotly_chart")]
-
-
-def assert_clean(at: AppTest) -> None:
-    """No exception element and no error message on the page."""
-    assert not at.exception, [e.value for e in at.exception]
-    assert not at.error, [e.value for e in at.error]

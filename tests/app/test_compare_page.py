@@ -1,5 +1,5 @@
 import numpy as np
-from conftest import SMALL, assert_clean, plotly_figs
+from apphelpers import SMALL, assert_clean, plotly_figs
 
 import navlab.ui.runner as runner
 

@@ -1,4 +1,4 @@
-from conftest import assert_clean
+from apphelpers import assert_clean
 
 
 def test_home_renders_papers_and_sources(open_page):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from conftest import assert_clean, plotly_figs
+from apphelpers import assert_clean, plotly_figs
 
 from navlab.filters import registry
 

@@ -1,4 +1,4 @@
-from conftest import assert_clean, plotly_figs
+from apphelpers import assert_clean, plotly_figs
 
 PAGE = "pages/2_Noise.py"
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import assert_clean, plotly_figs
+from apphelpers import assert_clean, plotly_figs
 
 from navlab.data import data_root
 from navlab.data.loaders import RTKX_DIR, SMARTLOC_DIR

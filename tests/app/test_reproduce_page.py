@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import assert_clean, plotly_figs
+from apphelpers import assert_clean, plotly_figs
 
 from navlab.errors import NavlabError
 from navlab.reproduce import REPRODUCTIONS, Reproduction
