@@ -214,3 +214,22 @@ def test_other_pages_render_and_screenshot(page: Page, artifacts_dir: Path, path
     settle(page)
     assert_no_exception(page)
     page.screenshot(path=str(artifacts_dir / f"page-{path.lower()}.png"), full_page=True)
+
+
+def test_stop_keeps_partial_results_and_run_resumes(page: Page):
+    page.goto("/Compare?runs=3000&seed=21")
+    settle(page)
+    page.get_by_role("button", name="Run", exact=True).click()
+    expect(page.get_by_text(re.compile(r"\d+/3000 runs \(partial\)"))).to_be_visible(timeout=T)
+    page.get_by_role("button", name="Stop", exact=True).click()
+    stopped = page.get_by_text(re.compile(r"Stopped after \d+ of 3000 runs"))
+    expect(stopped).to_be_visible(timeout=T)
+    settle(page)
+    assert_no_exception(page)
+    expect(page.locator(DRAWN).first).to_be_visible()  # the partial curves stay on the page
+    done = int(re.search(r"after (\d+) of", stopped.inner_text()).group(1))
+    assert 0 < done < 3000
+    page.get_by_role("button", name="Run", exact=True).click()  # resumes, does not restart
+    expect(page.get_by_text("3000/3000 runs (complete)")).to_be_visible(timeout=3 * T)
+    settle(page)
+    assert_no_exception(page)
