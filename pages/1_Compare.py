@@ -35,18 +35,22 @@ if cfg.error:
     st.stop()
 spec = cfg.spec
 
-c1, c2, c3 = st.columns([1, 1, 4])
+c1, c2, c3, c4 = st.columns([1, 1, 1, 3])
 if c1.button("Run", type="primary", key="run_compare"):
     request_run(PAGE, spec)
 config_download(spec, key="dl_cfg_compare", container=c2)
-c3.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "
+live = c3.toggle("Live updates", value=True, key="compare_live",
+                 help="redraw as batches of runs finish (Stop possible between batches); off: "
+                      "one batch, which is faster because every batch pays the per-epoch "
+                      "overhead of every filter once")
+c4.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "
            f"noise `{spec.noise_schedule}` · outliers `{spec.outliers}`")
 
 view = CompareView(PAGE)
 res = None
 if run_requested(PAGE, spec):
     view.live = True
-    res = run_live(spec, PAGE, view.render)
+    res = run_live(spec, PAGE, view.render, first_chunk=None if live else spec.runs)
     view.live = False
 else:
     res = cached_results(spec) or partial_results(PAGE, spec)

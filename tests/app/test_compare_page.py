@@ -95,3 +95,21 @@ def test_changing_scenario_takes_its_default_filters(open_page):
 
     want = [k for k in scenario_registry()[other[0]].default_filters]
     assert at.multiselect(key="flt").value == want
+
+
+def test_run_without_live_updates(open_page, monkeypatch):
+    sizes = []
+    real = runner.iter_chunks
+
+    def spy(spec, start=None, first_chunk=None):
+        for r in real(spec, start, first_chunk):
+            sizes.append(r.done_runs)
+            yield r
+
+    monkeypatch.setattr(runner, "iter_chunks", spy)
+    at = open_page(PAGE, seed="15", **SMALL)
+    at.toggle(key="compare_live").set_value(False).run()
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    assert sizes == [6]  # one batch
+    assert len(plotly_figs(at)) == 3
