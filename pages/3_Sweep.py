@@ -102,12 +102,13 @@ if df is not None:
     metrics += [m for m in ("mean_rmse_pos", "anees", "anis", "rhat_err_pct", "detected_pct",
                             "false_alarm_pct", "diverged") if m in set(df.metric)]
     m1, m2, m3 = controls.columns([2, 1, 1])
-    metric = m1.selectbox("Metric", metrics, key="sw_v_metric")
+    units = dict(zip(df.metric, df.unit, strict=False))
+    metric = m1.selectbox("Metric", metrics, key="sw_v_metric",
+                          format_func=lambda m: F.metric_title(m, units.get(m, "")))
     log_y = m2.toggle("log y", key="sw_v_logy")
     log_x = m3.toggle("log x", value=bool(log), key="sw_v_logx")
     d = df[df.metric == metric]
-    unit = d.unit.iloc[0] if len(d) else ""
-    ylab = f"{metric} ({unit})" if unit else metric
+    ylab = F.metric_title(metric, units.get(metric, ""))
     chart(lines_ph, F.sweep_lines(d, pid, ylab, log_x=log_x, log_y=log_y), "metric vs parameter")
     chart(heat_ph, F.sweep_heatmap(d, pid, ylab), "heat map of the metric")
     diverged = df[(df.metric == "diverged") & (df.metric_value > 0)]

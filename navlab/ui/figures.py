@@ -333,6 +333,20 @@ def metric_label(metric: str, res: Results) -> str:
     }.get(metric, metric)
 
 
+def metric_title(metric: str, unit: str = "") -> str:
+    """Readable name of a tidy-table metric without the results at hand (e.g. for sweeps)."""
+    names = {"anees": "ANEES", "anis": "ANIS", "rhat_err_pct": "R̂ error",
+             "detected_pct": "outliers flagged", "false_alarm_pct": "false alarms",
+             "diverged": "diverged runs"}
+    if metric.startswith("mean_rmse_"):
+        name = f"mean RMSE {metric[10:].replace('_', ' ')}"
+    elif metric.startswith("rmse_"):
+        name = f"RMSE {metric[5:].replace('_', ' ')}"
+    else:
+        name = names.get(metric, metric)
+    return f"{name} ({unit})" if unit and unit != "runs" else name
+
+
 def summary_table(res: Results, groups: Sequence[str] | None = None) -> pd.DataFrame:
     """One row per filter: headline RMSE (for ``groups``), consistency, R̂ error, divergence."""
     wide = headline_table(res)

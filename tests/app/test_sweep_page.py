@@ -14,7 +14,7 @@ def test_sweep_contamination_small(open_page):
     assert len(lines["data"]) == 2 and heat["data"][0]["type"] == "heatmap"
     at.selectbox(key="sw_v_metric").set_value("anis").run()
     assert_clean(at)
-    assert "anis" in plotly_figs(at)[0]["layout"]["yaxis"]["title"]["text"]
+    assert plotly_figs(at)[0]["layout"]["yaxis"]["title"]["text"] == "ANIS"
 
 
 def test_sweep_a_filter_parameter_and_bad_range(open_page):
