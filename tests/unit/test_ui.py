@@ -165,3 +165,26 @@ def test_sweep_parameters_grid_and_apply():
         grid(s["ol.mixture.contamination"], 0.0, 0.9, 3, False)
     with pytest.raises(NavlabError, match="positive lower end"):
         grid(s["ol.mixture.contamination"], 0.0, 0.3, 3, True)
+
+
+def test_filter_problems_are_explained(monkeypatch):
+    import navlab.ui.widgets as W
+    from navlab.filters import registry
+    from navlab.scenarios import scenario_registry
+
+    real = [k for k, c in scenario_registry().items() if not c.simulated]
+    if real:
+        why = W.filter_problem("oracle-kf", real[0])
+        assert why is not None and "ground truth" in why
+    assert W.filter_problem("oracle-kf", "cv2d") is None
+    assert W.scenario_is_linear("cv2d") is True
+
+    class LinearOnly(registry()["kf"]):
+        key, linear_only = "lin-only-test", True
+
+    monkeypatch.setattr(W, "registry", lambda: {**registry(), "lin-only-test": LinearOnly})
+    monkeypatch.setattr(W, "scenario_is_linear", lambda scn: scn != "cv2d")
+    assert W.filter_problem("lin-only-test", "cv2d") is not None
+    assert "linear model" in W.filter_problem("lin-only-test", "cv2d")
+    monkeypatch.setattr(W, "scenario_is_linear", lambda scn: True)
+    assert W.filter_problem("lin-only-test", "cv2d") is None
