@@ -58,7 +58,7 @@ with right:
   truth (TU Chemnitz, via TUC-ProAut/libRSF; CC BY-SA 4.0).
 
 The real data are not part of the repository; the app reads them from `../shared/data/` or the
-folder named by `NAVLAB_DATA_DIR`.
+folder named by `NAVLAB_DATA`.
 """
     )
     st.caption("Command line: `python -m navlab list filters` · "

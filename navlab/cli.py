@@ -127,7 +127,9 @@ def _run(a: argparse.Namespace) -> int:
     if sys.stderr.isatty() and not a.quiet:
         def progress(done: int, total: int) -> None:
             print(f"\r{done}/{total} runs", end="" if done < total else "\n", file=sys.stderr)
-    res = run_experiment(spec, on_progress=progress, chunk_runs=max(1, spec.runs // 10))
+    # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
+    chunk = max(1, spec.runs // 10) if progress is not None else None
+    res = run_experiment(spec, on_progress=progress, chunk_runs=chunk)
     df = res.metrics()
     if a.format == "table":
         from navlab.metrics import headline_table
