@@ -1,0 +1,48 @@
+"""Cost per run-step of each filter relative to `kf`, on the same data, in one process.
+
+Targets (issues 4 and 5): the batched VB filters at most 6x the KF per step on sins-gps; the UKF
+family within 10x the KF on the 15-state gps-ins-rtk model. Not a test: the machine is shared,
+read the ratios.
+
+    python benchmarks/filter_cost.py [--runs 50] [--repeat 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, no install
+
+from navlab.experiment import ExperimentSpec, plan, run_filters
+from navlab.filters import make_filter
+
+CASES = {
+    "sins-gps": ("kf", "huber-kf", "vb-akf", "hakf", "student-t-kf"),
+    "gps-ins-rtk": ("kf", "svd-ukf", "mfukf", "nnmfukf", "nnmfukf-guarded"),
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--repeat", type=int, default=2)
+    a = ap.parse_args()
+    for scenario, keys in CASES.items():
+        p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=a.runs, seed=1))
+        data = p.scenario.simulate(p.schedule, p.outliers, range(a.runs), 1)
+        steps = data.B * data.K
+        print(f"\n{scenario}: {data.B} runs x {data.K} epochs, n={data.x0.shape[1]}, "
+              f"m={data.z.shape[2]}; best of {a.repeat}")
+        print(f"{'filter':>16} {'us/run-step':>12} {'x kf':>6}")
+        base = None
+        for key in keys:
+            best = min(run_filters(data, [make_filter(key)])[key].runtime_s for _ in range(a.repeat))
+            us = 1e6 * best / steps
+            base = base or us
+            print(f"{key:>16} {us:12.1f} {us / base:6.1f}")
+
+
+if __name__ == "__main__":
+    main()
