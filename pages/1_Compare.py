@@ -12,9 +12,9 @@ from navlab.ui.runner import (
     run_live,
     run_requested,
 )
-from navlab.ui.share import config_download, config_upload, csv_download
+from navlab.ui.share import config_download, csv_download
 from navlab.ui.views import CompareView, chart
-from navlab.ui.widgets import PageDefaults, experiment_config
+from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "compare"
 
@@ -22,18 +22,7 @@ frame("Compare filters", "⚖️",
       "Every chosen filter runs on the same simulated measurements. Set the experiment in the "
       "sidebar, press Run; the curves update as batches of Monte Carlo runs finish.")
 
-with st.sidebar:
-    st.header("Experiment")
-cfg = experiment_config(PageDefaults())
-with st.sidebar.expander("Load / save configuration"):
-    config_upload(key="up_cfg_compare")
-
-for key, why in cfg.skipped.items():
-    st.warning(f"`{key}` is left out: it {why}.")
-if cfg.error:
-    st.error(cfg.error)
-    st.stop()
-spec = cfg.spec
+spec = sidebar_experiment(PageDefaults(), "compare")
 
 c1, c2, c3, c4 = st.columns([1, 1, 1, 3])
 if c1.button("Run", type="primary", key="run_compare"):

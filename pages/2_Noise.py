@@ -12,9 +12,9 @@ from navlab.ui.runner import (
     run_live,
     run_requested,
 )
-from navlab.ui.share import config_download, config_upload
+from navlab.ui.share import config_download
 from navlab.ui.views import NoiseView, chart
-from navlab.ui.widgets import PageDefaults, experiment_config
+from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "noise"
 
@@ -31,18 +31,7 @@ frame("Noise: R̂ inspection", "📈",
       "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
       "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.")
 
-with st.sidebar:
-    st.header("Experiment")
-cfg = experiment_config(noise_defaults())
-with st.sidebar.expander("Load / save configuration"):
-    config_upload(key="up_cfg_noise")
-
-for key, why in cfg.skipped.items():
-    st.warning(f"`{key}` is left out: it {why}.")
-if cfg.error:
-    st.error(cfg.error)
-    st.stop()
-spec = cfg.spec
+spec = sidebar_experiment(noise_defaults(), "noise")
 
 c1, c2, c3 = st.columns([1, 1, 4])
 if c1.button("Run", type="primary", key="run_noise"):

@@ -8,10 +8,10 @@ from navlab.errors import NavlabError
 from navlab.ui import figures as F
 from navlab.ui.frame import frame
 from navlab.ui.runner import metrics_cached, show_error
-from navlab.ui.share import config_download, config_upload, csv_download
+from navlab.ui.share import config_download, csv_download
 from navlab.ui.sweep import MAX_POINTS, default_range, grid, run_sweep, sweepables
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND, PageDefaults, experiment_config
+from navlab.ui.widgets import BIND, PageDefaults, sidebar_experiment
 
 RESULT_KEY, PENDING_KEY = "_sweep_result", "_sweep_pending"
 
@@ -19,17 +19,7 @@ frame("Sweep a parameter", "🎚️",
       "Vary one parameter — contamination ratio, outlier scale, noise level, a filter's tuning "
       "constant — over a range and compare every chosen filter at each value.")
 
-with st.sidebar:
-    st.header("Base experiment")
-cfg = experiment_config(PageDefaults(runs=30))
-with st.sidebar.expander("Load / save configuration"):
-    config_upload(key="up_cfg_sweep")
-for key, why in cfg.skipped.items():
-    st.warning(f"`{key}` is left out: it {why}.")
-if cfg.error:
-    st.error(cfg.error)
-    st.stop()
-spec = cfg.spec
+spec = sidebar_experiment(PageDefaults(runs=30), "sweep", header="Base experiment")
 
 params = {s.id: s for s in sweepables(spec)}
 if not params:

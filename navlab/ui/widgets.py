@@ -391,3 +391,23 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
             f"filter_params.{f.key}")
     ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
     return no_widget
+
+
+def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experiment") -> ExperimentSpec:
+    """The sidebar every run page shares: experiment widgets, config upload, skipped filters.
+
+    Stops the page with the message when the configuration is invalid.
+    """
+    from navlab.ui.share import config_upload  # share imports this module
+
+    with st.sidebar:
+        st.header(header)
+    cfg = experiment_config(defaults)
+    with st.sidebar.expander("Load / save configuration"):
+        config_upload(key=f"up_cfg_{page}")
+    for key, why in cfg.skipped.items():
+        st.warning(f"`{key}` is left out: it {why}.")
+    if cfg.error:
+        st.error(cfg.error)
+        st.stop()
+    return cfg.spec
