@@ -433,3 +433,50 @@ def schedule_preview(spec, height: int = 220) -> go.Figure:
                   "σ the filters assume", "epoch", "σ / σ nominal", height=height)
     fig.update_layout(showlegend=False, hovermode="closest")
     return fig
+
+
+# --------------------------------------------------------------------------- filter internals
+
+
+def internal_stats(res: Results) -> list[str]:
+    """Names of the per-step statistics the chosen filters report (fading factors, χ² test
+    statistic, VB iterations, replacement flags …), thresholds excluded.
+    """
+    names = {s for fr in res.runs.values() for s in fr.stats if not s.endswith("_threshold")}
+    return sorted(names)
+
+
+def _per_epoch(v: np.ndarray, channel: int, m: int) -> np.ndarray:
+    """(B, K+1[, c]) -> (B, K+1): the chosen channel of a per-channel statistic, else the max."""
+    if v.ndim == 3:
+        v = v[..., channel] if v.shape[2] == m else np.nanmax(np.where(np.isnan(v), -np.inf, v), -1)
+        v = np.where(np.isinf(v), np.nan, v)
+    return v
+
+
+def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = False) -> go.Figure:
+    """Per filter, the median over runs of statistic ``stat`` per epoch (for 0/1 indicators such as
+    ``rejected`` or ``replaced``: the share of runs), with ``<stat>_threshold`` dashed if reported.
+    """
+    data = res.data
+    m = data.z.shape[2]
+    colors = filter_colors(list(res.runs))
+    traces: list = []
+    for key, fr in res.runs.items():
+        if stat not in fr.stats:
+            continue
+        ok = ok_runs(fr)
+        v = _per_epoch(np.asarray(fr.stats[stat], dtype=float), channel, m)[ok]
+        if not v.size:
+            continue
+        finite = v[np.isfinite(v)]
+        binary = finite.size > 0 and np.isin(finite, (0.0, 1.0)).all()
+        y = (average_over_runs(v) if binary else nan_quantiles(v, (0.5,))[0])
+        add_line(traces, data.t, y, _legend_name(fr), colors[key], key)
+        thr = fr.stats.get(f"{stat}_threshold")
+        if thr is not None:
+            t_y = nan_quantiles(_per_epoch(np.asarray(thr, dtype=float), channel, m)[ok], (0.5,))[0]
+            add_line(traces, data.t, t_y, f"{key}: threshold", colors[key], key, dash="dash",
+                     width=1.0, showlegend=False)
+    return _figure(traces, f"{stat} per epoch: median over runs (0/1 indicators: share of runs); "
+                   "dashed: the filter's threshold", "time (s)", stat, log_y, height=320)

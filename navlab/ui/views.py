@@ -172,8 +172,14 @@ class NoiseView:
         st.markdown("##### R̂ error against the schedule: mean |σ̂/σ − 1| over the window (%)")
         self.table = st.empty()
         self.notes = st.empty()
+        st.markdown("##### Filter internals: fading factors, test statistics against their "
+                    "thresholds, VB iterations, replaced measurements")
+        self.internals_ctrl = st.container()
+        self.internals = st.empty()
         self._made = False
         self.channel = 0
+        self.stat = None
+        self._drawn = 0
         self.log_r = self.as_std = False
         self.show_used = True
 
@@ -191,16 +197,26 @@ class NoiseView:
         self.log_r = c3.toggle("log scale", key=f"{self.page}_v_log")
         self.show_used = c4.toggle("R used by non-adaptive filters", value=True,
                                    key=f"{self.page}_v_used")
+        stats = F.internal_stats(res)
+        if stats:
+            self.stat = self.internals_ctrl.selectbox("Statistic", stats, key=f"{self.page}_v_stat")
+
+    def _chart(self, container: Any, fig: Any, name: str) -> None:
+        # a streamed run renders once per chunk in the same script run, and the figures of two
+        # chunks can be identical (no filter estimates R): the key keeps the element ids unique
+        container.plotly_chart(fig, width="stretch", config=PLOTLY_CONFIG, theme=None,
+                               key=f"{self.page}_{name}_{self._drawn}")
 
     def render(self, res: Results) -> None:
         self._controls(res)
+        self._drawn += 1
         state = "complete" if res.complete else "partial"
         self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · "
                             f"{res.elapsed_s:.2f} s compute")
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
         fig = F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std,
                           show_used=self.show_used, outlier_strip=True)
-        chart(self.fig, fig, "true R(t) against each filter's R-hat with outlier epochs")
+        self._chart(self.fig, fig, "rhat")
         self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
         tab = rhat_error_table(res)
         if tab.empty:
@@ -217,3 +233,7 @@ class NoiseView:
                                "so it leaves the schedule at outlier epochs by design.")
         with self.notes.container():
             divergence_warnings(res)
+        if self.stat is None:
+            self.internals.caption("None of the chosen filters reports per-step statistics.")
+        elif res.complete:  # drawn once the run is complete (fewer browser redraws)
+            self._chart(self.internals, F.internals_vs_time(res, self.stat, ch), "internals")

@@ -10,7 +10,7 @@ def test_noise_page_small_run(open_page):
     assert at.selectbox(key="noise").value == "step"
     at.button(key="run_noise").click().run()
     assert_clean(at)
-    (fig,) = plotly_figs(at)
+    fig, _internals = plotly_figs(at)
     names = [t.get("name", "") for t in fig["data"]]
     assert "true R(t) (schedule)" in names
     assert any("R̂ (median)" in n for n in names)
@@ -21,3 +21,20 @@ def test_noise_page_small_run(open_page):
     at.toggle(key="noise_v_std").set_value(True).run()
     assert_clean(at)
     assert "σ" in plotly_figs(at)[0]["layout"]["yaxis"]["title"]["text"]
+    # filter internals: sage-husa reports its statistics; the chosen one is plotted per filter
+    stats = at.selectbox(key="noise_v_stat").options
+    assert stats
+    at.selectbox(key="noise_v_stat").set_value(stats[-1]).run()
+    assert_clean(at)
+    assert plotly_figs(at)[1]["layout"]["title"]["text"].startswith(stats[-1])
+
+
+def test_noise_page_internals_show_fading_with_threshold(open_page):
+    at = open_page(PAGE, runs="3", flt=["kf", "mfukf"], **{"sc.cv2d.epochs": "40"})
+    at.button(key="run_noise").click().run()
+    assert_clean(at)
+    at.selectbox(key="noise_v_stat").set_value("gamma").run()
+    assert_clean(at)
+    names = [t.get("name", "") for t in plotly_figs(at)[1]["data"]]
+    assert any("MFUKF" in n or "mfukf" in n for n in names)
+    assert "mfukf: threshold" in names
