@@ -5,27 +5,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from linmodels import random_model, side
 
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
-from navlab.filters import LinearModel, SideInfo, make_filter
+from navlab.filters import LinearModel, make_filter
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios import make_scenario
 from navlab.scenarios.gps_ins_pseudorange import SAT_AZ_EL_DEG, satellite_geometry
-
-
-def random_model(rng, n, m):
-    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
-    A = rng.standard_normal((n, n))
-    Q = 0.05 * A @ A.T + 0.01 * np.eye(n)
-    H = rng.standard_normal((m, n))
-    C = rng.standard_normal((m, m))
-    R = 0.5 * C @ C.T + 0.1 * np.eye(m)
-    return F, Q, H, R
-
-
-def side(B, m):
-    return SideInfo(np.ones((B, m)), np.zeros((B, m)), np.zeros((B, m), bool))
 
 
 @pytest.mark.parametrize(("n", "m", "seed"), [(4, 2, 0), (3, 3, 1), (6, 1, 2), (8, 8, 3)])

@@ -3,22 +3,9 @@
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
+from linmodels import random_model, side
 
-from navlab.filters import LinearModel, SideInfo, make_filter
-
-
-def random_model(rng, n, m):
-    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
-    A = rng.standard_normal((n, n))
-    Q = 0.05 * A @ A.T + 0.01 * np.eye(n)
-    H = rng.standard_normal((m, n))
-    C = rng.standard_normal((m, m))
-    R = 0.5 * C @ C.T + 0.1 * np.eye(m)
-    return F, Q, H, R
-
-
-def side(B, m):
-    return SideInfo(np.ones((B, m)), np.zeros((B, m)), np.zeros((B, m), bool))
+from navlab.filters import LinearModel, make_filter
 
 
 @pytest.mark.parametrize(("n", "m", "seed"), [(4, 2, 0), (3, 3, 1), (6, 1, 2), (2, 4, 3)])

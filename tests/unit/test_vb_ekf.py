@@ -6,18 +6,15 @@ import math
 
 import numpy as np
 import pytest
+from linmodels import side
 
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
-from navlab.filters import LinearModel, SideInfo, make_filter
+from navlab.filters import LinearModel, make_filter
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios import make_scenario
 
 RHO = 1.0 - math.exp(-4.0)
-
-
-def side(B, m):
-    return SideInfo(np.ones((B, m)), np.zeros((B, m)), np.zeros((B, m), bool))
 
 
 def pseudorange_data(runs, epochs=200, seed=3):
