@@ -32,6 +32,11 @@ def browser_context_args(browser_context_args: dict) -> dict:
             "accept_downloads": True}
 
 
+
+def button(page: Page, name: str, exact: bool = True):
+    """An app button by its label; never Streamlit's own header buttons (its "Stop" while running)."""
+    return page.get_by_role("button", name=name, exact=exact).and_(page.locator("button:not([kind=header])"))
+
 def settle(page: Page) -> None:
     """Wait until the page has a title and the script is no longer running."""
     expect(page.locator("h1").first).to_be_visible(timeout=T)
@@ -42,13 +47,13 @@ def assert_no_exception(page: Page) -> None:
     expect(page.locator('[data-testid="stException"]')).to_have_count(0)
 
 
-def run_and_wait(page: Page, button: str = "Run") -> float:
+def run_and_wait(page: Page, label: str = "Run") -> float:
     """Click Run; wait for the first drawn chart (returns seconds) and for completion."""
     t0 = time.monotonic()
-    page.get_by_role("button", name=button, exact=True).click()
+    button(page, label).click()
     expect(page.locator(DRAWN).first).to_be_visible(timeout=T)
     first_chart = time.monotonic() - t0
-    if button == "Run":
+    if label == "Run":
         expect(page.get_by_text(COMPLETE)).to_be_visible(timeout=T)
     settle(page)
     assert_no_exception(page)
@@ -129,18 +134,18 @@ def test_downloads_parse(page: Page):
     settle(page)
     run_and_wait(page)
     with page.expect_download(timeout=T) as d:
-        page.get_by_role("button", name="Configuration (JSON)").click()
+        button(page, "Configuration (JSON)", exact=False).click()
     spec = ExperimentSpec.from_json(Path(d.value.path()).read_text())
     assert spec.runs == 8 and spec.seed == 3 and spec.scenario_params == {"epochs": 40}
     assert spec.filters == ("kf", "oracle-kf", "chi2-kf")
     with page.expect_download(timeout=T) as d:
-        page.get_by_role("button", name="Metrics (CSV)").click()
+        button(page, "Metrics (CSV)", exact=False).click()
     df = pd.read_csv(d.value.path())
     assert {"filter", "metric", "value", "unit"} <= set(df.columns)
     assert set(df["filter"]) == {"kf", "oracle-kf", "chi2-kf"}
     assert (df[df.metric == "runs"].value == 8).all()
     with page.expect_download(timeout=T) as d:
-        page.get_by_role("button", name="RMSE per epoch (CSV)").click()
+        button(page, "RMSE per epoch (CSV)", exact=False).click()
     curves = pd.read_csv(d.value.path())
     assert {"filter", "group", "epoch", "rmse"} <= set(curves.columns)
     assert curves.epoch.max() == 40
@@ -176,7 +181,7 @@ def test_five_sessions_run_at_once(browser: Browser, base_url: str, artifacts_di
             settle(p)
         t0 = time.monotonic()
         for p in pages:  # all five start before any is awaited
-            p.get_by_role("button", name="Run", exact=True).click()
+            button(p, "Run").click()
         for i, p in enumerate(pages):
             expect(p.get_by_text("30/30 runs (complete)")).to_be_visible(timeout=3 * T)
             expect(p.locator(CHART)).to_have_count(3, timeout=T)
@@ -219,9 +224,9 @@ def test_other_pages_render_and_screenshot(page: Page, artifacts_dir: Path, path
 def test_stop_keeps_partial_results_and_run_resumes(page: Page):
     page.goto("/Compare?runs=3000&seed=21")
     settle(page)
-    page.get_by_role("button", name="Run", exact=True).click()
+    button(page, "Run").click()
     expect(page.get_by_text(re.compile(r"\d+/3000 runs \(partial\)"))).to_be_visible(timeout=T)
-    page.get_by_role("button", name="Stop", exact=True).click()
+    button(page, "Stop").click()
     stopped = page.get_by_text(re.compile(r"Stopped after \d+ of 3000 runs"))
     expect(stopped).to_be_visible(timeout=T)
     settle(page)
@@ -229,7 +234,7 @@ def test_stop_keeps_partial_results_and_run_resumes(page: Page):
     expect(page.locator(DRAWN).first).to_be_visible()  # the partial curves stay on the page
     done = int(re.search(r"after (\d+) of", stopped.inner_text()).group(1))
     assert 0 < done < 3000
-    page.get_by_role("button", name="Run", exact=True).click()  # resumes, does not restart
+    button(page, "Run").click()  # resumes, does not restart
     expect(page.get_by_text("3000/3000 runs (complete)")).to_be_visible(timeout=3 * T)
     settle(page)
     assert_no_exception(page)
