@@ -176,12 +176,9 @@ class Filter:
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         """Time update k−1 → k (default: the KF/EKF prediction)."""
-        from navlab.filters.linalg import sym
+        from navlab.filters.linalg import predict_cov
 
-        F = model.F(k)
-        x = model.f(state.x, k)
-        P = sym(F @ state.P @ np.swapaxes(F, -1, -2) + model.Q(k))
-        return state._replace(x=x, P=P)
+        return state._replace(x=model.f(state.x, k), P=predict_cov(model.F(k), state.P, model.Q(k)))
 
     def update(
         self, model: Model, state: Any, k: int, z: Array, side: SideInfo

@@ -209,29 +209,6 @@ def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array
     return x + mv(K, nu), P_post, S, fixed
 
 
-def _predict_cov(F: Array, P: Array, Q: Array) -> Array:
-    """F P Fᵀ + Q for a shared F (n, n) and batched symmetric P (B, n, n), as two big GEMMs.
-
-    numpy's stacked matmul of small matrices loops over the batch; reshaping (B, n, n) to
-    (B·n, n) turns each product into one BLAS call. Uses Pᵀ = P: with X = P Fᵀ, F P Fᵀ = (Xᵀ Fᵀ).
-    """
-    if F.ndim != 2 or P.ndim != 3:
-        return sym(F @ P @ mT(F) + Q)
-    B, n, _ = P.shape
-    X = (P.reshape(B * n, n) @ F.T).reshape(B, n, n)  # P Fᵀ
-    Z = (np.ascontiguousarray(mT(X)).reshape(B * n, n) @ F.T).reshape(B, n, n)  # (F P) Fᵀ
-    return sym(Z + Q)
-
-
-class _FastPredict(Filter):
-    """The KF time update with :func:`_predict_cov` (same numbers, fewer Python-level loops)."""
-
-    def predict(self, model: Model, state, k: int):
-        return state._replace(
-            x=model.f(state.x, k), P=_predict_cov(model.F(k), state.P, model.Q(k))
-        )
-
-
 def _flags(down: Array, fixed: Array) -> Array:
     flags = np.where(down, DOWNWEIGHTED, 0).astype(np.int8)
     if np.any(fixed):
@@ -260,7 +237,7 @@ class HuberParams:
 
 
 @register
-class HuberKF(_FastPredict):
+class HuberKF(Filter):
     """Huber robust KF by channel-wise re-weighted R (HKF; ALGORITHMS.md §2, S0 eqs. 7–10).
 
     Per pass: e = L⁻¹ ν (R0 = L Lᵀ), w_j = ψ_H(e_j)/e_j, R̃ = L Ψ⁻¹ Lᵀ (the consistent form of
@@ -344,7 +321,7 @@ class VBParams:
     )
 
 
-class _VBBase(_FastPredict):
+class _VBBase(Filter):
     """Shared machinery of ``vb-akf`` and ``hakf`` (S0 eqs. 11–21 with/without the Huber lines)."""
 
     estimates_R = True
@@ -525,7 +502,7 @@ class StudentTParams:
 
 
 @register
-class StudentTKF(_FastPredict):
+class StudentTKF(Filter):
     """VB Student-t KF: R_eff = R0/λ̄ with λ̄ = (ν+m)/(ν + tr(D R0⁻¹)) iterated (§1.6).
 
     D = (z − H x⁺)(z − H x⁺)ᵀ + H P⁺ Hᵀ; λ̄ ≪ 1 marks an outlier epoch (whole-vector scaling).

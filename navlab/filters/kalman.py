@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from navlab.filters.base import (
     NUMERICAL_FIX,
@@ -26,7 +25,17 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, diag, gain, joseph, mask_missing, mv, quad, sym
+from navlab.filters.linalg import (
+    Array,
+    chi2_threshold,
+    diag,
+    gain,
+    joseph,
+    mask_missing,
+    mv,
+    quad,
+    sym,
+)
 from navlab.params import param
 
 
@@ -151,7 +160,7 @@ class Chi2KF(Filter):
             weights = (~reject).astype(float)
         else:
             dof = ok.sum(axis=1)
-            thr = chi2.ppf(1.0 - p.alpha, np.maximum(dof, 1))
+            thr = chi2_threshold(p.alpha, dof, z.shape[-1])
             reject = (nis > thr) & (dof > 0)
             x1 = x0 + mv(K, nu)
             P1 = joseph(P0, K, H, R)

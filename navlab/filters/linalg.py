@@ -8,8 +8,11 @@ filter written with these helpers handles both without branches.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 Array = NDArray[np.float64]
 
@@ -111,3 +114,27 @@ def eigh_clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
     clamped = np.any((w < lo) | (w > hi), axis=-1)
     w = np.clip(w, lo, hi)
     return (V * w[..., None, :]) @ mT(V), clamped
+
+
+def predict_cov(F: Array, P: Array, Q: Array) -> Array:
+    """``F P Fᵀ + Q``, symmetrised; for a shared F (n, n) and batched P (B, n, n) as two GEMMs.
+
+    numpy's stacked matmul of small matrices loops over the batch; reshaping (B, n, n) to
+    (B·n, n) turns each product into one BLAS call. Uses Pᵀ = P: with X = P Fᵀ, F P Fᵀ = Xᵀ Fᵀ.
+    """
+    if F.ndim != 2 or P.ndim != 3:
+        return sym(F @ P @ mT(F) + Q)
+    B, n, _ = P.shape
+    X = (P.reshape(B * n, n) @ F.T).reshape(B, n, n)  # P Fᵀ
+    Z = (np.ascontiguousarray(mT(X)).reshape(B * n, n) @ F.T).reshape(B, n, n)  # (F P) Fᵀ
+    return sym(Z + Q)
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_table(alpha: float, m: int) -> Array:
+    return chi2.ppf(1.0 - alpha, np.maximum(np.arange(m + 1), 1))
+
+
+def chi2_threshold(alpha: float, dof: Array | int, m: int) -> Array:
+    """χ²_{1−α}(dof) for dof ∈ 0 … m (dof 0 reads as 1), from a cached table (scipy's ppf is slow)."""
+    return _chi2_table(float(alpha), int(m))[dof]

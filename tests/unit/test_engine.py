@@ -162,3 +162,52 @@ def test_a_diverging_run_is_counted_not_nan():
     assert res["kf"].diverged_at[2] >= 10
     res = run_experiment(ExperimentSpec(filters=("kf",), runs=5, epochs=30, outliers="none"))
     assert metric(res, "kf", "diverged") == 0
+
+
+def test_recorded_nis_and_nees_are_the_quadratic_forms():
+    """The recorder's blocked NIS/NEES equal νᵀS⁻¹ν and eᵀP⁻¹e computed step by step."""
+    from navlab.filters.linalg import quad
+
+    spec = ExperimentSpec(filters=("chi2-kf", "hakf"), runs=20, epochs=70)  # > one block of epochs
+    p = plan(spec)
+    data = p.scenario.simulate(p.schedule, p.outliers, range(20), 3)
+    res = run_filters(data, p.filters)
+    f = make_filter("hakf")
+    st = f.init(data.model, data.x0, data.P0)
+    for k in range(1, data.K + 1):
+        st, out = f.update(data.model, f.predict(data.model, st, k), k, data.z[:, k], data.side(k))
+        np.testing.assert_allclose(res["hakf"].nis[:, k], quad(out.innov, out.S), rtol=1e-9)
+        np.testing.assert_allclose(res["hakf"].nees[:, k], quad(out.x - data.x_true[:, k], out.P),
+                                   rtol=1e-9)
+    assert np.isfinite(res["chi2-kf"].nees[:, 1:]).all()
+
+
+def test_quad_stack_matches_lapack_and_marks_singular_nan():
+    from navlab.experiment import _quad_stack
+
+    rng = np.random.default_rng(0)
+    for d in (1, 2, 4, 8, 12):
+        A = rng.standard_normal((30, 40, d, d))
+        S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(d)
+        v = rng.standard_normal((30, 40, d))
+        ref = np.einsum("lbi,lbi->lb", v, np.linalg.solve(S, v[..., None])[..., 0])
+        np.testing.assert_allclose(_quad_stack(v, S), ref, rtol=1e-8)
+    S = np.broadcast_to(np.eye(3), (30, 40, 3, 3)).copy()
+    S[4, 5] = 0.0  # singular
+    S[6, 7] = np.diag([-1.0, 2.0, 3.0])  # indefinite but invertible: still the quadratic form
+    S[8, 9] = [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]  # zero pivot: LU decides
+    q = _quad_stack(np.ones((30, 40, 3)), S)
+    assert np.isnan(q[4, 5]) and q[6, 7] == pytest.approx(-1 + 0.5 + 1 / 3)
+    assert q[8, 9] == pytest.approx(3.0)
+    assert np.isfinite(np.delete(q.ravel(), 4 * 40 + 5)).all()
+
+
+def test_predict_cov_is_F_P_Ft_plus_Q():
+    from navlab.filters.linalg import predict_cov
+
+    rng = np.random.default_rng(1)
+    F, Q = rng.standard_normal((5, 5)), np.eye(5)
+    A = rng.standard_normal((7, 5, 5))
+    P = A @ np.swapaxes(A, -1, -2)
+    np.testing.assert_allclose(predict_cov(F, P, Q), F @ P @ F.T + Q, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(predict_cov(F, P[0], Q), F @ P[0] @ F.T + Q, rtol=1e-12)
