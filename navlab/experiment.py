@@ -233,6 +233,13 @@ class FilterRun:
         )
 
 
+def _stack(arrays: Sequence[Any], shape: tuple[int, ...], axis: int = 0) -> Array:
+    """np.stack of arrays broadcast to ``shape`` (only those that need it: broadcast_to is slow)."""
+    return np.stack(
+        [a if np.shape(a) == shape else np.broadcast_to(a, shape) for a in arrays], axis=axis
+    )
+
+
 def _quad_lapack(v: Array, S: Array) -> Array:
     """vᵀ S⁻¹ v for v (N, d), S (N, d, d); NaN where S is singular."""
     try:
@@ -314,7 +321,7 @@ class _Recorder:
         """Write per-epoch values (None: keep the default) into dest[:, k] for k in ks."""
         if all(v is not None for v in vals):
             shape = (dest.shape[0], *dest.shape[2:])
-            dest[:, ks] = np.stack([np.broadcast_to(v, shape) for v in vals], axis=1)
+            dest[:, ks] = _stack(vals, shape, axis=1)
             return
         for k, v in zip(range(dest.shape[1])[ks], vals, strict=True):
             if v is not None:
@@ -330,16 +337,16 @@ class _Recorder:
             ks = slice(ks[0], ks[-1] + 1)  # the usual case: a basic slice, not a fancy index
         outs = [o for _, o, _ in items]
         t = lambda arrs: np.stack(arrs, axis=1)  # noqa: E731  (B, L, …)
-        bd = lambda a: np.broadcast_to(a, (B, *a.shape[-2:]))  # noqa: E731
         x = t([o.x for o in outs])
-        P = np.stack([bd(o.P) for o in outs])  # (L, B, n, n)
+        n, m = x.shape[-1], outs[0].innov.shape[-1]
+        P = _stack([o.P for o in outs], (B, n, n))  # (L, B, n, n)
         Pd = np.diagonal(P, axis1=-2, axis2=-1).swapaxes(0, 1)
         self.x[:, ks] = x
         self.P_diag[:, ks] = Pd
         self.innov[:, ks] = t([o.innov for o in outs])
-        S = np.stack([bd(o.S) for o in outs])
+        S = _stack([o.S for o in outs], (B, m, m))
         self.S_diag[:, ks] = np.diagonal(S, axis1=-2, axis2=-1).swapaxes(0, 1)
-        self.R_used[:, ks] = t([np.broadcast_to(diag(o.R_used), (B, o.innov.shape[-1])) for o in outs])
+        self.R_used[:, ks] = _stack([diag(o.R_used) for o in outs], (B, m), axis=1)
         if self.R_hat is not None:
             self._put_field(self.R_hat, ks, [None if o.R_hat is None else diag(o.R_hat) for o in outs])
         self._put_field(self.weights, ks, [o.weights for o in outs])
