@@ -216,7 +216,7 @@ class NNMFUKF(_FadingBase):
         V = z - mp.z_hat
         ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
         Pyy0 = sym(A + R)
-        gamma, thr, reject = self._test(V, Pyy0, ok)
+        gamma, thr, reject, _ = self._test(V, Pyy0, ok)
         B, m = z.shape
         replaced = np.zeros(B, dtype=bool)
         rep_mask = np.zeros((B, m), dtype=bool)
@@ -256,7 +256,7 @@ class NNMFUKF(_FadingBase):
                     replaced = rep.any(axis=1)
                     Pyy0 = sym(A + R)
                     if p.retest_after_replace:
-                        _, _, rej2 = self._test(V, Pyy0, ok)
+                        _, _, rej2, _ = self._test(V, Pyy0, ok)
                         reject = reject & (~replaced | rej2)
                     g_raw = np.where(rep, g_hat, g_raw)
                 rep_mask = rep

@@ -39,7 +39,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, diag, mT, solve_sym, sym
+from navlab.filters.linalg import Array, diag, mT, mv, solve_sym, sym
 from navlab.params import param
 
 # ---------------------------------------------------------------------------------------------
@@ -53,6 +53,11 @@ class UTWeights(NamedTuple):
     Wm: Array  # (2n+1,)
     Wc: Array  # (2n+1,)
     c: float  # sqrt(n + λ): sigma-point spread
+
+    @property
+    def c2(self) -> float:
+        """2·Wc_i·c² (i ≥ 1): the weight of L Lᵀ in the UT covariance of a linear map (= 1)."""
+        return float(2.0 * self.Wc[1] * self.c * self.c)
 
 
 @functools.lru_cache(maxsize=64)
@@ -99,6 +104,38 @@ def chol_sqrt(P: Array) -> tuple[Array, Array]:
         return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
     except np.linalg.LinAlgError:
         return svd_sqrt(Ps)
+
+
+def linear_sqrt(P: Array, symmetric: bool = False) -> tuple[Array, Array]:
+    """A square root L (L Lᵀ = |P_s|) for the unscented transform of a LINEAR map, and the flag.
+
+    For linear f, h the sigma-point moments depend on the square root only through L Lᵀ, so any
+    factor gives the same x⁻, P⁻, A, Pxy. Where (P + Pᵀ)/2 is positive definite (Cholesky succeeds)
+    L Lᵀ = P_s = |P_s| up to round-off: the Cholesky factor (≈ 17× cheaper than ``eigh`` on a stack
+    of 15×15) gives the SVD sigma points' moments, and the flag is False (a successful Cholesky
+    bounds min eig(P_s) ≥ −O(n·eps·‖P_s‖), far above −1e-9·trace(P_s)). Where any P of the stack
+    is not positive definite, the whole stack takes :func:`svd_sqrt` (the SVD repair |P_s| and its
+    flag, exactly as before). ``symmetric``: P is known to be exactly symmetric (the output of
+    :func:`sym`), so the symmetrisation is skipped (it would return P bit for bit).
+    """
+    Ps = P if symmetric else sym(P)
+    try:
+        return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
+    except np.linalg.LinAlgError:
+        return svd_sqrt(Ps)
+
+
+def left_mul(M: Array, L: Array) -> Array:
+    """M @ L for M (p, n) or (B, p, n) and L (n, n) or (B, n, n).
+
+    A shared M with a stack of L is done as ONE matrix product, (M L_b)ᵀ = L_bᵀ Mᵀ on the stacked
+    (B·n, n) rows of Lᵀ, instead of numpy's loop of B small products (≈ 2× faster for n = 15).
+    """
+    if M.ndim == 2 and L.ndim == 3:
+        B, n, q = L.shape
+        Lt = np.ascontiguousarray(mT(L)).reshape(B * q, n)
+        return mT((Lt @ M.T).reshape(B, q, M.shape[0]))
+    return M @ L
 
 
 def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
@@ -173,7 +210,7 @@ def _shared_linear(model: Model, P: Array, matrix) -> bool:
 
 def ukf_time_update(
     model: Model, x: Array, P: Array, k: int, w: UTWeights, keep_sigma: bool = False,
-    method: str = "svd",
+    method: str = "svd", symmetric: bool = False,
 ) -> UKFState:
     """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
 
@@ -182,6 +219,15 @@ def ukf_time_update(
     weighted mean of the symmetric images, exactly). ``keep_sigma`` forces per-run sigma points.
     """
     B, n = x.shape
+    if not keep_sigma and getattr(model, "linear", False):
+        # linear f: χ*_i − x⁻ = ±c·F L_j, x⁻ = F x (the symmetric images average to the centre),
+        # P⁻ = Σ Wc_i (χ*_i − x⁻)(·)ᵀ + Q = 2·Wc_1·c² (F L)(F L)ᵀ + Q: the same transform without
+        # building 2n+1 points; L from :func:`linear_sqrt` (SVD repair and flag where P_s ≱ 0)
+        F = model.F(k)
+        L, neg = linear_sqrt(P, symmetric)
+        G = left_mul(F, L)
+        P_p = sym(w.c2 * (G @ mT(G)) + model.Q(k))
+        return UKFState(mv(F, x), P_p, None, np.broadcast_to(neg, (B,)).copy())
     if not keep_sigma and _shared_linear(model, P, lambda: model.F(k)):
         chi0, neg = sigma_points(np.zeros((1, n)), P, w.c, method)
         _, P_p, _ = ut_mean_cov(propagate_f(model, chi0, k), w)
@@ -196,10 +242,22 @@ def ukf_time_update(
 
 def ukf_measurement_prediction(
     model: Model, state: UKFState, k: int, w: UTWeights, resample: str = "redraw",
-    method: str = "svd",
+    method: str = "svd", symmetric: bool = False,
 ) -> MeasPred:
     """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy."""
     B, n = state.x.shape
+    if (resample != "reuse" or state.chi_f is None) and getattr(model, "linear", False):
+        # linear h, sigma points redrawn from (x⁻, P⁻) = x⁻ ± c·L_j: Y_i − ẑ⁻ = ±c·H L_j, ẑ⁻ = H x⁻,
+        # A = 2·Wc_1·c² (H L)(H L)ᵀ, Pxy = 2·Wc_1·c² L (H L)ᵀ (see ukf_time_update)
+        H = model.H(state.x, k)
+        L, neg = linear_sqrt(state.P, symmetric)
+        HL = left_mul(H, L)
+        A = w.c2 * (HL @ mT(HL))
+        Pxy = w.c2 * (L @ mT(HL))
+        neg = np.broadcast_to(neg, (B,))
+        if state.neg is not None:
+            neg = neg | state.neg
+        return MeasPred(mv(H, state.x), A, Pxy, neg)
     if resample != "reuse" and _shared_linear(model, state.P, lambda: model.H(state.x, k)):
         chi0, neg = sigma_points(np.zeros((1, n)), state.P, w.c, method)
         _, A, dY = ut_mean_cov(propagate_h(model, chi0, k), w)
@@ -254,7 +312,10 @@ def fading_update(
 
     Returns x⁺, P⁺, Pyy', fixed (B,) (Pyy' needed a numerical fix).
     """
-    if form == "literal":
+    if np.all(s == 1.0) and np.all(sig == 1.0):  # no fading: the scalings below are exact no-ops
+        B = x.shape[0]
+        P1, A1, Pxy1 = _batched(P, B), _batched(A, B), _batched(Pxy, B)
+    elif form == "literal":
         P1 = s[:, :, None] * P
         A1 = sig[:, :, None] * A
         Pxy1 = s[:, :, None] * Pxy
@@ -267,10 +328,19 @@ def fading_update(
     if form != "literal":
         Pyy = sym(Pyy)
     Kt, fixed = solve_sym(mT(Pyy), mT(Pxy1))  # K = Pxy' Pyy'⁻¹  (§1.3 step 7)
-    K = mT(Kt)
-    x1 = x + (K @ V[..., None])[..., 0]  # (§1.3 step 8)
-    P2 = sym(P1 - K @ Pyy @ Kt)
+    x1, P2 = apply_gain(x, P1, V, Pyy, Kt)
     return x1, P2, Pyy, np.broadcast_to(fixed, x.shape[:1])
+
+
+def apply_gain(x: Array, P: Array, V: Array, Pyy: Array, Kt: Array) -> tuple[Array, Array]:
+    """§1.3 step 8 with Kᵀ = Pyy⁻¹ Pxyᵀ given: x⁺ = x⁻ + K V, P⁺ = sym(P⁻ − K Pyy Kᵀ)."""
+    K = mT(Kt)
+    return x + (K @ V[..., None])[..., 0], sym(P - K @ Pyy @ Kt)
+
+
+def _batched(a: Array, B: int, core: int = 2) -> Array:
+    """``a`` with a leading run axis of length B (a shared array is broadcast, not copied)."""
+    return a if a.ndim > core else np.broadcast_to(a, (B, *a.shape))
 
 
 @functools.lru_cache(maxsize=32)
@@ -299,10 +369,19 @@ def channel_state_map(model: Model, x: Array, k: int, n: int) -> tuple[Array, bo
     (``exact``); otherwise the caller recomputes A', Pxy' from sigma points.
     """
     H = np.asarray(model.H(x, k), dtype=float)
+    hit = _MAP_CACHE.get(H.shape)
+    if hit is not None and np.array_equal(hit[0], H):  # the same H as last time (content check)
+        return hit[1], hit[2]
     scale = np.max(np.abs(H), axis=-1, keepdims=True)
     M = np.abs(H) > 1e-12 * np.maximum(scale, 1e-300)
     exact = bool(np.all(M.sum(axis=-1) <= 1))
+    if H.ndim == 2:
+        _MAP_CACHE.clear()
+        _MAP_CACHE[H.shape] = (H.copy(), M, exact)
     return M, exact
+
+
+_MAP_CACHE: dict[tuple[int, ...], tuple[Array, Array, bool]] = {}  # last shared H and its map
 
 
 def fading_factors(
@@ -328,6 +407,12 @@ def fading_factors(
 
 def state_scale(sig: Array, M: Array) -> Array:
     """s_j = max over channels i observing state j of σ_i, 1 for unobserved states: (B, n)."""
+    if M.ndim == 2 and np.all(M.sum(axis=0) <= 1) and np.all(sig >= 1.0):
+        # each state observed by at most one channel (S2: H = [I 0]): s_j = σ_i(j), a copy
+        i, j = np.nonzero(M)
+        s = np.ones((sig.shape[0], M.shape[1]))
+        s[:, j] = sig[:, i]
+        return s
     Mb = np.broadcast_to(M, (sig.shape[0], *M.shape[-2:]))
     return np.max(np.where(Mb, sig[:, :, None], 1.0), axis=1)
 
@@ -368,7 +453,8 @@ class _UKFBase(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> Any:
         x0 = np.array(x0, dtype=float)
         self._weights(x0.shape[1])  # validates n + λ > 0 before the first step
-        return self._init_state(model, x0, np.array(P0, dtype=float))
+        # every P the filter carries is symmetric bit for bit (P0 here, then the output of sym)
+        return self._init_state(model, x0, sym(np.array(P0, dtype=float)))
 
     def _init_state(self, model: Model, x0: Array, P0: Array) -> Any:
         return UKFState(x0, P0)
@@ -376,13 +462,13 @@ class _UKFBase(Filter):
     def predict(self, model: Model, state: Any, k: int) -> Any:
         w = self._weights(state.x.shape[1])
         ts = ukf_time_update(model, state.x, state.P, k, w, self.params.resample == "reuse",
-                             self.params.sqrt_method)
+                             self.params.sqrt_method, symmetric=True)
         return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg)
 
     def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
         w = self._weights(state.x.shape[1])
         return ukf_measurement_prediction(model, state, k, w, self.params.resample,
-                                          self.params.sqrt_method)
+                                          self.params.sqrt_method, symmetric=True)
 
 
 @register
@@ -444,21 +530,46 @@ class MFUKFParams(UKFParams):
 class _FadingBase(_UKFBase):
     """The χ² test and the fading update shared by MFUKF and NNMFUKF."""
 
-    def _test(self, V: Array, Pyy: Array, ok: Array) -> tuple[Array, Array, Array]:
-        """γ = Vᵀ Pyy⁻¹ V, threshold ξ·χ²_{1−α}(available channels), reject (§5 step 2–3)."""
+    def _test(
+        self, V: Array, Pyy: Array, ok: Array, Pxy: Array | None = None
+    ) -> tuple[Array, Array, Array, tuple[Array, Array] | None]:
+        """γ = Vᵀ Pyy⁻¹ V, threshold ξ·χ²_{1−α}(available channels), reject (§5 step 2–3).
+
+        With ``Pxy`` the same solve also returns the unfaded gain (Kᵀ = Pyy⁻¹ Pxyᵀ, fixed): one
+        batched solve with right-hand sides [V | Pxyᵀ] instead of two (used where σ = 1).
+        """
         p = self.params
-        gamma = quad_batched(V, Pyy)
+        gain = None
+        if Pxy is None:
+            gamma = quad_batched(V, Pyy)
+        else:
+            B = V.shape[0]
+            rhs = np.concatenate([V[..., None], _batched(mT(Pxy), B)], axis=-1)
+            X, fixed = solve_sym(Pyy, rhs)
+            gamma = np.einsum("bi,bi->b", V, X[..., 0])
+            gain = (X[..., 1:], np.broadcast_to(fixed, (B,)))
         dof = ok.sum(axis=1)
         thr = p.xi * _chi2_table(float(p.alpha), V.shape[1])[np.maximum(dof, 1)]
         reject = (gamma > thr) & (dof > 0)
-        return gamma, thr, reject
+        return gamma, thr, reject, gain
 
     def _fade(
         self, model: Model, state: Any, k: int, V: Array, A: Array, Pxy: Array, R: Array,
-        ok: Array, reject: Array, Pyy0: Array,
+        ok: Array, reject: Array, Pyy0: Array, gain: tuple[Array, Array] | None = None,
     ) -> tuple[Array, Array, Array, Array, Array]:
-        """σ, s and the update of §5 step 4 (σ = 1 on accepted epochs). Returns x, P, Pyy', fixed, σ."""
+        """σ, s and the update of §5 step 4 (σ = 1 on accepted epochs). Returns x, P, Pyy', fixed, σ.
+
+        ``gain``: the unfaded Kᵀ = Pyy0⁻¹ Pxyᵀ (and its fix flag) from :meth:`_test`; runs whose
+        factors are all 1 then take it (the update with σ = s = 1 is exactly the unfaded one) and
+        only the faded runs are solved again.
+        """
         p = self.params
+        B = V.shape[0]
+        if not reject.any():  # σ = 1 everywhere (fading_factors returns exactly 1 off rejections)
+            sig = np.ones_like(V)
+            if gain is not None and not p.recompute_sigma:
+                x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
+                return x, P, _batched(Pyy0, B), gain[1], sig
         sig = fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)
         M, exact = channel_state_map(model, state.x, k, state.x.shape[1])
         s = state_scale(sig, M)
@@ -474,7 +585,21 @@ class _FadingBase(_UKFBase):
             one_n, one_m = np.ones_like(s), np.ones_like(sig)
             x, P, Pyy, fixed = fading_update(state.x, P1, V, A1, Pxy1, R, one_n, one_m)
             return x, P, Pyy, fixed | mp.neg, sig
-        x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, s, sig, p.form)
+        fade = np.any(sig != 1.0, axis=1) | np.any(s != 1.0, axis=1)
+        if gain is None or fade.all():
+            x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, s, sig, p.form)
+            return x, P, Pyy, fixed, sig
+        # unfaded runs: the gain of the test's solve; faded runs (a subset): §5 step 4
+        x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
+        Pyy = _batched(Pyy0, B).copy()
+        fixed = gain[1].copy()
+        if fade.any():
+            i = np.flatnonzero(fade)
+            xf, Pf, Pyyf, fixf = fading_update(
+                state.x[i], _batched(state.P, B)[i], V[i], _batched(A, B)[i],
+                _batched(Pxy, B)[i], _batched(R, B)[i], s[i], sig[i], p.form,
+            )
+            x[i], P[i], Pyy[i], fixed[i] = xf, Pf, Pyyf, fixf
         return x, P, Pyy, fixed, sig
 
 
@@ -504,8 +629,8 @@ class MFUKF(_FadingBase):
         V = z - mp.z_hat
         ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
         Pyy0 = sym(A + R)
-        gamma, thr, reject = self._test(V, Pyy0, ok)
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0)
+        gamma, thr, reject, gain = self._test(V, Pyy0, ok, Pxy)
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, gain)
         flags = np.zeros(z.shape, dtype=np.int8)
         flags[reject[:, None] & ok] = EPOCH_ANOMALY
         flags[fixed | mp.neg] = NUMERICAL_FIX

@@ -163,8 +163,11 @@ def run_case(model, x0, P0, z, key: str, params: dict) -> dict[str, np.ndarray]:
     }
 
 
-def all_cases() -> dict[str, np.ndarray]:
+def all_cases(perturb: float = 0.0) -> dict[str, np.ndarray]:
+    """Every pinned quantity; ``perturb`` > 0 multiplies z by (1 + perturb·N(0, 1)) first."""
     model, x0, P0, z = make_case()
+    if perturb:
+        z = z * (1.0 + perturb * np.random.default_rng(99).standard_normal(z.shape))
     out = {}
     for name, (key, prm) in CASES.items():
         for tag, mdl in (("lin", model), ("nl", PinNonlinear(model))):
@@ -181,6 +184,12 @@ def current():
 
 
 @pytest.fixture(scope="module")
+def jittered():
+    """The current code on z perturbed at round-off level (1e-15 relative)."""
+    return all_cases(1e-15)
+
+
+@pytest.fixture(scope="module")
 def pinned():
     with np.load(PIN) as d:
         return dict(d)
@@ -194,24 +203,38 @@ def test_pinned_case_exercises_every_branch(pinned):
     assert pinned["lin/nnmfukf-online/replaced"].sum() > 0
 
 
-@pytest.mark.parametrize("case", sorted({k.rsplit("/", 1)[0] for k in
-                                         np.load(PIN).files}) if PIN.exists() else [])
-def test_outputs_equal_the_pinned_reference(case, current, pinned):
+def rel_diff(a: np.ndarray, b: np.ndarray, q: str) -> float:
+    """Largest difference of a from b relative to b's scale: x per state over time (x crosses
+    zero), diag P elementwise, full P relative to √(P_ii P_jj)."""
+    scale = np.maximum(np.abs(b), 1e-300)
+    if q == "x":
+        scale = np.maximum(np.nanmax(np.abs(b), axis=1, keepdims=True), 1e-300)
+    if q == "P_end":
+        d = np.sqrt(np.abs(np.diagonal(b, axis1=-2, axis2=-1)))
+        scale = np.maximum(d[:, :, None] * d[:, None, :], 1e-300)
+    ok = np.isfinite(b)
+    return float(np.max(np.abs(a[ok] - b[ok]) / np.broadcast_to(scale, b.shape)[ok]))
+
+
+CASE_NAMES = sorted({k.rsplit("/", 1)[0] for k in np.load(PIN).files}) if PIN.exists() else []
+
+
+@pytest.mark.parametrize("case", CASE_NAMES)
+def test_outputs_equal_the_pinned_reference(case, current, jittered, pinned):
+    """Decisions identical; x, P equal to 1e-8 relative, or to 100x the change that a 1e-15
+    relative perturbation of z causes in the current code, where the case amplifies round-off
+    more than that (the faithful NNMFUKF's lock-out into chained replacements with fading
+    factors up to 1e6: ≈ 1e-8 from a 1e-15 perturbation on this case)."""
     for q in ("flags", "rejected", "replaced"):
         a, b = current[f"{case}/{q}"], pinned[f"{case}/{q}"]
         assert np.array_equal(a, b), f"{case}: {q} changed"
     for q in ("x", "Pd", "P_end"):
         a, b = current[f"{case}/{q}"], pinned[f"{case}/{q}"]
-        assert np.all(np.isfinite(a) == np.isfinite(b))
-        scale = np.maximum(np.abs(b), 1e-300)
-        ok = np.isfinite(b)
-        if q == "x":  # x crosses zero: relative to the size of each state's trajectory
-            scale = np.maximum(np.nanmax(np.abs(b), axis=1, keepdims=True), 1e-300)
-        if q == "P_end":
-            d = np.sqrt(np.abs(np.diagonal(b, axis1=-2, axis2=-1)))
-            scale = np.maximum(d[:, :, None] * d[:, None, :], 1e-300)
-        rel = np.max(np.abs(a[ok] - b[ok]) / np.broadcast_to(scale, b.shape)[ok])
-        assert rel < 1e-8, f"{case}: {q} differs by {rel:.2e} relative"
+        assert np.array_equal(np.isfinite(a), np.isfinite(b))
+        sens = rel_diff(jittered[f"{case}/{q}"], a, q)
+        tol = max(1e-8, 100 * sens)
+        rel = rel_diff(a, b, q)
+        assert rel < tol, f"{case}: {q} differs by {rel:.2e} relative (tolerance {tol:.1e})"
 
 
 if __name__ == "__main__":
