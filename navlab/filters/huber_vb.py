@@ -36,7 +36,6 @@ doi:10.1109/MLSP.2012.6349794.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -54,7 +53,18 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, diag, gain, mask_missing, mT, mv, solve_sym, sym
+from navlab.filters.linalg import (
+    Array,
+    cofactor_index,
+    diag,
+    gain,
+    inv_small,
+    mask_missing,
+    mT,
+    mv,
+    solve_sym,
+    sym,
+)
 from navlab.params import param
 
 __all__ = ["HAKF", "VBAKF", "HuberKF", "StudentTKF", "huber_weight"]
@@ -72,20 +82,6 @@ def huber_weight(e: Array, gamma: float) -> Array:
 def _diag_embed(d: Array) -> Array:
     """(B, m) -> (B, m, m) diagonal matrices."""
     return d[..., :, None] * np.eye(d.shape[-1])
-
-
-@functools.cache
-def _cofactor_index(m: int) -> tuple[Array, Array]:
-    """Gather indices and signs giving the cofactor matrix C of an m×m matrix (m = 2, 3).
-
-    m = 3 (cyclic rule): C_ij = A[i+1,j+1]A[i+2,j+2] − A[i+1,j+2]A[i+2,j+1], indices mod 3;
-    the four factors are gathered in ONE fancy-index operation from the flattened matrix.
-    """
-    if m == 3:
-        i, j = np.divmod(np.arange(9), 3)
-        f = lambda a, b: 3 * ((i + a) % 3) + (j + b) % 3  # noqa: E731
-        return np.concatenate([f(1, 1), f(2, 2), f(1, 2), f(2, 1)]), np.ones(9)
-    return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
 
 
 class _MeasSpace:
@@ -109,7 +105,7 @@ class _MeasSpace:
         self.E = np.eye(m * m)[:: m + 1]  # (m, m²): diagonal entries of a flattened matrix
         self.ill = np.zeros(B, dtype=bool)
         if 2 <= m <= 3:
-            self.idx, self.sgn = _cofactor_index(m)
+            self.idx, self.sgn = cofactor_index(m)
         if m <= 3:
             # S⁻¹ν = C ν / det and diag(M S⁻¹ M)_i = Σ_jk C_jk M_ij M_ik / det with the cofactor
             # matrix C (symmetric S): flattened products, no stacked matmul per iteration
@@ -137,25 +133,6 @@ class _MeasSpace:
         resid = Rt * Snu * inv
         hph = self.dM - np.einsum("bij,bj->bi", self.MM, cof) * inv
         return resid, hph
-
-
-def _inv_small(S: Array) -> tuple[Array, Array]:
-    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det.
-
-    Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU).
-    """
-    B, m = S.shape[0], S.shape[-1]
-    Sf = S.reshape(B, m * m)
-    if m == 1:
-        cof = np.ones((B, 1))
-    else:
-        idx, sgn = _cofactor_index(m)
-        G = Sf[:, idx]
-        cof = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36] if m == 3 else G * sgn
-    det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
-    ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
-    inv = 1.0 / np.where(ill, 1.0, det)
-    return cof.reshape(B, m, m) * inv[:, None, None], ill
 
 
 _SEL_CACHE: dict[tuple, Array | None] = {}
@@ -194,7 +171,7 @@ def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array
     S = sym(np.broadcast_to(HU + R_used, (B, m, m)))
     fixed = np.zeros(B, dtype=bool)
     if m <= 3:
-        Sinv, ill = _inv_small(S)
+        Sinv, ill = inv_small(S)
         if ill.any():  # flag 9: an ill-conditioned S, solved by LU instead
             Kt, fixed = solve_sym(S, mT(np.broadcast_to(U, (B, *U.shape[-2:]))))
             K = mT(Kt)

@@ -34,6 +34,39 @@ def sym(P: Array) -> Array:
     return 0.5 * (P + mT(P))
 
 
+@functools.cache
+def cofactor_index(m: int) -> tuple[Array, Array]:
+    """Gather indices and signs giving the cofactor matrix C of an m×m matrix (m = 2, 3).
+
+    m = 3 (cyclic rule): C_ij = A[i+1,j+1]A[i+2,j+2] − A[i+1,j+2]A[i+2,j+1], indices mod 3;
+    the four factors are gathered in ONE fancy-index operation from the flattened matrix.
+    """
+    if m == 3:
+        i, j = np.divmod(np.arange(9), 3)
+        f = lambda a, b: 3 * ((i + a) % 3) + (j + b) % 3  # noqa: E731
+        return np.concatenate([f(1, 1), f(2, 2), f(1, 2), f(2, 1)]), np.ones(9)
+    return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
+
+
+def inv_small(S: Array) -> tuple[Array, Array]:
+    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det.
+
+    Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU).
+    """
+    B, m = S.shape[0], S.shape[-1]
+    Sf = S.reshape(B, m * m)
+    if m == 1:
+        cof = np.ones((B, 1))
+    else:
+        idx, sgn = cofactor_index(m)
+        G = Sf[:, idx]
+        cof = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36] if m == 3 else G * sgn
+    det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
+    ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
+    inv = 1.0 / np.where(ill, 1.0, det)
+    return cof.reshape(B, m, m) * inv[:, None, None], ill
+
+
 def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
     """Solve ``S X = Y`` for symmetric positive-definite S (batched).
 
