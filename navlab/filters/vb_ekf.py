@@ -27,9 +27,11 @@ Notes (ALGORITHMS.md §7):
 * S3's typos ``f(x̂, ρ)``, ``h(x̂ | ρ)`` read f(x̂), h(x̂); its single τ ("π" in the input list)
   is split into τ_P (P-prior, re-set every epoch) and τ_R (initial R-prior, used once), as in
   Huang's code. Initial R-distribution û₀ = m + 1 + τ_R, Û₀ = τ_R R̃₀ (so R̂ starts at R̃₀).
-* Missing channels (NaN in z): the gain column is zero (as in the KF) and the R-statistic of every
-  entry involving a missing channel is replaced by its current expectation, so R̂ of a channel
-  that is not observed stays where it was (E over the missing residual, not a silent shrink).
+* Missing channels (NaN in z): the gain column is zero (as in the KF) and the R-statistic of the
+  missing noise is its conditional expectation given the observed channels under the current
+  E[R] (``_fill_missing``; positive semidefinite), so R̂ of a channel that is not observed and
+  not correlated with the others stays where it was (E over the missing residual, not a silent
+  shrink).
 
 References
 ----------
@@ -134,7 +136,6 @@ class VBEKF(Filter):
         Ht = mT(H)
         ok = np.isfinite(z)
         all_ok = bool(ok.all())
-        okk = ok[:, :, None] & ok[:, None, :]
         nu = np.where(ok, z - model.h(x_pr, k), 0.0)  # prior innovation z − h(x⁻)
         z0 = np.where(ok, z, 0.0)
 
@@ -165,7 +166,7 @@ class VBEKF(Filter):
             else:
                 r = np.where(ok, r, 0.0)
                 B_R = r[:, :, None] * r[:, None, :] + H @ P_it @ Ht
-                U_new = U_pr + np.where(okk, B_R, R_exp)
+                U_new = U_pr + _fill_missing(B_R, R_exp, ok)
                 R_hat = sym(U_new / (u - m - 1))
                 # missing channels get a zero gain column
                 _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
@@ -212,3 +213,30 @@ def _converged(x_new: Array, x_old: Array, x_pr: Array, tol: float) -> Array:
     step = np.linalg.norm(x_new - x_old, axis=1)
     size = np.linalg.norm(x_new - x_pr, axis=1)
     return step <= tol * size
+
+
+def _fill_missing(B_R: Array, R_exp: Array, ok: Array) -> Array:
+    """E[v vᵀ] for the R-statistic when some channels are missing (ok False), batched.
+
+    The observed block is B_oo = r rᵀ + H P Hᵀ. The missing noise is replaced by its conditional
+    expectation under the current E[R] (Gaussian v_m | v_o, A = R_mo R_oo⁻¹)::
+
+        E[v_m v_oᵀ] = A B_oo ,  E[v_m v_mᵀ] = A B_oo Aᵀ + R_mm − A R_om
+
+    i.e. [I; A] B_oo [I; A]ᵀ + [0, 0; 0, Schur] — positive semidefinite. Copying R_exp entries
+    into the missing rows and columns instead (the former rule) mixes blocks of two different
+    matrices and can make U, hence R̂ and S, indefinite: on smartloc-berlin, where satellites come
+    and go, S then went nearly singular and one update threw the state 500 m. A missing channel
+    uncorrelated with the observed ones (A = 0) still gets exactly R_mm (its R̂ stays put).
+    """
+    m = ok.shape[-1]
+    okk = ok[:, :, None] & ok[:, None, :]
+    miss = ~ok
+    eye = np.eye(m)
+    M = np.where(okk, R_exp, eye)  # blockdiag(R_oo, I_mm) in the channel order
+    C = np.where(miss[:, :, None] & ok[:, None, :], R_exp, 0.0)  # R_mo in the missing rows
+    A = mT(np.linalg.solve(M, mT(C)))  # C M⁻¹ (M symmetric): R_mo R_oo⁻¹, zero elsewhere
+    T = A + eye * ok[:, None, :]  # rows of observed channels: identity, missing rows: A
+    B_oo = np.where(okk, B_R, 0.0)
+    schur = np.where(miss[:, :, None] & miss[:, None, :], R_exp - A @ R_exp, 0.0)
+    return sym(T @ B_oo @ mT(T) + schur)
