@@ -61,9 +61,9 @@ class NNState(NamedTuple):
     x_prev: Array  # x̂⁺_{k−1} (set by predict)
     g_prev: Array  # (B, m) GPS value used at k−1 (raw or predicted)
     pass_prev: Array  # (B,) χ² test passed at k−1
-    buf_u: Array | None  # (B, W, d) training inputs, chronological
-    buf_y: Array | None  # (B, W, m) training targets
-    buf_ok: Array | None  # (B, W) admissible
+    buf_u: tuple[Array, ...] | None  # last W training inputs (B, d), chronological
+    buf_y: tuple[Array, ...] | None  # training targets (B, m) (0 where inadmissible)
+    buf_ok: tuple[Array, ...] | None  # admissible (B,)
     net: RBFNet | None
     run_len: Array  # (B,) consecutive replaced epochs
 
@@ -175,18 +175,13 @@ class NNMFUKF(_FadingBase):
         return int(p.train_end - p.train_start + 1)
 
     def _store(self, st: NNState, u: Array, y: Array, adm: Array) -> NNState:
-        """Append one (possibly inadmissible) pair per run to the chronological buffers."""
-        if st.buf_u is None:
-            W = self._buffer_len()
-            B = u.shape[0]
-            bu = np.zeros((B, 0, u.shape[1]))
-            by = np.zeros((B, 0, y.shape[1]))
-            bo = np.zeros((B, 0), dtype=bool)
-            st = st._replace(buf_u=bu, buf_y=by, buf_ok=bo)
+        """Append one (possibly inadmissible) pair per run to the chronological buffers (tuples of
+        per-epoch arrays, stacked only when the network is trained: no copy of the window per step).
+        """
         W = self._buffer_len()
-        bu = np.concatenate([st.buf_u, u[:, None]], axis=1)[:, -W:]
-        by = np.concatenate([st.buf_y, np.where(adm[:, None], y, 0.0)[:, None]], axis=1)[:, -W:]
-        bo = np.concatenate([st.buf_ok, adm[:, None]], axis=1)[:, -W:]
+        bu = (*(st.buf_u or ()), u)[-W:]
+        by = (*(st.buf_y or ()), np.where(adm[:, None], y, 0.0))[-W:]
+        bo = (*(st.buf_ok or ()), adm)[-W:]
         return st._replace(buf_u=bu, buf_y=by, buf_ok=bo)
 
     def _train(self, st: NNState, refit: bool) -> NNState:
@@ -196,7 +191,8 @@ class NNMFUKF(_FadingBase):
         old = st.net if (refit and st.net is not None) else None
         linear = {"off": False, "on": True, "auto": "auto"}[p.linear_tail]
         net = train(
-            st.buf_u, st.buf_y, st.buf_ok, j_min=p.j_min, j_max=p.j_max, lam=p.ridge,
+            np.stack(st.buf_u, axis=1), np.stack(st.buf_y, axis=1), np.stack(st.buf_ok, axis=1),
+            j_min=p.j_min, j_max=p.j_max, lam=p.ridge,
             min_samples=p.min_pairs, s_w=None if old is None else old.s_w, linear=linear,
             per_output=p.width_per_output, lin_on=None if old is None else old.lin_on,
             clip=p.clip_inputs,
@@ -216,17 +212,22 @@ class NNMFUKF(_FadingBase):
         V = z - mp.z_hat
         ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
         Pyy0 = sym(A + R)
-        gamma, thr, reject, _ = self._test(V, Pyy0, ok)
+        # one solve: γ and the unfaded gain (valid unless an observation is replaced below)
+        gamma, thr, reject, gain = self._test(V, Pyy0, ok, Pxy)
         B, m = z.shape
         replaced = np.zeros(B, dtype=bool)
         rep_mask = np.zeros((B, m), dtype=bool)
         st = state
         g_raw = None
         if p.use_network:
-            u = self._features(model, state.x_prev, k)
-            g_raw = self._reference(model, k, z) - z  # raw GPS values (NaN where missing)
+            ref = self._reference(model, k, z)
+            g_raw = ref - z  # raw GPS values (NaN where missing)
             # training pair (u_k, g_k − g_{k−1}), admissible if k−1 and k both passed (§6.1)
             collecting = k >= p.train_start and (k <= p.train_end or p.mode == "online")
+            # the network's input is needed only to collect a pair or to replace an observation
+            u = None
+            if collecting or (state.net is not None and reject.any()):
+                u = self._features(model, state.x_prev, k)
             if collecting:
                 y = g_raw - state.g_prev
                 adm = (~reject & state.pass_prev & np.all(np.isfinite(y), -1)
@@ -237,13 +238,15 @@ class NNMFUKF(_FadingBase):
                 elif (p.mode == "online" and k > p.train_end
                       and (k - p.train_end) % p.retrain_every == 0):
                     st = self._train(st, refit=True)
-            if st.net is not None:
-                # replacement of the observation (§6.3)
+            use = reject & st.net.trained if st.net is not None else reject & False
+            if p.max_run > 0:
+                use &= state.run_len < p.max_run
+            if use.any():
+                # replacement of the observation (§6.3); the prediction is only used where `use`
+                if u is None:
+                    u = self._features(model, state.x_prev, k)
                 g_hat = state.g_prev + st.net.predict(u)
-                z_rep = self._reference(model, k, z) - g_hat
-                use = reject & st.net.trained
-                if p.max_run > 0:
-                    use &= state.run_len < p.max_run
+                z_rep = ref - g_hat
                 rep = use[:, None] & ok & np.isfinite(z_rep)
                 if p.replace == "flagged":
                     rep &= np.abs(V) > p.c_replace * np.sqrt(np.diagonal(Pyy0, axis1=-2, axis2=-1))
@@ -255,12 +258,12 @@ class NNMFUKF(_FadingBase):
                     ok, V, A, Pxy, R = mask_channels(z2, z2 - mp.z_hat, mp.A, mp.Pxy, R2)
                     replaced = rep.any(axis=1)
                     Pyy0 = sym(A + R)
+                    _, _, rej2, gain = self._test(V, Pyy0, ok, Pxy)  # gain with R', V'
                     if p.retest_after_replace:
-                        _, _, rej2, _ = self._test(V, Pyy0, ok)
                         reject = reject & (~replaced | rej2)
                     g_raw = np.where(rep, g_hat, g_raw)
                 rep_mask = rep
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0)
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, gain)
         flags = np.zeros(z.shape, dtype=np.int8)
         flags[reject[:, None] & ok] = EPOCH_ANOMALY
         flags[rep_mask & ok] = REPLACED
