@@ -7,14 +7,14 @@ import threading
 
 import streamlit as st
 
-PAGES = (
-    ("app.py", "Home", ":material/home:"),
-    ("pages/1_Compare.py", "Compare filters", ":material/compare_arrows:"),
-    ("pages/2_Noise.py", "Noise: R̂ inspection", ":material/graphic_eq:"),
-    ("pages/3_Sweep.py", "Sweep a parameter", ":material/tune:"),
-    ("pages/4_Reproduce.py", "Reproduce the papers", ":material/article:"),
-    ("pages/5_Learn.py", "Learn: filters step by step", ":material/school:"),
-    ("pages/6_Real_data.py", "Real data", ":material/directions_car:"),
+PAGES = (  # (file, sidebar label, title on the home page, icon)
+    ("app.py", "Home", "Home", ":material/home:"),
+    ("pages/1_Compare.py", "Compare", "Compare filters", ":material/compare_arrows:"),
+    ("pages/2_Noise.py", "Noise (R̂)", "Noise: R̂ inspection", ":material/graphic_eq:"),
+    ("pages/3_Sweep.py", "Sweep", "Sweep a parameter", ":material/tune:"),
+    ("pages/4_Reproduce.py", "Reproduce", "Reproduce the papers", ":material/article:"),
+    ("pages/5_Learn.py", "Learn", "Learn: filters step by step", ":material/school:"),
+    ("pages/6_Real_data.py", "Real data", "Real data", ":material/directions_car:"),
 )
 
 
@@ -49,6 +49,10 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
     """
     st.set_page_config(page_title=f"{title} · navlab", page_icon=icon, layout="wide")
     _warm_once()
+    # navlab's own page menu (config: client.showSidebarNavigation = false): Streamlit's legacy
+    # pages/ menu would list the home page under its file name, "app"
+    page_links(st.sidebar, short=True)
+    st.sidebar.divider()
     st.title(title)
     if intro:
         st.caption(intro)
@@ -58,14 +62,14 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
     )
 
 
-def page_links(container=None) -> None:
+def page_links(container=None, short: bool = False) -> None:
     """Links to the pages that exist (others' pages appear when their files are added)."""
     from pathlib import Path
 
     c = container if container is not None else st
     root = Path(__file__).resolve().parents[2]
-    for path, label, icon in PAGES:
+    for path, label, title, icon in PAGES:
         if (root / path).exists():
             # a page file added after the server started is not registered yet: no link
             with contextlib.suppress(st.errors.StreamlitAPIException):
-                c.page_link(path, label=label, icon=icon)
+                c.page_link(path, label=label if short else title, icon=icon)
