@@ -4,14 +4,24 @@ Targets (issues 4 and 5): the batched VB filters at most 6x the KF per step on s
 family within 10x the KF on the 15-state gps-ins-rtk model. Not a test: the machine is shared,
 read the ratios.
 
-    python benchmarks/filter_cost.py [--runs 50] [--repeat 2]
+    python benchmarks/filter_cost.py [--runs 50] [--repeat 2] [--scenario gps-ins-rtk] [--single-thread]
+
+``--single-thread`` sets OPENBLAS_NUM_THREADS=OMP_NUM_THREADS=MKL_NUM_THREADS=1 before numpy is
+imported: on a small shared machine a multi-threaded BLAS call (the RBF network's ridge systems in
+NNMFUKF's one-off training are big enough to be threaded) can wait many times its own cost for a
+busy CPU, which then dominates the measurement.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
+
+if "--single-thread" in sys.argv:  # must precede the first numpy import
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, no install
 
@@ -28,8 +38,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--scenario", choices=sorted(CASES), help="only this scenario")
+    ap.add_argument("--single-thread", action="store_true", help="single-threaded BLAS (see above)")
     a = ap.parse_args()
     for scenario, keys in CASES.items():
+        if a.scenario and scenario != a.scenario:
+            continue
         p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=a.runs, seed=1))
         data = p.scenario.simulate(p.schedule, p.outliers, range(a.runs), 1)
         steps = data.B * data.K

@@ -81,13 +81,15 @@ def sq_dist(U: Array, C: Array) -> Array:
 
 
 def design(
-    Us: Array, C: Array, cmask: Array, s_w: Array, linear: bool = False, lin_on: Array | None = None
+    Us: Array, C: Array, cmask: Array, s_w: Array, linear: bool = False, lin_on: Array | None = None,
+    d2: Array | None = None,
 ) -> Array:
     """Φ (B, N, J+1[+d]): Gaussian kernels exp(−‖u − C_j‖²/(2 s_w²)) (S2 eq. 14), the inputs
     themselves if ``linear`` (a linear tail; zeroed for runs where ``lin_on`` (B,) is False) and a
-    column of ones (the bias, last).
+    column of ones (the bias, last). ``d2``: ``sq_dist(Us, C)`` if already computed.
     """
-    K = np.exp(-sq_dist(Us, C) / (2.0 * s_w[:, None, None] ** 2)) * cmask[:, None, :]
+    d2 = sq_dist(Us, C) if d2 is None else d2
+    K = np.exp(-d2 / (2.0 * s_w[:, None, None] ** 2)) * cmask[:, None, :]
     tail = Us if lin_on is None else Us * lin_on[:, None, None]
     parts = [K, tail] if linear else [K]
     return np.concatenate([*parts, np.ones((*K.shape[:2], 1))], axis=-1)
@@ -178,6 +180,75 @@ def ridge(Phi: Array, Y: Array, rows: Array, lam: float) -> Array:
     return np.linalg.solve(G, mT(Pm) @ Y)
 
 
+def _gather_rows(Us: Array, Ys: Array, rows: Array) -> tuple[Array, Array, Array]:
+    """The rows marked True of each network, moved to the front in chronological order.
+
+    Returns U (B, R, d), Y (B, R, p) with R = the most rows of any network, and ok (B, R) (False:
+    padding, zero in U and Y).
+    """
+    order = np.argsort(~rows, axis=1, kind="stable")
+    R = max(int(rows.sum(axis=1).max(initial=0)), 1)
+    order = order[:, :R]
+    ok = np.take_along_axis(rows, order, axis=1)
+    U = np.take_along_axis(Us, order[..., None], axis=1) * ok[..., None]
+    Y = np.take_along_axis(Ys, order[..., None], axis=1) * ok[..., None]
+    return U, Y, ok
+
+
+def width_search(
+    Us: Array, Ys: Array, fit: Array, val: Array, C: Array, cm: Array, r: Array,
+    grid: tuple[float, ...], lin_opts: tuple[bool, ...], tail: bool, lam: float,
+) -> tuple[list[Array], list[Array]]:
+    """Hold-out score of every (linear tail, width) candidate of §6.2 step 2, in the order
+    ``for lo in lin_opts for g in grid``: RMSE (B, p) on the ``val`` rows of the ridge fit on the
+    ``fit`` rows with kernel width r·g, and the hold-out residuals (B, R_val, p).
+
+    The same computation as ``design`` + ``ridge`` per candidate, arranged to cost less: the fit
+    and hold-out rows are gathered once (the ridge sums run over the fit rows only, padding rows
+    are exact zeros), the squared distances are computed once, a padded centre gets an infinite
+    distance (kernel exactly 0), and without a linear tail (lo False) the Gram matrix and right-hand
+    side are those of the tail candidate with the tail rows and columns zeroed (exactly what zero
+    tail columns give), so one Gram matrix per width serves both.
+    """
+    Uf, Yf, okf = _gather_rows(Us, Ys, fit)
+    Uv, Yv, okv = _gather_rows(Us, Ys, val)
+    far = ~cm[:, None, :]
+    d2f = np.where(far | ~okf[:, :, None], np.inf, sq_dist(Uf, C))
+    d2v = np.where(far, np.inf, sq_dist(Uv, C))
+    J = C.shape[1]
+    d = Us.shape[2]
+    nt = d if tail else 0
+    n_col = J + nt + 1
+    eye = lam * np.eye(n_col)
+    res: dict[tuple[bool, float], tuple[Array, Array]] = {}
+    for g in grid:
+        h = 2.0 * (r * g)[:, None, None] ** 2
+        Phf = np.empty((*d2f.shape[:2], n_col))
+        Phf[..., :J] = np.exp(-d2f / h)
+        Phf[..., J:J + nt] = Uf[..., :nt] if tail else 0.0
+        Phf[..., -1] = okf
+        Phv = np.empty((*d2v.shape[:2], n_col))
+        Phv[..., :J] = np.exp(-d2v / h)
+        Phv[..., J:J + nt] = Uv[..., :nt] if tail else 0.0
+        Phv[..., -1] = 1.0
+        PhfT = mT(Phf)
+        G = PhfT @ Phf
+        rhs = PhfT @ Yf
+        for lo in lin_opts:
+            if tail and not lo:
+                G0, rhs0 = G.copy(), rhs.copy()
+                G0[:, J:J + nt] = 0.0
+                G0[:, :, J:J + nt] = 0.0
+                rhs0[:, J:J + nt] = 0.0
+                W = np.linalg.solve(G0 + eye, rhs0)  # tail weights exactly 0
+            else:
+                W = np.linalg.solve(G + eye, rhs)
+            E = Phv @ W - Yv
+            res[(lo, g)] = (_masked_rmse(E, okv), E)
+    keys = [(lo, g) for lo in lin_opts for g in grid]
+    return [res[c][0] for c in keys], [res[c][1] for c in keys]
+
+
 def _masked_rmse(E: Array, rows: Array) -> Array:
     """Per-output RMSE over masked rows: E (B, N, p), rows (B, N) -> (B, p) (NaN if no rows)."""
     n = rows.sum(axis=1)[:, None]
@@ -185,21 +256,32 @@ def _masked_rmse(E: Array, rows: Array) -> Array:
     return np.sqrt(np.divide(ss, n, out=np.full(ss.shape, np.nan), where=n > 0))
 
 
+def trim_centres(C: Array, cmask: Array) -> tuple[Array, Array]:
+    """Drop the padding columns no run uses (centres fill from index 0): J → max_b J_b.
+
+    A padded centre has a zero kernel column, a zero weight and no effect on the fit; dropping
+    it only shrinks the (J+1)×(J+1) ridge systems.
+    """
+    jt = max(int(cmask.sum(axis=1).max(initial=0)), 1)
+    return C[:, :jt], cmask[:, :jt]
+
+
 def _fit_outputs(
     Us: Array, Ys: Array, C: Array, cm: Array, s_w: Array, lin: Array, rows: Array, lam: float,
-    linear: bool,
+    linear: bool, d2: Array | None = None,
 ) -> tuple[Array, Array]:
     """Ridge weights (B, J+1[+d], p) with a width s_w (B, p) and tail flag lin (B, p) per output;
     residuals on every sample.
     """
     p = Ys.shape[2]
+    d2 = sq_dist(Us, C) if d2 is None else d2
     if np.all(s_w == s_w[:, :1]) and np.all(lin == lin[:, :1]):  # one design for every output
-        Phi = design(Us, C, cm, s_w[:, 0], linear, lin[:, 0])
+        Phi = design(Us, C, cm, s_w[:, 0], linear, lin[:, 0], d2)
         W = ridge(Phi, Ys, rows, lam)
         return W, Phi @ W - Ys
     Ws, Es = [], []
     for j in range(p):
-        Phi = design(Us, C, cm, s_w[:, j], linear, lin[:, j])
+        Phi = design(Us, C, cm, s_w[:, j], linear, lin[:, j], d2)
         Wj = ridge(Phi, Ys[..., j : j + 1], rows, lam)
         Ws.append(Wj)
         Es.append(Phi @ Wj - Ys[..., j : j + 1])
@@ -254,31 +336,32 @@ def train(
     lin_opts = (False, True) if linear == "auto" else (bool(linear),)
     if s_w is None:
         C, cm, r = cluster_adaptive(Us, fit, r_init, j_min, j_max)
+        C, cm = trim_centres(C, cm)
+        scores, E_val = width_search(Us, Ys, fit, val, C, cm, r, width_grid, lin_opts, tail, lam)
         best = np.full((B, p), np.inf)
         s_best = np.repeat(r[:, None], p, axis=1)
         l_best = np.full((B, p), lin_opts[0])
-        for lo in lin_opts:
-            lon = np.full(B, lo)
-            for g in width_grid:
-                sw = r * g
-                Phi = design(Us, C, cm, sw, tail, lon)
-                W = ridge(Phi, Ys, fit, lam)
-                score = _masked_rmse(Phi @ W - Ys, val)  # (B, p), standardised
-                if not per_output:
-                    score = np.repeat(np.mean(score, axis=1, keepdims=True), p, axis=1)
-                score = np.where(np.isfinite(score), score, np.inf)
-                better = score < best
-                best = np.where(better, score, best)
-                s_best = np.where(better, sw[:, None], s_best)
-                l_best = np.where(better, lo, l_best)
-        _, E = _fit_outputs(Us, Ys, C, cm, s_best, l_best, fit, lam, tail)
-        sigma_nn = _masked_rmse(E, val) * sd_y
+        E_best = np.zeros_like(E_val[0])
+        for c, (lo, g) in enumerate((lo, g) for lo in lin_opts for g in width_grid):
+            score = scores[c]  # (B, p), standardised
+            if not per_output:
+                score = np.repeat(np.mean(score, axis=1, keepdims=True), p, axis=1)
+            score = np.where(np.isfinite(score), score, np.inf)
+            better = score < best
+            best = np.where(better, score, best)
+            s_best = np.where(better, (r * g)[:, None], s_best)
+            l_best = np.where(better, lo, l_best)
+            # the winner's hold-out residuals (the fit with s_best, l_best redone gives these)
+            E_best = np.where(better[:, None, :], E_val[c], E_best)
+        ok_v = np.arange(E_best.shape[1])[None, :] < val.sum(axis=1)[:, None]
+        sigma_nn = _masked_rmse(E_best, ok_v) * sd_y
         s_w, lin_on = s_best, l_best
     else:
         s_w = np.broadcast_to(np.asarray(s_w, dtype=float).reshape(B, -1), (B, p)).copy()
         lin_on = np.full((B, p), tail) if lin_on is None else np.asarray(lin_on, dtype=bool)
         sigma_nn = np.full((B, p), np.nan)
     C, cm, _ = cluster_adaptive(Us, mask, r_init, j_min, j_max)
+    C, cm = trim_centres(C, cm)
     W, E = _fit_outputs(Us, Ys, C, cm, s_w, lin_on, mask, lam, tail)
     train_rmse = _masked_rmse(E, mask) * sd_y
     sigma_nn = np.where(np.isfinite(sigma_nn), sigma_nn, train_rmse)
