@@ -45,6 +45,7 @@ from navlab.filters.rbf import RBFNet, train
 from navlab.filters.ukf import (
     MFUKFParams,
     UKFState,
+    _batched,
     _FadingBase,
     mask_channels,
 )
@@ -66,6 +67,7 @@ class NNState(NamedTuple):
     buf_ok: tuple[Array, ...] | None  # admissible (B,)
     net: RBFNet | None
     run_len: Array  # (B,) consecutive replaced epochs
+    psd: bool = False  # see UKFState
 
 
 @dataclass(frozen=True)
@@ -258,9 +260,16 @@ class NNMFUKF(_FadingBase):
                     ok, V, A, Pxy, R = mask_channels(z2, z2 - mp.z_hat, mp.A, mp.Pxy, R2)
                     replaced = rep.any(axis=1)
                     Pyy0 = sym(A + R)
-                    _, _, rej2, gain = self._test(V, Pyy0, ok, Pxy)  # gain with R', V'
+                    # runs not replaced keep V, R, Pyy0 bit for bit: re-solve the replaced ones only
+                    i = np.flatnonzero(replaced)
+                    _, _, rej2, g2 = self._test(V[i], _batched(Pyy0, B)[i], ok[i],
+                                                _batched(Pxy, B)[i])
+                    Kt, fx = gain[0].copy(), gain[1].copy()
+                    Kt[i], fx[i] = g2
+                    gain = (Kt, fx)
                     if p.retest_after_replace:
-                        reject = reject & (~replaced | rej2)
+                        reject = reject.copy()
+                        reject[i] &= rej2
                     g_raw = np.where(rep, g_hat, g_raw)
                 rep_mask = rep
         x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, gain)
@@ -279,7 +288,7 @@ class NNMFUKF(_FadingBase):
         new = st._replace(
             x=x, P=P, chi_f=None, neg=None,
             g_prev=g_raw if g_raw is not None else state.g_prev,
-            pass_prev=~reject, run_len=run_len,
+            pass_prev=~reject, run_len=run_len, psd=False,
         )
         return new, out
 

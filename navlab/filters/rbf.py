@@ -62,12 +62,13 @@ class RBFNet:
         if self.u_lo is not None:
             Us = np.clip(Us, self.u_lo[:, None, :], self.u_hi[:, None, :])
         p = self.W.shape[2]
+        d2 = sq_dist(Us, self.C)  # shared by the outputs' designs
         if np.all(self.s_w == self.s_w[:, :1]):
-            Ys = design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear) @ self.W
+            Ys = design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear, d2=d2) @ self.W
         else:
             Ys = np.concatenate(
-                [design(Us, self.C, self.cmask, self.s_w[:, j], self.linear) @ self.W[..., j : j + 1]
-                 for j in range(p)], axis=-1,
+                [design(Us, self.C, self.cmask, self.s_w[:, j], self.linear, d2=d2)
+                 @ self.W[..., j : j + 1] for j in range(p)], axis=-1,
             )
         Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
         Y = np.where(self.trained[:, None, None], Y, np.nan)
