@@ -64,20 +64,47 @@ class RBFNet:
         p = self.W.shape[2]
         d2 = sq_dist(Us, self.C)  # shared by the outputs' designs
         if np.all(self.s_w == self.s_w[:, :1]):
-            Ys = design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear, d2=d2) @ self.W
+            Ys = mm(design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear, d2=d2), self.W)
         else:
             Ys = np.concatenate(
-                [design(Us, self.C, self.cmask, self.s_w[:, j], self.linear, d2=d2)
-                 @ self.W[..., j : j + 1] for j in range(p)], axis=-1,
+                [mm(design(Us, self.C, self.cmask, self.s_w[:, j], self.linear, d2=d2),
+                    self.W[..., j : j + 1]) for j in range(p)], axis=-1,
             )
         Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
         Y = np.where(self.trained[:, None, None], Y, np.nan)
         return Y[:, 0] if single else Y
 
 
+# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4 and on all CPUs above. On a small shared
+# machine a threaded GEMM of the size of the network's Gram matrices (83×83×306) waited up to 20×
+# its own cost for a busy CPU (NNMFUKF's training: 0.4 s single-threaded, 6 s threaded under load),
+# so the large products of the training are split into pieces below that size.
+SERIAL_GEMM = 65536 * 4
+
+
+def mm(A: Array, B: Array) -> Array:
+    """A @ B (stacked) in pieces of at most SERIAL_GEMM multiply-adds per matrix product.
+
+    Splits the contraction (sums the partial products: the same sums, in another order) when the
+    output is small, else the rows of A. Exactly ``A @ B`` up to round-off.
+    """
+    M, K = A.shape[-2:]
+    N = B.shape[-1]
+    if M * N * K <= SERIAL_GEMM:
+        return A @ B
+    if M * N * 8 <= SERIAL_GEMM:
+        kc = SERIAL_GEMM // (M * N)
+        out = A[..., :kc] @ B[..., :kc, :]
+        for s in range(kc, K, kc):
+            out += A[..., s : s + kc] @ B[..., s : s + kc, :]
+        return out
+    mc = max(1, SERIAL_GEMM // (N * K))
+    return np.concatenate([mm(A[..., s : s + mc, :], B) for s in range(0, M, mc)], axis=-2)
+
+
 def sq_dist(U: Array, C: Array) -> Array:
     """‖U_i − C_j‖² for U (B, N, d), C (B, J, d) -> (B, N, J), clipped at 0."""
-    d2 = np.sum(U**2, -1)[:, :, None] + np.sum(C**2, -1)[:, None, :] - 2.0 * U @ mT(C)
+    d2 = np.sum(U**2, -1)[:, :, None] + np.sum(C**2, -1)[:, None, :] - 2.0 * mm(U, mT(C))
     return np.maximum(d2, 0.0)
 
 
@@ -177,8 +204,9 @@ def cluster_adaptive(
 def ridge(Phi: Array, Y: Array, rows: Array, lam: float) -> Array:
     """W = argmin ‖Φ W − Y‖² + λ‖W‖² over the rows marked True (B, N) (§6.2 step 3)."""
     Pm = Phi * rows[:, :, None]
-    G = mT(Pm) @ Pm + lam * np.eye(Phi.shape[-1])
-    return np.linalg.solve(G, mT(Pm) @ Y)
+    PmT = mT(Pm)
+    G = mm(PmT, Pm) + lam * np.eye(Phi.shape[-1])
+    return np.linalg.solve(G, mm(PmT, Y))
 
 
 def _gather_rows(Us: Array, Ys: Array, rows: Array) -> tuple[Array, Array, Array]:
@@ -233,8 +261,8 @@ def width_search(
         Phv[..., J:J + nt] = Uv[..., :nt] if tail else 0.0
         Phv[..., -1] = 1.0
         PhfT = mT(Phf)
-        G = PhfT @ Phf
-        rhs = PhfT @ Yf
+        G = mm(PhfT, Phf)
+        rhs = mm(PhfT, Yf)
         for lo in lin_opts:
             if tail and not lo:
                 G0, rhs0 = G.copy(), rhs.copy()
@@ -244,7 +272,7 @@ def width_search(
                 W = np.linalg.solve(G0 + eye, rhs0)  # tail weights exactly 0
             else:
                 W = np.linalg.solve(G + eye, rhs)
-            E = Phv @ W - Yv
+            E = mm(Phv, W) - Yv
             res[(lo, g)] = (_masked_rmse(E, okv), E)
     keys = [(lo, g) for lo in lin_opts for g in grid]
     return [res[c][0] for c in keys], [res[c][1] for c in keys]
@@ -279,13 +307,13 @@ def _fit_outputs(
     if np.all(s_w == s_w[:, :1]) and np.all(lin == lin[:, :1]):  # one design for every output
         Phi = design(Us, C, cm, s_w[:, 0], linear, lin[:, 0], d2)
         W = ridge(Phi, Ys, rows, lam)
-        return W, Phi @ W - Ys
+        return W, mm(Phi, W) - Ys
     Ws, Es = [], []
     for j in range(p):
         Phi = design(Us, C, cm, s_w[:, j], linear, lin[:, j], d2)
         Wj = ridge(Phi, Ys[..., j : j + 1], rows, lam)
         Ws.append(Wj)
-        Es.append(Phi @ Wj - Ys[..., j : j + 1])
+        Es.append(mm(Phi, Wj) - Ys[..., j : j + 1])
     return np.concatenate(Ws, axis=-1), np.concatenate(Es, axis=-1)
 
 
