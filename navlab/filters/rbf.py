@@ -133,39 +133,41 @@ def cluster(U: Array, mask: Array, r: Array, j_max: int) -> tuple[Array, Array, 
     Returns C (B, j_max, d), cmask (B, j_max), overflow (B,).
     """
     B, N, d = U.shape
-    C = np.zeros((B, j_max, d))
-    S = np.zeros((B, j_max, d))
-    cnt = np.zeros((B, j_max))
-    C2 = np.zeros((B, j_max))  # ‖C_j‖²
+    # slot j_max is a scratch centre: runs whose sample i is not admissible "update" it, so every
+    # step updates one slot per run without boolean indexing; its ‖C‖² stays +inf (never nearest)
+    C = np.zeros((B, j_max + 1, d))
+    S = np.zeros((B, j_max + 1, d))
+    cnt = np.zeros((B, j_max + 1))
+    C2 = np.full((B, j_max + 1), np.inf)  # ‖C_j‖²; +inf for centres not opened (d² = +inf)
     J = np.zeros(B, dtype=int)
     overflow = np.zeros(B, dtype=bool)
     rows = np.arange(B)
     r2 = r**2
-    jr = np.arange(j_max)
     U2 = np.sum(U**2, axis=-1)
+    jt = 1  # centres that exist somewhere (at least 1 column so argmin is defined)
     for i in range(N):
         valid = mask[:, i]
         if not valid.any():
             continue
         u = U[:, i]
-        jt = max(int(J.max()), 1)  # only the centres that exist somewhere
         d2 = U2[:, i, None] + C2[:, :jt] - 2.0 * (C[:, :jt] @ u[:, :, None])[..., 0]
-        d2 = np.where(jr[None, :jt] < J[:, None], d2, np.inf)
         j = np.argmin(d2, axis=1)
         far = d2[rows, j] > r2
-        new = valid & far & (j_max > J)
-        overflow |= valid & far & (j_max <= J)
-        jn = np.where(new, J, j)
-        b = rows[valid]
-        jb = jn[valid]
-        S[b, jb] += u[valid]
-        cnt[b, jb] += 1.0
-        c = S[b, jb] / cnt[b, jb][:, None]
-        C[b, jb] = c
-        C2[b, jb] = np.sum(c * c, axis=-1)
-        J = J + new
+        room = j_max > J
+        new = valid & far & room
+        overflow |= valid & far & ~room
+        jn = np.where(valid, np.where(new, J, j), j_max)
+        S[rows, jn] += u
+        cnt[rows, jn] += 1.0
+        c = S[rows, jn] / cnt[rows, jn][:, None]
+        C[rows, jn] = c
+        C2[rows, jn] = np.sum(c * c, axis=-1)
+        C2[:, j_max] = np.inf
+        if new.any():
+            J = J + new
+            jt = max(jt, int(J.max()))
     cmask = np.arange(j_max)[None, :] < J[:, None]
-    return C, cmask, overflow
+    return C[:, :j_max], cmask, overflow
 
 
 def cluster_adaptive(
