@@ -7,8 +7,8 @@ heavy-tailed and mostly positive: the real test for robust and adaptive pseudora
 Model (nonlinear, n = 8): x = [E, N, U (m, from a local origin), d_E, d_N (unit heading vector),
 c·δt_GPS, c·δt_GLO (m), c·δṫ (m/s)].
 
-* Motion: odometry dead reckoning, LINEAR given the odometry (so every filter, also those that
-  only use the Jacobian F(k), propagates it exactly). Between epochs k−1 and k, with the mean
+* Motion: odometry dead reckoning, LINEAR (affine) given the odometry (so every filter, also
+  those that only use the Jacobian F(k), propagates it exactly). Between epochs k−1 and k, with the mean
   odometry speed s̄ and yaw rate ω̄ (counter-clockwise positive) and θ = ω̄ T::
 
       d_k = Rot(θ) d_{k−1} ;  (E, N)_k = (E, N)_{k−1} + s̄ T sinc(θ/2) Rot(θ/2) d_{k−1} ;  U_k = U_{k−1}
@@ -20,7 +20,7 @@ c·δt_GPS, c·δt_GLO (m), c·δṫ (m/s)].
   yaw-rate noise and bias) replaces the isotropic white acceleration of a velocity model, which
   had to let the cross-track velocity wander by the car's full along-track acceleration.
   q_pos adds a small position random walk (wheel slip, speed scale error); U is a random walk
-  (q_height, a car on near-level streets).
+  (q_height) unless the map prior (below) replaces it.
 * Clock: ONE receiver oscillator: c·δt_GLO = c·δt_GPS + ISB, and both clock states share the
   clock's white-frequency (q_clock) and random-walk-frequency (q_drift) noise; only the
   inter-system bias ISB random-walks on its own, slowly (q_isb). (Two independent clock random
@@ -35,25 +35,35 @@ c·δt_GPS, c·δt_GLO (m), c·δṫ (m/s)].
   - ``|d|``: the pseudo-measurement ‖d‖ = 1 (σ_heading_norm), present from ``heading_init_s`` on
     (before it the heading is estimated linearly from the first positions, so the filters need no
     initial heading);
-  - ``height`` (``height_aiding = "map"``, the default): a WEAK terrain-height pseudo-measurement,
-    the antenna's ellipsoidal height = ``height_m`` ± ``sigma_height_m`` (10 m) — common practice
-    for a car in an urban canyon, where the vertical is the worst-observed direction: ranges that
-    are too long (NLOS) come mostly from low satellites, which a receiver clock raised by the
-    common part and a position raised by tens of metres explain best (without the channel every
-    filter sits 20–35 m too high). Why weak: pinning the height hard does not remove the NLOS
-    error, it moves it — with the sky mostly to the south, a height held at the truth pushes the
-    fix north instead (measured: on the first 400 epochs ``huber-kf``'s median horizontal error is
-    7.6 m without the channel, 6.4 m with σ = 10 m, 9.3 m with σ = 3 m; the whole drive: 11.1,
-    9.7, 10.4 m). A σ of 10 m removes the gross excursions and leaves the rest to the ranges.
-    The default ``height_m`` = 75 m is what a user reads off a map, not the truth: Potsdamer Platz
-    lies ≈ 34 m above sea level (DHHN), the geoid there is ≈ 39.5 m above the WGS 84 ellipsoid
-    (EGM2008) and a car-roof antenna is ≈ 1.5 m above the road. ``height_aiding = "off"`` drops
-    the channel.
+  - ``height`` (only with ``height_aiding = "map"``): a pseudo-measurement, the antenna's
+    ellipsoidal height = ``height_m`` ± ``sigma_height_m``.
+* Height knowledge (``height_aiding``). In an urban canyon the vertical is the worst-observed
+  direction: ranges that are too long (NLOS) come mostly from low satellites, which a receiver
+  clock raised by the common part and a position raised by tens of metres explain best (without
+  height knowledge every filter sits 20–35 m too high, and part of it leaks into the horizontal).
+  A car on near-level streets knows its height from a map — common practice. The default
+  ``height_m`` = 75 m is what a user reads off a map, not the truth: Potsdamer Platz lies ≈ 34 m
+  above sea level (DHHN), the geoid there is ≈ 39.5 m above the WGS 84 ellipsoid (EGM2008) and a
+  car-roof antenna is ≈ 1.5 m above the road.
+
+  - ``"map-prior"`` (default): the knowledge sits in the MOTION model: U − U_ref is a first-order
+    Gauss–Markov process (σ = ``sigma_height_m`` = 3 m: map error and slopes; correlation time
+    ``tau_height_s`` = 30 s, ≈ 200 m of street), i.e. f(x) = F x + u with F_UU = φ = e^(−T/τ),
+    u_U = (1 − φ) U_ref, Q_UU = σ²(1 − φ²); U_ref = height_m − the height of the local origin
+    (the tangent plane's drop, E²+N²/2R ≈ 8 cm at 1 km, is neglected). Filters cannot adapt it
+    away, and ``wls`` (no dynamics) stays the plain per-epoch reference.
+  - ``"map"``: the same knowledge as a measurement channel. Adaptive filters then treat it like a
+    sensor: because the state follows it, its residuals are small and VB/Sage–Husa estimates
+    shrink its R̂ towards 0 (``hakf``: R̂_height 0.4 → 0.001 within 300 epochs), which turns it into
+    a hard constraint; and a height pinned hard does not remove the NLOS error, it moves it — with
+    the sky mostly to the south the fix is pushed north (first 400 epochs, ``huber-kf``: 7.6 m
+    median horizontal error without height knowledge, 9.3 m with this channel at σ = 3 m).
+  - ``"off"``: pseudoranges and odometry only.
 * Truth: SPAN positions; heading from differenced positions (held while the car stands); clock
   "truth" = the per-constellation median of (ρ − range at the true position) — used only for NEES.
 * Start: every filter starts at epoch 0 from a robust (Huber-reweighted, C/N0-weighted)
-  least-squares fix of the epoch-0 pseudoranges (with the height pseudo-measurement when it is
-  on), an unknown heading (d = 0, P = I) and an unknown clock drift (±1 ppm).
+  least-squares fix of the epoch-0 pseudoranges (with the map height ± σ unless height aiding is
+  off), an unknown heading (d = 0, P = I) and an unknown clock drift (±1 ppm).
 
 Monte Carlo on real data: the pseudoranges are real, so every run sees the same errors; the
 default is B = 1 and no injected contamination (``outlier_defaults`` sets the mixture's α to 0).
@@ -238,7 +248,8 @@ class PseudorangeModel:
 
     def __init__(self, ep: PrEpochs, sigma: Array, r0: Array, *, sigma_speed: float,
                  q_heading: float, q_pos: float, q_height: float, q_clock: float, q_drift: float,
-                 q_isb: float, sigma_norm: float, sigma_height: float | None) -> None:
+                 q_isb: float, sigma_norm: float, sigma_height: float | None,
+                 height_prior: tuple[float, float, float] | None = None) -> None:
         self.ep = ep
         self.sigma = np.where(np.isfinite(sigma), sigma, 1.0)
         self.r0 = r0
@@ -270,6 +281,13 @@ class PseudorangeModel:
         Q[:, 6, 6] += q_isb * T
         Q[:, 5, 7] = Q[:, 7, 5] = Q[:, 6, 7] = Q[:, 7, 6] = q_drift * T**2 / 2
         Q[:, 7, 7] = q_drift * T
+        self.uk = np.zeros((K1, 8))
+        if height_prior is not None:  # U − U_ref: Gauss–Markov (σ, τ) in the dynamics
+            u_ref, sig_h, tau = height_prior
+            phi = np.exp(-T / tau)
+            F[:, 2, 2] = phi
+            Q[:, 2, 2] = sig_h**2 * (1.0 - phi**2)
+            self.uk[:, 2] = (1.0 - phi) * u_ref
         self.Fk, self.Qk = F, Q
         self._sysmat = np.eye(2)[ep.sys_idx]  # (ms, 2)
 
@@ -280,7 +298,7 @@ class PseudorangeModel:
         return self.Qk[k]
 
     def f(self, x: Array, k: int) -> Array:
-        return x @ self.Fk[k].T
+        return x @ self.Fk[k].T + self.uk[k]
 
     def ecef(self, x: Array) -> Array:
         return self.r0 + x[:, 0:3] @ self.C_ne.T
@@ -318,16 +336,18 @@ class SmartlocParams:
                                 help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), or the file's column")
     cn0_a: float = param(2.0e5, lo=1.0, hi=1e9, help="a of the C/N0 model (m²): σ = 2.5 m at 45 dBHz, zenith")
     height_aiding: str = param(
-        "map", choices=("map", "off"),
-        help="'map': pseudo-measure the antenna's ellipsoidal height = height_m (a car on "
-        "near-level streets); 'off': pseudoranges only")
+        "map-prior", choices=("map-prior", "map", "off"),
+        help="'map-prior': the height deviates from height_m as a Gauss–Markov process in the "
+        "motion model; 'map': a pseudo-measurement height = height_m; 'off': no height knowledge")
     height_m: float = param(
         75.0, lo=-500.0, hi=9000.0,
         help="terrain height from a map, WGS 84 ellipsoidal, antenna (m): Potsdamer Platz ≈ 34 m "
         "above sea level + geoid 39.5 m + antenna 1.5 m")
     sigma_height_m: float = param(
-        10.0, lo=0.01, hi=1000.0,
-        help="σ of the height pseudo-measurement (m): weak (see the scenario notes; 3 m pins it)")
+        3.0, lo=0.01, hi=1000.0,
+        help="σ of the antenna height about height_m (m): map error + slopes")
+    tau_height_s: float = param(
+        30.0, lo=0.1, hi=1e6, help="'map-prior': correlation time of the height deviation (s)")
     sigma_speed: float = param(0.05, lo=1e-3, hi=100.0,
                                help="odometry speed σ (m/s; the file's covariance column: 0.05)")
     q_heading: float = param(
@@ -335,7 +355,8 @@ class SmartlocParams:
         help="heading random-walk PSD (rad²/s): the file's yaw-rate σ (2e-3 rad/s) held ≈ 25 s")
     q_pos: float = param(0.01, lo=0.0, hi=100.0,
                          help="horizontal position random-walk PSD (m²/s): slip, speed scale")
-    q_height: float = param(0.05, lo=0.0, hi=100.0, help="height random-walk PSD (m²/s)")
+    q_height: float = param(
+        0.05, lo=0.0, hi=100.0, help="height random-walk PSD (m²/s; not with the map prior)")
     q_clock: float = param(0.1, lo=0.0, hi=1e6, help="clock white-frequency PSD (m²/s)")
     q_drift: float = param(0.1, lo=0.0, hi=1e6, help="clock random-walk-frequency PSD (m²/s³)")
     q_isb: float = param(1e-3, lo=0.0, hi=1e6, help="GPS–GLONASS inter-system bias random-walk PSD (m²/s)")
@@ -414,12 +435,15 @@ class SmartlocBerlin(Scenario):
         aid_h = p.height_aiding == "map"
         rho0 = np.where(used[0], ep.rho[0], np.nan)
         r_fix, clk = robust_ls_fix(rho0, ep.sat[0], np.where(np.isfinite(sig[0]), sig[0], 1.0),
-                                   ep.sys_idx, height=p.height_m if aid_h else None,
+                                   ep.sys_idx,
+                                   height=None if p.height_aiding == "off" else p.height_m,
                                    sigma_height=p.sigma_height_m)
         model = PseudorangeModel(
             ep, sig, r_fix, sigma_speed=p.sigma_speed, q_heading=p.q_heading, q_pos=p.q_pos,
             q_height=p.q_height, q_clock=p.q_clock, q_drift=p.q_drift, q_isb=p.q_isb,
-            sigma_norm=p.sigma_heading_norm, sigma_height=p.sigma_height_m if aid_h else None)
+            sigma_norm=p.sigma_heading_norm, sigma_height=p.sigma_height_m if aid_h else None,
+            height_prior=None if p.height_aiding != "map-prior" else (
+                p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s))
         m = model.m
         streams = [run_streams(seed, r) for r in runs]
         B = len(streams)

@@ -188,3 +188,23 @@ def test_real_data_every_filter_stays_on_the_road():
     med = df[df.metric == "h_err_median"].set_index("filter").value
     assert med.max() < 25.0  # vb-ekf diverged to km, chi2-kf locked out at 345 m before
     assert min(med["ekf"], med["vb-ekf"]) < med["wls"]
+
+
+def test_map_height_prior_is_a_gauss_markov_process_about_the_map_height():
+    ep, r0 = _epochs(K1=400)
+    u_ref, sig_h, tau = 4.0, 3.0, 30.0
+    model = _model(ep, r0, sigma_height=None, height_prior=(u_ref, sig_h, tau))
+    T = ep.t[1] - ep.t[0]
+    phi = np.exp(-T / tau)
+    assert model.F(1)[2, 2] == pytest.approx(phi)
+    assert model.Q(1)[2, 2] == pytest.approx(sig_h**2 * (1 - phi**2))
+    # the mean relaxes to U_ref with time constant τ; the stationary variance is σ²
+    x = np.zeros((1, 8))
+    P = np.zeros((8, 8))
+    for k in range(1, 400):
+        x = model.f(x, k)
+        P = model.F(k) @ P @ model.F(k).T + model.Q(k)
+    t = ep.t[-1]
+    assert x[0, 2] == pytest.approx(u_ref * (1 - np.exp(-t / tau)), rel=1e-9)
+    assert P[2, 2] == pytest.approx(sig_h**2 * (1 - np.exp(-2 * t / tau)), rel=1e-9)
+    assert model.m == ep.rho.shape[1] + 1  # no height channel
