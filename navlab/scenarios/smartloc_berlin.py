@@ -76,12 +76,13 @@ drift and later epochs may fail the gate too. With the former velocity model (wh
 1 m/s², two free-running clocks) the gate locked out for good (345 m median error); the
 dead-reckoning model predicts well enough that it recovers (≈ 14 m), and
 ``--set chi2-kf.per_channel=true`` — gating each satellite, the sensible mode for ≈ 15 channels
-per epoch — gives ≈ 11 m. (A scenario cannot set a filter's default; that needs a hook in the
+per epoch — gives ≈ 10.5 m. (A scenario cannot set a filter's default; that needs a hook in the
 experiment.)
 
-vb-ekf (full inverse-Wishart R̂ over 21 channels) diverged here while its missing-channel rule
+vb-ekf (full inverse-Wishart R̂ over 20 channels) diverged here while its missing-channel rule
 could make R̂ indefinite as satellites came and went; since the conditional-expectation rule
-(``navlab/filters/vb_ekf.py``) it runs at ≈ 11 m.
+(``navlab/filters/vb_ekf.py``) it is the best filter here (≈ 8 m median; ≈ 9.3 m without height
+knowledge).
 """
 
 from __future__ import annotations
