@@ -61,21 +61,26 @@ class ImuNoise:
     (gyro x, y, z) and 0.054 / 0.016 / 0.015 m/s² (accelerometer), i.e. white-noise densities
     of ≈ 0.001 rad/√s and ≈ 0.016 m/s/√s (medians). The raw 100 Hz std (0.04 rad/s, 0.1 m/s²)
     is high-frequency vibration that averages out within a block and must not be used as the
-    density (it overstated the ARW 5×). While driving the gyro vibration is 3–8× the static
-    level (gyro y std 5–15 °/s), so the ARW is the static value × 2.5; the bias random walks are
-    those of a consumer MEMS IMU (gyro ≈ 0.07 °/s, accelerometer ≈ 1 mg drift over 100 s).
-    Measured effect on drive0708 (σ = 3 m, clean, 3 runs): the old 0.005 rad/√s / 0.03 m/s/√s
-    gave the KF 1.96 m; these values with the other fixes 1.69 m; smaller ARW (0.001) makes the
-    filter over-confident on this vibrating mount (ANEES > 40) and worse.
+    density (it overstated the ARW 5×). While driving, the mount vibrates far more (gyro y std
+    5–15 °/s against 2 °/s at rest) and a vibrating MEMS gyro drifts (aliasing, rectification):
+    ``vib_gyro_factor`` adds that share of each block's measured vibration (raw gyro std × √dt,
+    :attr:`DriveSetup.vib_g`) to the ARW, so Q follows the vibration the IMU itself reports. The
+    bias random walks are those of a consumer MEMS IMU (gyro ≈ 0.07 °/s, accelerometer ≈ 1 mg
+    drift over 100 s). Measured on drive0708 (σ = 3 m, 3 runs): the old 0.005 rad/√s /
+    0.03 m/s/√s gave the KF 1.96 m on clean aiding; a constant small ARW (0.001) makes the filter
+    over-confident on this mount (ANEES > 40) and worse (2.25 m).
     """
 
-    arw_rad_rts: float = 0.0025  # angle random walk [rad/√s]
+    arw_rad_rts: float = 0.001  # angle random walk at rest [rad/√s]
     vrw_mps_rts: float = 0.015  # velocity random walk [m/s/√s]
     gyro_bias_rw: float = 2e-5  # gyro-bias random walk [rad/s/√s]
     accel_bias_rw: float = 1e-3  # accelerometer-bias random walk [m/s²/√s]
+    vib_gyro_factor: float = 0.5  # share of the measured gyro vibration [rad/√s] added to the ARW
 
-    def Qc(self) -> Array:
-        return np.diag(np.r_[[self.arw_rad_rts**2] * 3, [self.vrw_mps_rts**2] * 3,
+    def Qc(self, vib_g: float = 0.0) -> Array:
+        """Continuous PSDs; ``vib_g`` = the block's gyro vibration (raw std × √dt) [rad/√s]."""
+        arw = np.hypot(self.arw_rad_rts, self.vib_gyro_factor * float(vib_g))
+        return np.diag(np.r_[[arw**2] * 3, [self.vrw_mps_rts**2] * 3,
                              [self.gyro_bias_rw**2] * 3, [self.accel_bias_rw**2] * 3])
 
 
@@ -130,6 +135,7 @@ class DriveSetup:
     P0: Array
     C0: Array
     C_bv: Array = field(default_factory=lambda: np.eye(3))
+    vib_g: Array | None = None  # (K+1,) gyro vibration per block: rms raw std × √dt [rad/√s]
 
     @property
     def K(self) -> int:
@@ -253,6 +259,14 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     else:
         heading = np.radians(heading_deg)
     al = align_static(f_b[static], w_b[static], lat0, h0, heading, C_bv=rec.C_bv)
+    # vibration per aiding block, from the raw samples (before they are averaged)
+    dt_raw = float(np.median(np.diff(t_imu)))
+    edges = np.searchsorted(t_imu, t)
+    vib_g = np.zeros(K + 1)
+    for k in range(1, K + 1):
+        wk = w_b[edges[k - 1]:edges[k]]
+        if len(wk) > 2:
+            vib_g[k] = np.sqrt(np.mean(wk.var(axis=0)) * dt_raw)
     if imu_rate_hz:
         t_imu, f_b, w_b = downsample_imu(t_imu, f_b, w_b, float(t[0]), imu_rate_hz)
     p0 = gnss_pos[0] if np.isnan(p_true[0]).any() else p_true[0]
@@ -264,7 +278,7 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
                        [np.radians(0.05) ** 2] * 3, [0.1**2] * 3])
     return DriveSetup(t=t, **setup_origin, p_true=p_true, v_true=v_true, gnss_pos=gnss_pos,
                       t_imu=t_imu, f_b=f_b, w_b=w_b, align=al, x0=x0, P0=P0, C0=al.C_bn,
-                      C_bv=np.asarray(rec.C_bv, float))
+                      C_bv=np.asarray(rec.C_bv, float), vib_g=vib_g)
 
 
 def _state_from_total(setup: DriveSetup, x: Array, C_ref: Array, t_s: float) -> InsState:
@@ -312,7 +326,7 @@ def run_closed_loop(setup: DriveSetup, z: Array | None, sigma_m: float | Array,
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, float) ** 2, (3,)))
     H = np.zeros((3, 15))
     H[:, 6:9] = np.eye(3)
-    Qc = noise.Qc()
+    vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
     out = {k: np.full((B, K + 1, *shape), np.nan) for k, shape in
            (("p", (3,)), ("v", (3,)), ("C", (3, 3)), ("bg", (3,)), ("ba", (3,)), ("fn", (3,)),
             ("Pd", (15,)))}
@@ -332,7 +346,7 @@ def run_closed_loop(setup: DriveSetup, z: Array | None, sigma_m: float | Array,
         F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
         T = float(setup.t[k] - setup.t[k - 1])
         Phi = expm_batched(F * T)
-        _, Qd = discretise(F, G, Qc, T)
+        _, Qd = discretise(F, G, noise.Qc(vib[k]), T)
         P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd
         out["fn"][:, k] = blk.f_n_mean_mps2
         if z is not None:
@@ -379,12 +393,12 @@ class InsGnssModel:
         self.Phi = np.empty((K + 1, 15, 15))
         self.Qd = np.empty((K + 1, 15, 15))
         self.Phi[0], self.Qd[0] = np.eye(15), np.zeros((15, 15))
-        Qc = noise.Qc()
+        vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
         for k in range(1, K + 1):
             F, G = error_model_FG(lat[k - 1], h[k - 1], ref.v[0, k - 1], ref.f_n_mean[0, k],
                                   self.C_ref[k - 1])
             T = float(setup.t[k] - setup.t[k - 1])
-            _, Qd = discretise(F, G, Qc, T)
+            _, Qd = discretise(F, G, noise.Qc(vib[k]), T)
             self.Phi[k] = SIGN @ expm_batched(F[0] * T) @ SIGN
             self.Qd[k] = SIGN @ Qd[0] @ SIGN
 
@@ -427,7 +441,8 @@ class InsGnssModel:
 
 #: Process noise of the reference solution: looser than the filters' (it is aided at 5 cm and must
 #: follow every real attitude change of the vibrating mount rather than smooth over it).
-REFERENCE_NOISE = ImuNoise(arw_rad_rts=0.005, vrw_mps_rts=0.03, gyro_bias_rw=2e-5, accel_bias_rw=2e-3)
+REFERENCE_NOISE = ImuNoise(arw_rad_rts=0.005, vrw_mps_rts=0.03, gyro_bias_rw=2e-5, accel_bias_rw=2e-3,
+                           vib_gyro_factor=0.0)
 
 
 def reference_solution(setup: DriveSetup, noise: ImuNoise = REFERENCE_NOISE) -> ClosedLoopResult:
