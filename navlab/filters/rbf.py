@@ -252,16 +252,19 @@ def width_search(
     n_col = J + nt + 1
     eye = lam * np.eye(n_col)
     res: dict[tuple[bool, float], tuple[Array, Array]] = {}
+    # design matrices allocated once: the tail and bias columns do not depend on the width
+    Phf = np.empty((*d2f.shape[:2], n_col))
+    Phf[..., J:J + nt] = Uf[..., :nt] if tail else 0.0
+    Phf[..., -1] = okf
+    Phv = np.empty((*d2v.shape[:2], n_col))
+    Phv[..., J:J + nt] = Uv[..., :nt] if tail else 0.0
+    Phv[..., -1] = 1.0
+    nd2f, nd2v = -d2f, -d2v
+    Kf, Kv = Phf[..., :J], Phv[..., :J]
     for g in grid:
         h = 2.0 * (r * g)[:, None, None] ** 2
-        Phf = np.empty((*d2f.shape[:2], n_col))
-        Phf[..., :J] = np.exp(-d2f / h)
-        Phf[..., J:J + nt] = Uf[..., :nt] if tail else 0.0
-        Phf[..., -1] = okf
-        Phv = np.empty((*d2v.shape[:2], n_col))
-        Phv[..., :J] = np.exp(-d2v / h)
-        Phv[..., J:J + nt] = Uv[..., :nt] if tail else 0.0
-        Phv[..., -1] = 1.0
+        np.exp(np.divide(nd2f, h, out=Kf), out=Kf)  # exp(−d²/(2 s_w²)) in place
+        np.exp(np.divide(nd2v, h, out=Kv), out=Kv)
         PhfT = mT(Phf)
         G = mm(PhfT, Phf)
         rhs = mm(PhfT, Yf)
