@@ -25,9 +25,10 @@ far looser than the real violation (rms innovation 0.08 m/s). The IMU time offse
 example (σ = 3 m, 3 runs), position RMSE: plain KF on clean aiding 1.96 → 1.69 m; with 10 %
 outliers of 10σ, Huber KF 2.27 → 1.97 m (2.04 m on seed 7, 6 runs).
 
-Truth of the non-position states: velocity from the RTK solution; attitude and sensor biases from
-the reference solution (the closed-loop EKF aided by the RTK truth at σ = 5 cm), so the attitude
-"error" is relative to that reference.
+Truth of the non-position states: velocity from the RTK solution, read at t + 0.13 s (the RTK
+velocities lag the RTK positions; navlab.ins.lc.velocity_lag_s measures it from the file);
+attitude and sensor biases from the reference solution (the closed-loop EKF aided by the RTK truth
+at σ = 5 cm), so the attitude "error" is relative to that reference.
 
 A folder in the generic CSV format (imu.csv, gnss.csv[, truth.csv]; see navlab.data.loaders) can
 be given with ``data_dir``: its GNSS positions are then the aiding (noise is still added unless
