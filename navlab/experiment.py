@@ -167,7 +167,8 @@ def plan(spec: ExperimentSpec) -> Plan:
             raise NavlabError(
                 f"'{key}' needs simulator ground truth; scenario '{spec.scenario}' is real data"
             )
-        filters.append(make_filter(key, spec.filter_params.get(key)))
+        fp = {**scen_cls.filter_defaults.get(key, {}), **spec.filter_params.get(key, {})}
+        filters.append(make_filter(key, fp))
     schedule = make_schedule(spec.noise_schedule, spec.noise_params)
     if spec.outliers not in OUTLIERS:
         raise NavlabError(f"unknown outlier model '{spec.outliers}'; known: {', '.join(OUTLIERS)}")

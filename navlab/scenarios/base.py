@@ -113,7 +113,9 @@ class Scenario:
 
     Class attributes: ``key``, ``label``, ``paper``, ``summary``, ``Params`` (frozen dataclass),
     ``outlier_defaults`` (per outlier-model key, parameter overrides suited to this scenario),
-    ``default_filters``, ``simulated`` (False for real data: no oracle, no schedules).
+    ``filter_defaults`` (per filter key, the same for filter parameters: e.g. per-channel χ²
+    gating where one epoch holds many independent channels), ``default_filters``,
+    ``simulated`` (False for real data: no oracle, no schedules).
     """
 
     key: ClassVar[str] = ""
@@ -122,6 +124,7 @@ class Scenario:
     summary: ClassVar[str] = ""
     Params: ClassVar[type] = P_.NoParams
     outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {}
+    filter_defaults: ClassVar[dict[str, dict[str, Any]]] = {}
     default_filters: ClassVar[tuple[str, ...]] = ("kf", "oracle-kf", "chi2-kf")
     default_runs: ClassVar[int] = 100
     simulated: ClassVar[bool] = True

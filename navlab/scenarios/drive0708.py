@@ -40,6 +40,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import ClassVar
 
 import numpy as np
 
@@ -153,6 +154,9 @@ class Drive0708(Scenario):
     )
     Params = Drive0708Params
     default_filters = ("kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "sage-husa", "irakf")
+    # each epoch holds three GNSS axes and the two NHC channels: a whole-epoch χ² gate rejects
+    # the clean channels with an outlying axis and loses lock; gate each channel instead
+    filter_defaults: ClassVar[dict] = {"chi2-kf": {"per_channel": True}}
     default_runs = 10
     simulated = False
     linear = False  # nonlinear model (no probe run needed by the app)

@@ -417,6 +417,9 @@ class SmartlocBerlin(Scenario):
     linear = False  # nonlinear model (no probe run needed by the app)
     headline = ("hpos",)
     outlier_defaults: ClassVar[dict] = {"mixture": {"contamination": 0.0}}
+    # one epoch holds 10–20 satellites: a whole-epoch χ² gate throws the clean ones away with a
+    # reflected one (and locks out once it rejects a few epochs in a row); gate each satellite
+    filter_defaults: ClassVar[dict] = {"chi2-kf": {"per_channel": True}}
 
     def simulate(
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int

@@ -53,7 +53,8 @@ def sweepables(spec: ExperimentSpec) -> list[Sweepable]:
          f"noise {spec.noise_schedule}"),
         ("sc", spec.scenario, scls.Params, {}, f"scenario {spec.scenario}"),
     ]
-    groups += [("fp", k, freg[k].Params, {}, f"filter {k}") for k in spec.filters]
+    groups += [("fp", k, freg[k].Params, scls.filter_defaults.get(k, {}), f"filter {k}")
+               for k in spec.filters]
     out = []
     for kind, owner, Params, over, where in groups:
         for p in describe(Params):

@@ -239,6 +239,13 @@ def _on_scenario_change(defaults: PageDefaults) -> None:
         st.session_state[FLT] = default_filters(scn, defaults)
     if defaults.runs is None:
         st.session_state[RUNS] = default_runs(scn, defaults)
+    # parameters some scenario presets (outlier model, filter) restart from the new scenario's
+    # value; everything else the user set is kept
+    for scls in scenario_registry().values():
+        for kind, presets in (("ol", scls.outlier_defaults), ("fp", scls.filter_defaults)):
+            for owner, values in presets.items():
+                for name in values:
+                    st.session_state.pop(pkey(kind, owner, name), None)
 
 
 def experiment_config(
@@ -316,7 +323,7 @@ def experiment_config(
         with c.expander("Filter tuning", expanded=False):
             for k in tunable:
                 st.markdown(f"**{reg[k].label}** (`{k}`)")
-                vals = param_group("fp", k, reg[k].Params)
+                vals = param_group("fp", k, reg[k].Params, overrides=scls.filter_defaults.get(k))
                 if vals:
                     fparams[k] = vals
 
@@ -388,7 +395,7 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
         scls.outlier_defaults.get(spec.outliers, {}))
     for f in p.filters:
         put("fp", f.key, type(f).Params, spec.filter_params.get(f.key, {}),
-            f"filter_params.{f.key}")
+            f"filter_params.{f.key}", scls.filter_defaults.get(f.key, {}))
     ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
     return no_widget
 

@@ -211,3 +211,14 @@ def test_predict_cov_is_F_P_Ft_plus_Q():
     P = A @ np.swapaxes(A, -1, -2)
     np.testing.assert_allclose(predict_cov(F, P, Q), F @ P @ F.T + Q, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(predict_cov(F, P[0], Q), F @ P[0] @ F.T + Q, rtol=1e-12)
+
+
+def test_scenario_filter_defaults_apply_and_the_spec_overrides_them(monkeypatch):
+    from navlab.scenarios.cv2d import Cv2d
+
+    monkeypatch.setattr(Cv2d, "filter_defaults", {"chi2-kf": {"per_channel": True, "c_gate": 4.0}})
+    f = plan(ExperimentSpec(filters=("chi2-kf",), runs=1)).filters[0]
+    assert f.params.per_channel and f.params.c_gate == 4.0
+    spec = ExperimentSpec(filters=("chi2-kf",), runs=1, filter_params={"chi2-kf": {"c_gate": 2.0}})
+    f = plan(spec).filters[0]
+    assert f.params.per_channel and f.params.c_gate == 2.0
