@@ -134,8 +134,19 @@ def left_mul(M: Array, L: Array) -> Array:
     if M.ndim == 2 and L.ndim == 3:
         B, n, q = L.shape
         Lt = np.ascontiguousarray(mT(L)).reshape(B * q, n)
-        return mT((Lt @ M.T).reshape(B, q, M.shape[0]))
+        p = M.shape[0]
+        rows = max(1, _SERIAL_GEMM // (n * p))  # keep each product below BLAS's threading size
+        if B * q <= rows:
+            out = Lt @ M.T
+        else:
+            out = np.concatenate([Lt[s : s + rows] @ M.T for s in range(0, B * q, rows)])
+        return mT(out.reshape(B, q, p))
     return M @ L
+
+
+# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4, on all CPUs above; on the small shared
+# machine a threaded product can wait many times its cost for a busy CPU (navlab.filters.rbf.mm)
+_SERIAL_GEMM = 65536 * 4
 
 
 def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
