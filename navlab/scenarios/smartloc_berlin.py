@@ -70,14 +70,14 @@ default is B = 1 and no injected contamination (``outlier_defaults`` sets the mi
 With ``--contamination α`` each run adds its own independent outliers (κσ, whitened units) on
 top of the real ones — a stress test of the robust updates.
 
-Filters that gate whole epochs (``chi2-kf`` in its default mode) are at risk in this canyon:
+Filters that gate whole epochs (``chi2-kf`` in its paper mode) are at risk in this canyon:
 nearly every epoch holds some non-line-of-sight range, so a rejected epoch lets the prediction
 drift and later epochs may fail the gate too. With the former velocity model (white acceleration
 1 m/s², two free-running clocks) the gate locked out for good (345 m median error); the
-dead-reckoning model predicts well enough that it recovers (≈ 14 m), and
-``--set chi2-kf.per_channel=true`` — gating each satellite, the sensible mode for ≈ 15 channels
-per epoch — gives ≈ 10.5 m. (A scenario cannot set a filter's default; that needs a hook in the
-experiment.)
+dead-reckoning model predicts well enough that it recovers (≈ 14 m). This scenario therefore
+presets ``chi2-kf.per_channel=true`` (``filter_defaults``) — gating each satellite, the sensible
+mode for ≈ 15 channels per epoch — which gives ≈ 10.5 m; ``--set chi2-kf.per_channel=false``
+restores the whole-epoch gate.
 
 vb-ekf (full inverse-Wishart R̂ over 20 channels) diverged here while its missing-channel rule
 could make R̂ indefinite as satellites came and went; since the conditional-expectation rule
