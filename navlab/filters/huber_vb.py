@@ -59,6 +59,7 @@ from navlab.filters.linalg import (
     diag,
     gain,
     inv_small,
+    joseph_from_gain,
     mask_missing,
     mT,
     mv,
@@ -180,9 +181,7 @@ def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array
             K = U @ Sinv
     else:
         K, fixed = gain(P, H, S)
-    # Joseph: P − K Uᵀ − U Kᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ  (S symmetric)
-    KUt = K @ mT(U)
-    P_post = sym(P - mT(KUt) + K @ mT(K @ S - U))
+    P_post = joseph_from_gain(P, K, U, S)
     return x + mv(K, nu), P_post, S, fixed
 
 

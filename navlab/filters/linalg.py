@@ -105,6 +105,15 @@ def joseph(P: Array, K: Array, H: Array, R: Array) -> Array:
     return sym(IKH @ P @ mT(IKH) + K @ R @ mT(K))
 
 
+def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:
+    """The Joseph form ``(I−KH) P (I−KH)ᵀ + K R Kᵀ`` from U = P Hᵀ and S = H P Hᵀ + R, symmetrised.
+
+    Its exact expansion P − U Kᵀ − K Uᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ, valid for any gain K:
+    three n×m products instead of two n×n×n ones — the filter has U and S already.
+    """
+    return sym(P - U @ mT(K) + K @ mT(K @ S - U))
+
+
 def quad(v: Array, S: Array) -> Array:
     """Quadratic form ``vᵀ S⁻¹ v`` for v (B, m), S (m, m) or (B, m, m) -> (B,)."""
     if S.ndim == 2:

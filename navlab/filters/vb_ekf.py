@@ -53,7 +53,7 @@ import numpy as np
 
 from navlab.filters.base import NUMERICAL_FIX, Filter, Model, SideInfo, StepOut, register
 from navlab.filters.ekf import ekf_predict
-from navlab.filters.linalg import Array, joseph, mask_missing, mT, mv, solve_sym, sym
+from navlab.filters.linalg import Array, joseph_from_gain, mask_missing, mT, mv, solve_sym, sym
 from navlab.params import param
 
 
@@ -176,7 +176,7 @@ class VBEKF(Filter):
             Kt, fixed = solve_sym(S, mT(PHt))
             K = mT(Kt)
             x_new = x_pr + mv(K, nu_m)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
-            P_new = joseph(P_hat, K, H_m, R_m)  # = P̂ − K H P̂ for this optimal gain
+            P_new = joseph_from_gain(P_hat, K, PHt, S)  # Joseph; = P̂ − K H P̂ for this gain
             fixed_any |= np.broadcast_to(fixed, (B,)) & active
             iters += active
             if it == 0 or p.tol == 0:  # every run active
