@@ -352,7 +352,7 @@ class _Recorder:
             self._put_field(self.R_hat, ks, [None if o.R_hat is None else diag(o.R_hat) for o in outs])
         self._put_field(self.weights, ks, [o.weights for o in outs])
         self._put_field(self.flags, ks, [o.flags for o in outs])
-        for name in dict.fromkeys(n for o in outs for n in o.stats):
+        for name in dict.fromkeys(s for o in outs for s in o.stats):
             vals = [o.stats.get(name) for o in outs]
             if name == "nis":
                 self._put_field(self.nis, ks, vals)
