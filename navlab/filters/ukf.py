@@ -28,7 +28,6 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
 
 from navlab.filters.base import (
     EPOCH_ANOMALY,
@@ -39,7 +38,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, diag, mT, mv, solve_sym, sym
+from navlab.filters.linalg import Array, chi2_threshold, diag, mT, mv, solve_sym, sym
 from navlab.params import param
 
 # ---------------------------------------------------------------------------------------------
@@ -389,12 +388,6 @@ def bcast(a: Array, shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(a, shape)
 
 
-@functools.lru_cache(maxsize=32)
-def _chi2_table(alpha: float, m: int) -> Array:
-    """χ²_{1−α}(d) for d = 0 … m (index = degrees of freedom; entry 0 unused)."""
-    return chi2.ppf(1.0 - alpha, np.maximum(np.arange(m + 1), 1))
-
-
 def quad_batched(V: Array, S: Array) -> Array:
     """VᵀS⁻¹V for V (B, m), S (B, m, m)."""
     X, _ = solve_sym(S, V[..., None])
@@ -595,7 +588,7 @@ class _FadingBase(_UKFBase):
             gamma = np.einsum("bi,bi->b", V, X[..., 0])
             gain = (X[..., 1:], bcast(fixed, (B,)))
         dof = ok.sum(axis=1)
-        thr = p.xi * _chi2_table(float(p.alpha), V.shape[1])[np.maximum(dof, 1)]
+        thr = p.xi * chi2_threshold(p.alpha, np.maximum(dof, 1), V.shape[1])
         reject = (gamma > thr) & (dof > 0)
         return gamma, thr, reject, gain
 
