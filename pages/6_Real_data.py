@@ -8,39 +8,43 @@ from navlab.scenarios.base import get_scenario_class
 from navlab.ui import realdata as R
 from navlab.ui.frame import frame
 from navlab.ui.runner import result_store, show_error
+from navlab.ui.widgets import BIND
 
 frame("Real data", "🚗",
       "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
       "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.")
 
-with st.sidebar:
+with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
-    rec = st.selectbox("Recording", list(R.RECORDINGS), format_func=R.RECORDINGS.get, key="rd_rec")
+    # plain keys as options (no format_func): the URL then holds the key, not the label
+    rec = st.selectbox("Recording", list(R.RECORDINGS), key="rd_rec", bind=BIND)
+    st.caption(R.RECORDINGS[rec])
     scen = R.scenario_of(rec)
     options = R.usable_filters(scen)
     defaults = [k for k in get_scenario_class(scen).default_filters if k in options]
-    filters = st.multiselect("Filters", options, default=defaults, key=f"rd_flt_{scen}",
-                             format_func=lambda k: f"{k} — {registry()[k].label}")
+    filters = st.multiselect("Filters", options, default=defaults, key=f"rd_flt_{scen}", bind=BIND)
+    st.caption(" · ".join(f"`{k}` {registry()[k].label}" for k in filters))
     is_drive = scen == "drive0708"
     epochs = st.number_input("Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
-                             0, 100000, 120 if is_drive else 300, step=10, key=f"rd_ep_{scen}")
-    runs = st.number_input("Noise/outlier injections (runs)", 1, 50, 1, key=f"rd_runs_{scen}",
+                             0, 100000, 120 if is_drive else 300, step=10, key=f"rd_ep_{scen}", bind=BIND)
+    runs = st.number_input("Noise/outlier injections (runs)", 1, 50, 1, key=f"rd_runs_{scen}", bind=BIND,
                            help="each run adds an independent draw of noise and outliers to the "
                                 "same real measurements")
-    seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed")
+    seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed", bind=BIND)
     sp = {}
     if is_drive:
-        sp["sigma_m"] = st.number_input("GNSS σ (m)", 0.1, 100.0, 3.0, key="rd_sigma")
-        contamination = st.slider("Outlier ratio α", 0.0, 0.5, 0.1, 0.01, key="rd_alpha")
-        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa")
+        sp["sigma_m"] = st.number_input("GNSS σ (m)", 0.1, 100.0, 3.0, key="rd_sigma", bind=BIND)
+        contamination = st.slider("Outlier ratio α", 0.0, 0.5, 0.1, 0.01, key="rd_alpha", bind=BIND)
+        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa", bind=BIND)
         o1, o2 = st.columns(2)
-        sp["outage_start_s"] = o1.number_input("Outage start (s)", 0.0, 1e4, 0.0, key="rd_out0")
-        sp["outage_len_s"] = o2.number_input("Outage length (s)", 0.0, 1e4, 0.0, key="rd_outlen")
+        sp["outage_start_s"] = o1.number_input("Outage start (s)", 0.0, 1e4, 0.0, key="rd_out0", bind=BIND)
+        sp["outage_len_s"] = o2.number_input("Outage length (s)", 0.0, 1e4, 0.0, key="rd_outlen", bind=BIND)
     else:
         sp["variance_model"] = st.selectbox("Variance model", ["cn0-elevation", "file"],
-                                            key="rd_varmodel")
-        contamination = st.slider("Extra injected outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_sl")
-        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_sl")
+                                            key="rd_varmodel", bind=BIND)
+        contamination = st.slider("Extra injected outliers α", 0.0, 0.5, 0.0, 0.01,
+                                  key="rd_alpha_sl", bind=BIND)
+        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_sl", bind=BIND)
 
 upload_error = None
 if rec == "upload":
@@ -64,7 +68,7 @@ if rec == "upload":
         st.stop()
     sp["data_dir"] = str(folder)
     sp["add_noise"] = st.toggle("Add the σ / outliers above to the uploaded GNSS", False,
-                                key="rd_addnoise")
+                                key="rd_addnoise", bind=BIND)
 
 if not filters:
     st.warning("Choose at least one filter.")

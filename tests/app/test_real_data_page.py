@@ -68,3 +68,16 @@ def test_bad_upload_names_the_file_line_and_column():
     imu = b"t_s,f_x_mps2,f_y_mps2,f_z_mps2,w_x_radps,w_y_radps\n0,0,0,9.8,0,0\n"
     with pytest.raises(NavlabError, match=r"uploaded imu.csv: line 1 \(header\) lacks column\(s\) w_z_radps"):
         R.save_upload(imu, b"t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n")
+
+
+def test_url_sets_the_recording_and_its_settings(open_page):
+    """Every setting of the page is bound to the URL: a shared link opens the same run."""
+    at = open_page(PAGE, rd_rec="smartloc-berlin", rd_seed="7", **{
+        "rd_ep_smartloc-berlin": "40", "rd_flt_smartloc-berlin": ["wls", "ekf"],
+        "rd_alpha_sl": "0.05"})
+    assert_clean(at)
+    assert at.selectbox(key="rd_rec").value == "smartloc-berlin"
+    assert at.number_input(key="rd_seed").value == 7
+    assert at.number_input(key="rd_ep_smartloc-berlin").value == 40
+    assert at.multiselect(key="rd_flt_smartloc-berlin").value == ["wls", "ekf"]
+    assert at.slider(key="rd_alpha_sl").value == pytest.approx(0.05)
