@@ -5,15 +5,9 @@ import streamlit as st
 from navlab.metrics import summarize
 from navlab.ui import figures as F
 from navlab.ui.frame import frame
-from navlab.ui.runner import (
-    cached_results,
-    partial_results,
-    request_run,
-    run_live,
-    run_requested,
-)
+from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download, csv_download
-from navlab.ui.views import CompareView, chart
+from navlab.ui.views import CompareView, show_stored
 from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "compare"
@@ -36,20 +30,12 @@ c4.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed}
            f"noise `{spec.noise_schedule}` · outliers `{spec.outliers}`")
 
 view = CompareView(PAGE)
-res = None
 if run_requested(PAGE, spec):
     view.live = True
     res = run_live(spec, PAGE, view.render, first_chunk=None if live else spec.runs)
     view.live = False
 else:
-    res = cached_results(spec) or partial_results(PAGE, spec)
-    if res is not None:
-        view.render(res)
-        if not res.complete:
-            st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
-    else:
-        view.status.info("Press **Run** to simulate this configuration.")
-        chart(view.preview, F.schedule_preview(spec), "noise schedule preview")
+    res = show_stored(view, spec)
 
 if res is not None and res.complete:
     st.markdown("##### Downloads")

@@ -3,17 +3,10 @@
 import streamlit as st
 
 from navlab.filters import registry
-from navlab.ui import figures as F
 from navlab.ui.frame import frame
-from navlab.ui.runner import (
-    cached_results,
-    partial_results,
-    request_run,
-    run_live,
-    run_requested,
-)
+from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download
-from navlab.ui.views import NoiseView, chart
+from navlab.ui.views import NoiseView, show_stored
 from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "noise"
@@ -44,11 +37,4 @@ view = NoiseView(PAGE)
 if run_requested(PAGE, spec):
     run_live(spec, PAGE, view.render)
 else:
-    res = cached_results(spec) or partial_results(PAGE, spec)
-    if res is not None:
-        view.render(res)
-        if not res.complete:
-            st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
-    else:
-        view.status.info("Press **Run** to simulate this configuration.")
-        chart(view.preview, F.schedule_preview(spec), "noise schedule preview")
+    show_stored(view, spec)

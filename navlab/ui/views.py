@@ -55,6 +55,23 @@ def channel_label(res: Results, ch: int) -> str:
     return f"{ch}: {name}" + (f" ({unit})" if unit else "")
 
 
+def show_stored(view: Any, spec: Any) -> Results | None:
+    """Without a Run: draw this configuration's cached or interrupted results into ``view`` (a
+    CompareView or NoiseView), or invite a Run under a preview of the noise schedule.
+    """
+    from navlab.ui.runner import cached_results, partial_results
+
+    res = cached_results(spec) or partial_results(view.page, spec)
+    if res is None:
+        view.status.info("Press **Run** to simulate this configuration.")
+        chart(view.preview, F.schedule_preview(spec), "noise schedule preview")
+        return None
+    view.render(res)
+    if not res.complete:
+        st.info(f"Stopped after {res.done_runs} of {spec.runs} runs: press Run to continue.")
+    return res
+
+
 class CompareView:
     """Error vs time, RMSE table, true R(t) vs R̂, NIS vs χ² — laid out once, redrawn per chunk."""
 
