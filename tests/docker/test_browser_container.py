@@ -9,24 +9,13 @@ published port, and removes the container. Opt-in like the other docker test:
 from __future__ import annotations
 
 import os
-import re
-import shutil
-import socket
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
+from dockerhelpers import ROOT, VERIFY_DOCKER, free_port, require_container_tools
 
-ROOT = Path(__file__).resolve().parents[2]
-VERIFY_DOCKER = ROOT.parent / "shared" / "tools" / "verify-docker.sh"
 CONTAINER = "navlab-verify"  # the name verify-docker.sh gives its container
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _remove_container() -> None:
@@ -38,26 +27,14 @@ def _remove_container() -> None:
 @pytest.mark.docker
 @pytest.mark.slow
 def test_browser_suite_against_the_container(request):
-    markexpr = request.config.getoption("markexpr") or ""
-    selected = re.search(r"(?<!not )\bdocker\b", markexpr) is not None
-    if not (selected or os.environ.get("NAVLAB_DOCKER") == "1"):
-        pytest.skip("opt-in: run with `python -m pytest -m docker` or NAVLAB_DOCKER=1")
-    if not VERIFY_DOCKER.exists():
-        pytest.skip(f"{VERIFY_DOCKER} not found (../shared must sit beside the repository)")
-    missing = [t for t in ("podman", "buildah") if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"{', '.join(missing)} not installed (apt-get install -y podman buildah runc)")
-    if not Path("/usr/bin/chromium").exists():
-        pytest.skip("/usr/bin/chromium not found: apt-get install -y chromium")
-    if os.geteuid() != 0:
-        pytest.skip("verify-docker.sh needs root")
+    require_container_tools(request, chromium=True)
 
     exists = subprocess.run(["podman", "container", "exists", CONTAINER], capture_output=True,
                             check=False, timeout=60)
     if exists.returncode == 0:
         pytest.skip(f"a container named {CONTAINER} already runs (someone else's verify-docker "
                     f"run?); remove it with `podman --runtime runc rm -f {CONTAINER}` first")
-    port = _free_port()
+    port = free_port()
     try:
         build = subprocess.run(
             ["bash", str(VERIFY_DOCKER), str(ROOT), str(port)],

@@ -8,22 +8,19 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import re
 import shlex
 import shutil
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from dockerfile_parse import DockerfileParser
+from dockerhelpers import ROOT, VERIFY_DOCKER, free_port, require_container_tools
 
-ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "Dockerfile"
 DOCKERIGNORE = ROOT / ".dockerignore"
-VERIFY_DOCKER = ROOT.parent / "shared" / "tools" / "verify-docker.sh"
 
 
 @pytest.fixture(scope="module")
@@ -156,12 +153,6 @@ def test_dockerignore_is_deny_by_default_and_allows_every_copy_source(instructio
     assert not any(".git" in a or "tests" in a or "data" in a for a in allowed)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.docker
 @pytest.mark.slow
 def test_image_builds_and_serves_health_as_uid_1000(request):
@@ -171,21 +162,11 @@ def test_image_builds_and_serves_health_as_uid_1000(request):
     this Dockerfile unchanged, runs it, and checks /_stcore/health, the image's HEALTHCHECK and uid.
     Opt-in, as it takes minutes: ``python -m pytest -m docker`` or ``NAVLAB_DOCKER=1``.
     """
-    markexpr = request.config.getoption("markexpr") or ""
-    selected = re.search(r"(?<!not )\bdocker\b", markexpr) is not None
-    if not (selected or os.environ.get("NAVLAB_DOCKER") == "1"):
-        pytest.skip("opt-in: run with `python -m pytest -m docker` or NAVLAB_DOCKER=1")
-    if not VERIFY_DOCKER.exists():
-        pytest.skip(f"{VERIFY_DOCKER} not found (../shared must sit beside the repository)")
-    missing = [t for t in ("podman", "buildah") if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"{', '.join(missing)} not installed (apt-get install -y podman buildah runc)")
-    if os.geteuid() != 0:
-        pytest.skip("verify-docker.sh needs root")
+    require_container_tools(request)
     if not (ROOT / "app.py").exists():
         pytest.fail("app.py is missing: the image has nothing to serve")
     proc = subprocess.run(
-        ["bash", str(VERIFY_DOCKER), str(ROOT), str(_free_port())],
+        ["bash", str(VERIFY_DOCKER), str(ROOT), str(free_port())],
         stdin=subprocess.DEVNULL,
         capture_output=True,
         text=True,

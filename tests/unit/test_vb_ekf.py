@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from linmodels import side
+from linmodels import random_model, side
 
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
@@ -64,13 +64,7 @@ def paper_vb_ekf(model, x, P, u, U, zs, k0, tau, rho, N):
 
 
 def random_linear(rng, n, m):
-    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
-    A = rng.standard_normal((n, n))
-    Q = 0.05 * A @ A.T + 0.01 * np.eye(n)
-    H = rng.standard_normal((m, n))
-    C = rng.standard_normal((m, m))
-    R = 0.5 * C @ C.T + 0.1 * np.eye(m)
-    return LinearModel(F, Q, H, R)
+    return LinearModel(*random_model(rng, n, m))
 
 
 @pytest.mark.parametrize(("tau_P", "tau_R", "N"), [(10.0, 3.0, 10), (3.0, 3.0, 4), (50.0, 1.0, 1)])
