@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pinning import assert_matches_pin
 
 from navlab.filters.base import LinearModel, SideInfo, make_filter
 
@@ -203,19 +204,6 @@ def test_pinned_case_exercises_every_branch(pinned):
     assert pinned["lin/nnmfukf-online/replaced"].sum() > 0
 
 
-def rel_diff(a: np.ndarray, b: np.ndarray, q: str) -> float:
-    """Largest difference of a from b relative to b's scale: x per state over time (x crosses
-    zero), diag P elementwise, full P relative to √(P_ii P_jj)."""
-    scale = np.maximum(np.abs(b), 1e-300)
-    if q == "x":
-        scale = np.maximum(np.nanmax(np.abs(b), axis=1, keepdims=True), 1e-300)
-    if q == "P_end":
-        d = np.sqrt(np.abs(np.diagonal(b, axis1=-2, axis2=-1)))
-        scale = np.maximum(d[:, :, None] * d[:, None, :], 1e-300)
-    ok = np.isfinite(b)
-    return float(np.max(np.abs(a[ok] - b[ok]) / np.broadcast_to(scale, b.shape)[ok]))
-
-
 CASE_NAMES = sorted({k.rsplit("/", 1)[0] for k in np.load(PIN).files}) if PIN.exists() else []
 
 
@@ -225,16 +213,8 @@ def test_outputs_equal_the_pinned_reference(case, current, jittered, pinned):
     relative perturbation of z causes in the current code, where the case amplifies round-off
     more than that (the faithful NNMFUKF's lock-out into chained replacements with fading
     factors up to 1e6: ≈ 1e-8 from a 1e-15 perturbation on this case)."""
-    for q in ("flags", "rejected", "replaced"):
-        a, b = current[f"{case}/{q}"], pinned[f"{case}/{q}"]
-        assert np.array_equal(a, b), f"{case}: {q} changed"
-    for q in ("x", "Pd", "P_end"):
-        a, b = current[f"{case}/{q}"], pinned[f"{case}/{q}"]
-        assert np.array_equal(np.isfinite(a), np.isfinite(b))
-        sens = rel_diff(jittered[f"{case}/{q}"], a, q)
-        tol = max(1e-8, 100 * sens)
-        rel = rel_diff(a, b, q)
-        assert rel < tol, f"{case}: {q} differs by {rel:.2e} relative (tolerance {tol:.1e})"
+    assert_matches_pin(case, current, jittered, pinned, ("flags", "rejected", "replaced"),
+                       ("x", "Pd", "P_end"))
 
 
 if __name__ == "__main__":
