@@ -48,12 +48,27 @@ def cofactor_index(m: int) -> tuple[Array, Array]:
     return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
 
 
+_ADJ2_SIGN = np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+
+def bcast(a: Array, shape: tuple[int, ...]) -> Array:
+    """``np.broadcast_to`` that returns ``a`` itself when it has the shape already (a hot path:
+    broadcast_to costs ≈ 10 µs of Python even then)."""
+    return a if a.shape == shape else np.broadcast_to(a, shape)
+
+
 def inv_small(S: Array) -> tuple[Array, Array]:
     """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det.
 
     Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU).
     """
     B, m = S.shape[0], S.shape[-1]
+    if m == 2:  # adj(S) = [[d, −b], [−c, a]] by reversing both axes; elementwise, no gather
+        a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+        det = a * d - b * c
+        ill = ~(det > 1e-12 * (a * d))
+        inv = 1.0 / np.where(ill, 1.0, det)
+        return S[:, ::-1, ::-1] * _ADJ2_SIGN * inv[:, None, None], ill
     Sf = S.reshape(B, m * m)
     if m == 1:
         cof = np.ones((B, 1))
