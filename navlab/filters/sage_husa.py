@@ -171,9 +171,29 @@ def _flag_fix(flags: Array, fixed: Array) -> None:
     ``fixed`` is (B,) (the whole run, e.g. a singular S) or (B, m) (the channels concerned).
     """
     fixed = np.asarray(fixed, dtype=bool)
-    fixed = np.broadcast_to(fixed[:, None] if fixed.ndim == 1 else fixed, flags.shape)
     if fixed.any():
+        fixed = np.broadcast_to(fixed[:, None] if fixed.ndim == 1 else fixed, flags.shape)
         flags[fixed & (flags == ACCEPTED)] = NUMERICAL_FIX
+
+
+def _eig_inside(R: Array, lo: float, hi: float) -> Array:
+    """(B,) True where every eigenvalue of symmetric R certainly lies inside (lo, hi).
+
+    m = 2: the closed-form eigenvalues (trace/2 ± √(((a − c)/2)² + b²)); otherwise Gershgorin
+    discs (each eigenvalue lies within R_ii ± Σ_j≠i |R_ij| of some i). A relative margin of 1e-10
+    covers the round-off of these formulas; NaN compares False. False only means "not sure".
+    """
+    m = R.shape[-1]
+    d = diag(R)
+    if m == 2:
+        a, b, c = d[:, 0], R[:, 0, 1], d[:, 1]
+        mid = 0.5 * (a + c)
+        rad = np.sqrt((0.5 * (a - c)) ** 2 + b * b)
+        tol = 1e-10 * (np.abs(mid) + rad)
+        return (mid - rad > lo + tol) & (mid + rad < hi - tol)
+    rad = np.abs(R).sum(axis=-1) - np.abs(d)
+    tol = 1e-10 * (np.abs(d) + rad)
+    return np.all((d - rad > lo + tol) & (d + rad < hi - tol), axis=-1)
 
 
 def _clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
@@ -183,13 +203,24 @@ def _clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
     clamp moved (those get flag 9). A diverged run's non-finite R stays NaN (the experiment loop
     records the divergence) instead of stopping the whole batch.
     """
-    good = np.all(np.isfinite(R), axis=(-2, -1))
-    out = np.full(R.shape, np.nan)
+    R = sym(R)
+    # fast path: a run whose eigenvalues are all inside (lo, hi) is unchanged by the clamp (eigh
+    # would give back V diag(w) Vᵀ = R up to round-off), so only the other runs need an eigh
+    inside = _eig_inside(R, lo, hi)
+    changed = np.zeros(R.shape[:2], dtype=bool)
+    if inside.all():
+        return R, changed
+    rest = ~inside
+    Rr = R[rest]
+    good = np.all(np.isfinite(Rr), axis=(-2, -1))
+    out_r = np.full(Rr.shape, np.nan)
     if good.any():
-        out[good], _ = eigh_clamp(R[good], lo, hi)
+        out_r[good], _ = eigh_clamp(Rr[good], lo, hi)
     with np.errstate(invalid="ignore"):
-        d0, d1 = diag(R), diag(out)
-        changed = ~good[:, None] | (np.abs(d1 - d0) > 1e-9 * np.maximum(np.abs(d0), lo))
+        d0, d1 = diag(Rr), diag(out_r)
+        changed[rest] = ~good[:, None] | (np.abs(d1 - d0) > 1e-9 * np.maximum(np.abs(d0), lo))
+    out = R.copy()
+    out[rest] = out_r
     return out, changed
 
 
