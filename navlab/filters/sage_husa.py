@@ -51,7 +51,6 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.kalman import kf_update
 from navlab.filters.linalg import (
     Array,
     diag,
@@ -153,12 +152,19 @@ def rae_estimate(
     R0 = np.asarray(R0, dtype=float)
     if not full:
         return np.broadcast_to(R0, (B, m, m)).copy()
+    return sym(_residual_cov(eta, eta_ok, R0) + _PHt(P_ref, H)[1])
+
+
+def _residual_cov(eta: Array, eta_ok: Array, R0: Array) -> Array:
+    """The window term Ŝ = D (Σ_j η_j η_jᵀ) D of :func:`rae_estimate` (B, m, m)."""
+    if eta_ok.all():  # every channel present: D = I/√M, Ŝ = (1/M) Σ η ηᵀ
+        return (mT(eta) @ eta) * (1.0 / eta.shape[1])
+    m = eta.shape[-1]
     e = np.where(eta_ok, eta, 0.0)
     cnt = eta_ok.sum(axis=1)  # (B, m)
     dinv = np.where(cnt > 0, 1.0 / np.sqrt(np.maximum(cnt, 1)), 0.0)
     S_hat = (mT(e) @ e) * dinv[:, :, None] * dinv[:, None, :]
-    S_hat = S_hat + np.where(cnt == 0, np.diag(R0), 0.0)[:, :, None] * np.eye(m)
-    return sym(S_hat + H @ P_ref @ mT(H))
+    return S_hat + np.where(cnt == 0, np.diag(R0), 0.0)[:, :, None] * np.eye(m)
 
 
 # ------------------------------------------------------------------------------ helpers
@@ -545,10 +551,10 @@ class IRAKF(Filter):
         F = model.F(k)
         Q = model.Q(k)
         x = model.f(state.x, k)
-        P = sym(F @ state.P @ mT(F) + Q)
+        P = predict_cov(F, state.P, Q)
         if self.params.dual_detection:
             xs = model.f(state.xs, k)
-            Ps = sym(F @ state.Ps @ mT(F) + Q)
+            Ps = predict_cov(F, state.Ps, Q)
         else:
             xs, Ps = state.xs, state.Ps
         return state._replace(x=x, P=P, P_post=state.P, xs=xs, Ps=Ps)
@@ -559,20 +565,19 @@ class IRAKF(Filter):
         B, m = z.shape
         if not p.dual_detection:
             return np.zeros((B, m), dtype=bool), np.zeros((B, m)), state.xs, state.Ps
-        R0 = model.R0
         Hs = model.H(state.xs, k)
         nu_s = z - model.h(state.xs, k)
-        ok, nu_s, Hs, Rs = mask_missing(z, nu_s, Hs, R0)
-        Ss = sym(Hs @ state.Ps @ mT(Hs) + Rs)
+        ok, nu_s, Hs, Rs = mask_missing(z, nu_s, Hs, model.R0)
+        Us, HPHs = _PHt(state.Ps, Hs)
+        Ss = sym(HPHs + Rs)
         nt_s = nu_s / np.sqrt(diag(Ss))
         flag_s = (np.abs(nt_s) > p.C) & ok
-        if p.skf_gated:
-            K, _ = gain(state.Ps, Hs, Ss)
+        # the standard KF update (kalman.kf_update), reusing Ss; gated: detections' columns zeroed
+        K, _ = _gain(Us, Ss)
+        if p.skf_gated and flag_s.any():
             K = _zero_columns(K, B, flag_s)
-            xs = state.xs + mv(K, nu_s)
-            Ps = joseph(state.Ps, K, Hs, Rs)
-        else:
-            xs, Ps, *_ = kf_update(model, state.xs, state.Ps, k, z, R0)
+        xs = state.xs + mv(K, nu_s)
+        Ps = joseph_from_gain(state.Ps, K, Us, Ss)
         return flag_s, nt_s, xs, Ps
 
     def update(self, model: Model, state: IRAKFState, k: int, z: Array, side: SideInfo):
@@ -589,18 +594,23 @@ class IRAKF(Filter):
             use_prior = np.zeros(B, dtype=bool)
         else:
             use_prior = flag_s.any(axis=1)
-        P_ref = np.where(use_prior[:, None, None], P_m, state.P_post)
-        R_hat = rae_estimate(state.win.eta, state.win.ok, H, P_ref, model.R0, state.win.full)
+        U, HPHt = _PHt(P_m, H)
         flags = np.zeros((B, m), dtype=np.int8)
-        if state.win.full:  # eigenvalue guard (only bites with missing channels)
-            lo, hi = rhat_bounds(model.R0)
+        if state.win.full:  # rae_estimate with P_ref = P⁻ or P⁺_{k−1} chosen after projecting
+            HPH_ref = np.where(use_prior[:, None, None], HPHt, _PHt(state.P_post, H)[1])
+            R_hat = sym(_residual_cov(state.win.eta, state.win.ok, model.R0) + HPH_ref)
+            lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
             R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
+        else:
+            R_hat = _batched(np.asarray(model.R0, dtype=float), B)
         # 4 gain from the unmodified R̂
         nu_raw = z - model.h(x_m, k)
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R_hat)
-        S = sym(Hm @ P_m @ mT(Hm) + Rm)
-        K, fixed = gain(P_m, Hm, S)
+        if Hm is not H:
+            U, HPHt = _PHt(P_m, Hm)
+        S = sym(HPHt + Rm)
+        K, fixed = _gain(U, S)
         sig = np.sqrt(diag(S))
         nt = nu / sig
         # 5 three-segment weights (eq. 7) + SKF detections: zero gain columns
@@ -616,15 +626,18 @@ class IRAKF(Filter):
             # which locks out when P⁻ ≫ R̂, e.g. the first epochs of an INS, see the report)
             infl = np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)
             R_used = np.where(np.eye(m, dtype=bool), Rm * infl[:, None, :], Rm)
-            K, fixed2 = gain(P_m, Hm, sym(Hm @ P_m @ mT(Hm) + R_used))
+            S_used = sym(HPHt + R_used)
+            K, fixed2 = _gain(U, S_used)
             fixed = fixed | fixed2
             nu_w = nu
         else:
+            S_used = S
             nu_w = np.where(down, w * nu, nu)
-        K = _zero_columns(K, B, reject)
+        if reject.any():
+            K = _zero_columns(K, B, reject)
         # 6 state and Joseph covariance (P keeps the information of rejected channels out)
         x = x_m + mv(K, nu_w)
-        P = joseph(P_m, K, Hm, R_used)
+        P = joseph_from_gain(P_m, K, U, S_used)
         # 7 raw posterior residual into the window (rejected channels included, S1)
         eta = z - model.h(x, k)
         win = state.win.push(eta, ok)
