@@ -55,12 +55,12 @@ from navlab.filters.base import (
 )
 from navlab.filters.linalg import (
     Array,
+    PHt,
     bcast,
     cofactor_index,
     diag,
-    gain,
-    inv_small,
     joseph_from_gain,
+    kf_gain,
     mask_missing,
     mT,
     mv,
@@ -166,27 +166,6 @@ class _MeasSpace:
         return resid, hph
 
 
-_SEL_CACHE: dict[tuple, Array | None] = {}
-
-
-def _selection(H: Array) -> Array | None:
-    """Column indices if H is a constant 0/1 selection matrix (one 1 per row), else None."""
-    if H.ndim != 2:
-        return None
-    key = (H.shape, H.tobytes())
-    if key not in _SEL_CACHE:
-        is_sel = np.all((H == 0.0) | (H == 1.0)) and np.all(H.sum(axis=1) == 1.0)
-        if len(_SEL_CACHE) > 64:
-            _SEL_CACHE.clear()
-        _SEL_CACHE[key] = np.argmax(H, axis=1) if is_sel else None
-    return _SEL_CACHE[key]
-
-
-def _PHt(P: Array, H: Array, sel: Array | None) -> Array:
-    """U = P Hᵀ, by indexing when H selects states (a stacked matmul costs ≈ 15× more)."""
-    return P[..., sel] if sel is not None else P @ mT(H)
-
-
 def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array):
     """Gain, mean and Joseph covariance with the final (B, m, m) R_used (§0.2 rules 1–3).
 
@@ -196,21 +175,9 @@ def _finish(model: Model, x: Array, P: Array, H: Array, nu: Array, R_used: Array
     S⁻¹ is the closed-form inverse for m ≤ 3 (LU solve otherwise or when S is ill-conditioned).
     """
     B, m = nu.shape
-    sel = _selection(H)
-    U = _PHt(P, H, sel)  # (B, n, m)
-    HU = U[..., sel, :] if sel is not None else H @ U
+    U, HU = PHt(P, H)  # (B, n, m), (B, m, m)
     S = sym(bcast(HU + R_used, (B, m, m)))
-    fixed = np.zeros(B, dtype=bool)
-    if m <= 3:
-        Sinv, ill = inv_small(S)
-        if ill.any():  # flag 9: an ill-conditioned S, solved by LU instead
-            Kt, fixed = solve_sym(S, mT(np.broadcast_to(U, (B, *U.shape[-2:]))))
-            K = mT(Kt)
-            fixed = fixed | ill
-        else:
-            K = U @ Sinv
-    else:
-        K, fixed = gain(P, H, S)
+    K, fixed = kf_gain(U, S)
     P_post = joseph_from_gain(P, K, U, S)
     return x + mv(K, nu), P_post, S, fixed
 
@@ -364,8 +331,7 @@ class _VBBase(Filter):
         R0 = np.asarray(model.R0, dtype=float)
         ok, nu, H, _ = mask_missing(z, nu, H, R0)
         all_ok = bool(ok.all())
-        sel = _selection(H)
-        ms = _MeasSpace(_PHt(P0, H, sel)[..., sel, :] if sel is not None else H @ P0 @ mT(H), nu)
+        ms = _MeasSpace(PHt(P0, H)[1], nu)
         beta_minus = state.beta
         alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         beta = beta_minus

@@ -27,10 +27,11 @@ from navlab.filters.base import (
 )
 from navlab.filters.linalg import (
     Array,
+    PHt,
     chi2_threshold,
     diag,
-    gain,
-    joseph,
+    joseph_from_gain,
+    kf_gain,
     mask_missing,
     mv,
     quad,
@@ -57,10 +58,11 @@ def kf_update(
     H = model.H(x, k)
     nu = z - model.h(x, k)
     _ok, nu, H, R = mask_missing(z, nu, H, R)
-    S = sym(H @ P @ np.swapaxes(H, -1, -2) + R)
-    K, fixed = gain(P, H, S)
+    U, HU = PHt(P, H)
+    S = sym(HU + R)
+    K, fixed = kf_gain(U, S)
     x = x + mv(K, nu)
-    P = joseph(P, K, H, R)
+    P = joseph_from_gain(P, K, U, S)  # = (I−KH)P(I−KH)ᵀ + KRKᵀ, from U = PHᵀ and S
     flags = np.zeros(z.shape, dtype=np.int8)
     if np.any(fixed):
         flags[np.broadcast_to(fixed, z.shape[:1])] = NUMERICAL_FIX
@@ -147,8 +149,9 @@ class Chi2KF(Filter):
         H = model.H(x0, k)
         nu = z - model.h(x0, k)
         ok, nu, H, R = mask_missing(z, nu, H, model.R0)
-        S = sym(H @ P0 @ np.swapaxes(H, -1, -2) + R)
-        K, fixed = gain(P0, H, S)
+        U, HU = PHt(P0, H)
+        S = sym(HU + R)
+        K, fixed = kf_gain(U, S)
         flags = np.zeros(z.shape, dtype=np.int8)
         nis = quad(nu, S)
         if p.per_channel:
@@ -156,14 +159,14 @@ class Chi2KF(Filter):
             K = np.broadcast_to(K, (*z.shape[:1], *K.shape[-2:])) * ~reject[:, None, :]
             flags[reject] = REJECTED
             x = x0 + mv(K, nu)
-            P = joseph(P0, K, H, R)
+            P = joseph_from_gain(P0, K, U, S)
             weights = (~reject).astype(float)
         else:
             dof = ok.sum(axis=1)
             thr = chi2_threshold(p.alpha, dof, z.shape[-1])
             reject = (nis > thr) & (dof > 0)
             x1 = x0 + mv(K, nu)
-            P1 = joseph(P0, K, H, R)
+            P1 = joseph_from_gain(P0, K, U, S)
             x = np.where(reject[:, None], x0, x1)
             P = np.where(reject[:, None, None], P0, P1) if reject.any() else P1
             flags[reject[:, None] & ok] = REJECTED

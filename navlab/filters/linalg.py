@@ -53,7 +53,8 @@ _ADJ2_SIGN = np.array([[1.0, -1.0], [-1.0, 1.0]])
 
 def bcast(a: Array, shape: tuple[int, ...]) -> Array:
     """``np.broadcast_to`` that returns ``a`` itself when it has the shape already (a hot path:
-    broadcast_to costs ≈ 10 µs of Python even then)."""
+    broadcast_to costs ≈ 10 µs of Python even then).
+    """
     return a if a.shape == shape else np.broadcast_to(a, shape)
 
 
@@ -107,6 +108,52 @@ def gain(P: Array, H: Array, S: Array) -> tuple[Array, Array]:
     """Kalman gain ``K = P Hᵀ S⁻¹`` via a solve with S (never an explicit inverse)."""
     PHt = P @ mT(H)
     Kt, fixed = solve_sym(S, mT(PHt))
+    return mT(Kt), fixed
+
+
+_SEL_CACHE: dict[tuple, Array | None] = {}
+
+
+def selection(H: Array) -> Array | None:
+    """Column indices if H is a shared 0/1 selection matrix (one 1 per row), else None."""
+    if H.ndim != 2:
+        return None
+    key = (H.shape, H.tobytes())
+    if key not in _SEL_CACHE:
+        is_sel = np.all((H == 0.0) | (H == 1.0)) and np.all(H.sum(axis=1) == 1.0)
+        if len(_SEL_CACHE) > 64:
+            _SEL_CACHE.clear()
+        _SEL_CACHE[key] = np.argmax(H, axis=1) if is_sel else None
+    return _SEL_CACHE[key]
+
+
+def PHt(P: Array, H: Array) -> tuple[Array, Array]:
+    """``U = P Hᵀ`` and ``H P Hᵀ = H U``; by indexing when H selects states (exact: the products
+    are with 1 and the sums with 0; a stacked matmul costs ≈ 10× more).
+    """
+    sel = selection(H)
+    if sel is not None:
+        U = P[..., sel]
+        return U, U[..., sel, :]
+    U = P @ mT(H)
+    return U, H @ U
+
+
+def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
+    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed).
+
+    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call); where an
+    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the batch takes the LU
+    path of :func:`solve_sym` instead and those runs are flagged ``fixed`` (flag 9) with any
+    that needed jitter.
+    """
+    if S.ndim == 3 and S.shape[-1] <= 3:
+        Sinv, ill = inv_small(S)
+        if not ill.any():
+            return U @ Sinv, ill
+        Kt, fixed = solve_sym(S, mT(bcast(U, (*S.shape[:1], *U.shape[-2:]))))
+        return mT(Kt), fixed | ill
+    Kt, fixed = solve_sym(S, mT(U))
     return mT(Kt), fixed
 
 
