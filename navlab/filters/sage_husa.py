@@ -55,9 +55,7 @@ from navlab.filters.linalg import (
     Array,
     diag,
     eigh_clamp,
-    gain,
     inv_small,
-    joseph,
     joseph_from_gain,
     mask_missing,
     mT,
@@ -83,6 +81,20 @@ def forgetting_weight(k: int, b: float) -> float:
     return (1.0 - b) / (1.0 - b ** (k + 1))
 
 
+_BOUNDS_CACHE: dict[tuple, tuple[float, float]] = {}
+
+
+def _bounds(R0: Array) -> tuple[float, float]:
+    """:func:`rhat_bounds`, cached per R0 (it is evaluated every epoch)."""
+    R0 = np.asarray(R0, dtype=float)
+    key = (R0.shape, R0.tobytes())
+    if key not in _BOUNDS_CACHE:
+        if len(_BOUNDS_CACHE) > 64:
+            _BOUNDS_CACHE.clear()
+        _BOUNDS_CACHE[key] = rhat_bounds(R0)
+    return _BOUNDS_CACHE[key]
+
+
 def rhat_bounds(R0: Array) -> tuple[float, float]:
     """Eigenvalue clamp [r_min, r_max] = [0.01·min diag R0, 1e4·max diag R0] (§4.1 step 4)."""
     d = np.diag(np.asarray(R0, dtype=float))
@@ -100,15 +112,16 @@ def irakf_weights(
     1/(k1 σ_i), dimensionally inconsistent; kept only for comparison; needs ``sigma``).
     """
     a = np.abs(nu_tilde)
-    zone = np.where(a > k1, 2, np.where(a > k0, 1, 0)).astype(np.int8)
-    with np.errstate(divide="ignore"):
-        if middle == "literal":
-            if sigma is None:
-                raise ValueError("middle='literal' needs sigma")
+    above0, above1 = a > k0, a > k1
+    zone = np.where(above1, np.int8(2), above0.astype(np.int8))
+    if middle == "literal":
+        if sigma is None:
+            raise ValueError("middle='literal' needs sigma")
+        with np.errstate(divide="ignore"):
             mid = 1.0 / (k1 * sigma)
-        else:
-            mid = k0 / np.where(a > 0, a, 1.0)
-    w = np.where(zone == 0, 1.0, np.where(zone == 1, mid, 0.0))
+    else:
+        mid = k0 / np.where(a > 0, a, 1.0)
+    w = np.where(above1, 0.0, np.where(above0, mid, 1.0))
     return w, zone
 
 
@@ -119,11 +132,11 @@ def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
     Returns ``(w, zone)`` with zone 0/1/2.
     """
     a = np.abs(nu_tilde)
-    zone = np.where(a > k1, 2, np.where(a > k0, 1, 0)).astype(np.int8)
-    safe = np.where(a > 0, a, 1.0)
+    above0, above1 = a > k0, a > k1
+    zone = np.where(above1, np.int8(2), above0.astype(np.int8))
     span = max(k1 - k0, 1e-300)
-    mid = (k0 / safe) * ((k1 - a) / span) ** 2
-    w = np.where(zone == 0, 1.0, np.where(zone == 1, mid, 0.0))
+    mid = (k0 / np.where(a > 0, a, 1.0)) * ((k1 - a) / span) ** 2
+    w = np.where(above1, 0.0, np.where(above0, mid, 1.0))
     return w, zone
 
 
@@ -305,6 +318,17 @@ def _gain(U: Array, S: Array) -> tuple[Array, Array]:
     return mT(Kt), fixed
 
 
+def _forward_subst(L: Array, v: Array) -> Array:
+    """L⁻¹ v for lower-triangular L (B, m, m), v (B, m), row by row (a LAPACK solve per epoch
+    costs ≈ 10× more; the same solution up to round-off).
+    """
+    e = np.empty_like(v)
+    e[:, 0] = v[:, 0] / L[:, 0, 0]
+    for i in range(1, v.shape[-1]):
+        e[:, i] = (v[:, i] - np.einsum("bj,bj->b", L[:, i, :i], e[:, :i])) / L[:, i, i]
+    return e
+
+
 def _zero_columns(K: Array, B: int, reject: Array) -> Array:
     """K with column i zeroed where reject[b, i]: (B, n, m)."""
     return np.broadcast_to(K, (B, *K.shape[-2:])) * ~reject[:, None, :]
@@ -439,7 +463,7 @@ class SageHusa(Filter):
         R = state.R
         d = forgetting_weight(kk, p.b)
         if p.adapt:
-            lo, hi = rhat_bounds(model.R0)
+            lo, hi = _bounds(model.R0)
             R, clamped = _sage_husa_R(state.R, nu, HPHt, ok, d, lo, hi)  # (3)–(4)
             _flag_fix(flags, clamped)
         ok, nu_m, Hm, Rm = mask_missing(z, nu, H, R)
@@ -599,7 +623,7 @@ class IRAKF(Filter):
         if state.win.full:  # rae_estimate with P_ref = P⁻ or P⁺_{k−1} chosen after projecting
             HPH_ref = np.where(use_prior[:, None, None], HPHt, _PHt(state.P_post, H)[1])
             R_hat = sym(_residual_cov(state.win.eta, state.win.ok, model.R0) + HPH_ref)
-            lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
+            lo, hi = _bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
             R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
         else:
@@ -718,9 +742,8 @@ class RRAE(Filter):
         return RAEState(x0, P, P, _Window.empty(B, self.params.window, model.m))
 
     def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
-        F = model.F(k)
         x = model.f(state.x, k)
-        P = sym(F @ state.P @ mT(F) + model.Q(k))
+        P = predict_cov(model.F(k), state.P, model.Q(k))
         return state._replace(x=x, P=P, P_post=state.P)
 
     def update(self, model: Model, state: RAEState, k: int, z: Array, side: SideInfo):
@@ -732,12 +755,12 @@ class RRAE(Filter):
         R_hat = rae_estimate(state.win.eta, state.win.ok, H, state.P_post, model.R0, state.win.full)
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:
-            lo, hi = rhat_bounds(model.R0)
+            lo, hi = _bounds(model.R0)
             R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
         # 2 innovation statistics with R̂
         ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
-        HPHt = Hm @ P_m @ mT(Hm)
+        U, HPHt = _PHt(P_m, Hm)
         S = sym(HPHt + Rm)
         nt = nu / np.sqrt(diag(S))
         # 3 IGG-III equivalent weights
@@ -756,10 +779,9 @@ class RRAE(Filter):
             nu_w = np.where(zone == 2, 0.0, nu)
         # 5 gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
         S_bar = sym(HPHt + R_bar)
-        K, fixed = gain(P_m, Hm, S_bar)
+        K, fixed = _gain(U, S_bar)
         x = x_m + mv(K, nu_w)
-        n = x.shape[1]
-        P = sym((np.eye(n) - K @ Hm) @ P_m)
+        P = sym(P_m - K @ mT(U))  # (I − K H) P⁻, with H P⁻ = Uᵀ (P⁻ symmetric)
         # 6 posterior residual into the window
         win = state.win.push(z - model.h(x, k), ok)
         flags[zone == 1] = DOWNWEIGHTED
@@ -838,14 +860,15 @@ class RAKF(Filter):
         nu_raw = z - model.h(x_m, k)
         ok = np.isfinite(z)
         R = state.R
+        U, HPHt = _PHt(P_m, H)
         if p.adapt:
-            lo, hi = rhat_bounds(model.R0)
-            HPHt0 = H @ P_m @ mT(H)
+            lo, hi = _bounds(model.R0)
             d = forgetting_weight(kk, p.b)
-            R, clamped = _sage_husa_R(state.R, nu_raw, HPHt0, ok, d, lo, hi)
+            R, clamped = _sage_husa_R(state.R, nu_raw, HPHt, ok, d, lo, hi)
             _flag_fix(flags, clamped)
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R)
-        HPHt = Hm @ P_m @ mT(Hm)
+        if Hm is not H:
+            U, HPHt = _PHt(P_m, Hm)
         # 3 abnormality test and prior-covariance inflation
         nn = np.einsum("bi,bi->b", nu, nu)
         trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
@@ -853,22 +876,22 @@ class RAKF(Filter):
         abnormal = nn > p.gamma_s * (trHPH + trR)
         with np.errstate(divide="ignore", invalid="ignore"):
             lam = np.where(abnormal, np.maximum(1.0, (nn - trR) / np.maximum(trHPH, 1e-300)), 1.0)
-        P_m = P_m * lam[:, None, None]
-        HPHt = HPHt * lam[:, None, None]
+        if abnormal.any():  # (λ = 1 elsewhere: the products are exact there)
+            P_m, U, HPHt = (A * lam[:, None, None] for A in (P_m, U, HPHt))
         # 4 Huber clipping of the whitened innovation
         S = sym(HPHt + Rm)
         L, sfix = _sqrt_factor(S)
         _flag_fix(flags, sfix)
-        e, _ = solve_sym(L, nu[..., None])  # L is triangular, a general solve is exact
-        e = e[..., 0]
+        # an eigen-factor (sfix) is not triangular: a general solve there
+        e = solve_sym(L, nu[..., None])[0][..., 0] if sfix.any() else _forward_subst(L, nu)
         ae = np.abs(e)
         clip = (ae > p.c) & ok
         psi = np.where(clip, p.c * np.sign(e), e)
         nu_c = mv(L, psi)
         # 5 update with the clipped innovation, Joseph form with R̂
-        K, fixed = gain(P_m, Hm, S)
+        K, fixed = _gain(U, S)
         x = x_m + mv(K, nu_c)
-        P = joseph(P_m, K, Hm, Rm)
+        P = joseph_from_gain(P_m, K, U, S)
         flags[abnormal[:, None] & ok & (flags == ACCEPTED)] = EPOCH_ANOMALY
         flags[clip] = DOWNWEIGHTED
         _flag_fix(flags, fixed)
@@ -936,7 +959,7 @@ class RSSHAKF(Filter):
         nu_raw = z - model.h(x_m, k)
         # 1 normalised innovation with R̂_{k−1}
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, state.R)
-        HPHt = Hm @ P_m @ mT(Hm)
+        U, HPHt = _PHt(P_m, Hm)
         Sp = sym(HPHt + Rm)
         nt = nu / np.sqrt(diag(Sp))
         # 2–3 outlier channels: variance inflation R_ii · |ν̃_i|/c_r
@@ -946,17 +969,17 @@ class RSSHAKF(Filter):
         R_used = np.where(eye, Rm * infl[:, None, :], Rm)
         # 4 standard update with R_used (Joseph)
         S = sym(HPHt + R_used)
-        K, fixed = gain(P_m, Hm, S)
+        K, fixed = _gain(U, S)
         x = x_m + mv(K, nu)
-        P = joseph(P_m, K, Hm, R_used)
+        P = joseph_from_gain(P_m, K, U, S)
         # 5 simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
         R = state.R
         if p.adapt:
-            lo, hi = rhat_bounds(model.R0)
+            lo, hi = _bounds(model.R0)
             upd = ok & ~out_ch if p.exclude_outliers else ok
+            HPHt0 = HPHt if Hm is H else _PHt(P_m, H)[1]
             R, clamped = _sage_husa_R(
-                state.R, nu, H @ state.P @ mT(H), upd, forgetting_weight(kk, p.b), lo, hi,
-                diagonal=True,
+                state.R, nu, HPHt0, upd, forgetting_weight(kk, p.b), lo, hi, diagonal=True
             )
             _flag_fix(flags, clamped)
         flags[out_ch] = DOWNWEIGHTED
