@@ -53,6 +53,7 @@ from navlab.filters.base import (
 )
 from navlab.filters.linalg import (
     Array,
+    PHt,
     diag,
     eigh_clamp,
     inv_small,
@@ -165,7 +166,7 @@ def rae_estimate(
     R0 = np.asarray(R0, dtype=float)
     if not full:
         return np.broadcast_to(R0, (B, m, m)).copy()
-    return sym(_residual_cov(eta, eta_ok, R0) + _PHt(P_ref, H)[1])
+    return sym(_residual_cov(eta, eta_ok, R0) + PHt(P_ref, H)[1])
 
 
 def _residual_cov(eta: Array, eta_ok: Array, R0: Array) -> Array:
@@ -274,36 +275,9 @@ def _sqrt_factor(S: Array) -> tuple[Array, Array]:
     return L, bad
 
 
-_SEL_CACHE: dict[tuple, Array | None] = {}
-
-
-def _selection(H: Array) -> Array | None:
-    """Column indices if H is a shared 0/1 selection matrix (one 1 per row), else None."""
-    if H.ndim != 2:
-        return None
-    key = (H.shape, H.tobytes())
-    if key not in _SEL_CACHE:
-        is_sel = np.all((H == 0.0) | (H == 1.0)) and np.all(H.sum(axis=1) == 1.0)
-        if len(_SEL_CACHE) > 64:
-            _SEL_CACHE.clear()
-        _SEL_CACHE[key] = np.argmax(H, axis=1) if is_sel else None
-    return _SEL_CACHE[key]
-
-
-def _PHt(P: Array, H: Array) -> tuple[Array, Array]:
-    """U = P Hᵀ and H P Hᵀ = H U; by indexing when H selects states (exact: the products are
-    with 1 and the sums with 0; a stacked matmul costs ≈ 10× more).
-    """
-    sel = _selection(H)
-    if sel is not None:
-        U = P[..., sel]
-        return U, U[..., sel, :]
-    U = P @ mT(H)
-    return U, H @ U
-
-
 def _gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """K = U S⁻¹ (U = P Hᵀ) with the same result and flag as :func:`linalg.gain`.
+    """K = U S⁻¹ (U = P Hᵀ) with the same result and flag as :func:`linalg.gain`
+    (:func:`linalg.kf_gain` also flags an ill-conditioned S; these filters' flags are gain's).
 
     For m ≤ 3 the closed-form S⁻¹ (adjugate/det); where S is ill-conditioned (det tiny against
     Π diag, which includes every singular S) the whole batch takes gain's LU path instead, so
@@ -313,7 +287,7 @@ def _gain(U: Array, S: Array) -> tuple[Array, Array]:
     if m <= 3 and S.ndim == 3:
         Sinv, ill = inv_small(S)
         if not ill.any():
-            return U @ Sinv, np.zeros(S.shape[0], dtype=bool)
+            return U @ Sinv, ill  # all False
     Kt, fixed = solve_sym(S, mT(U))
     return mT(Kt), fixed
 
@@ -457,7 +431,7 @@ class SageHusa(Filter):
         H = model.H(x_m, k)
         ok = np.isfinite(z)
         nu = z - model.h(x_m, k) - state.r
-        U, HPHt = _PHt(P_m, H)
+        U, HPHt = PHt(P_m, H)
         kk = state.k + 1
         flags = np.zeros(z.shape, dtype=np.int8)
         R = state.R
@@ -468,7 +442,7 @@ class SageHusa(Filter):
             _flag_fix(flags, clamped)
         ok, nu_m, Hm, Rm = mask_missing(z, nu, H, R)
         if Hm is not H:
-            U, HPHt = _PHt(P_m, Hm)
+            U, HPHt = PHt(P_m, Hm)
         S = sym(HPHt + Rm)
         K, fixed = _gain(U, S)
         x = x_m + mv(K, nu_m)
@@ -592,7 +566,7 @@ class IRAKF(Filter):
         Hs = model.H(state.xs, k)
         nu_s = z - model.h(state.xs, k)
         ok, nu_s, Hs, Rs = mask_missing(z, nu_s, Hs, model.R0)
-        Us, HPHs = _PHt(state.Ps, Hs)
+        Us, HPHs = PHt(state.Ps, Hs)
         Ss = sym(HPHs + Rs)
         nt_s = nu_s / np.sqrt(diag(Ss))
         flag_s = (np.abs(nt_s) > p.C) & ok
@@ -618,10 +592,10 @@ class IRAKF(Filter):
             use_prior = np.zeros(B, dtype=bool)
         else:
             use_prior = flag_s.any(axis=1)
-        U, HPHt = _PHt(P_m, H)
+        U, HPHt = PHt(P_m, H)
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:  # rae_estimate with P_ref = P⁻ or P⁺_{k−1} chosen after projecting
-            HPH_ref = np.where(use_prior[:, None, None], HPHt, _PHt(state.P_post, H)[1])
+            HPH_ref = np.where(use_prior[:, None, None], HPHt, PHt(state.P_post, H)[1])
             R_hat = sym(_residual_cov(state.win.eta, state.win.ok, model.R0) + HPH_ref)
             lo, hi = _bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
             R_hat, clamped = _clamp(R_hat, lo, hi)
@@ -632,7 +606,7 @@ class IRAKF(Filter):
         nu_raw = z - model.h(x_m, k)
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R_hat)
         if Hm is not H:
-            U, HPHt = _PHt(P_m, Hm)
+            U, HPHt = PHt(P_m, Hm)
         S = sym(HPHt + Rm)
         K, fixed = _gain(U, S)
         sig = np.sqrt(diag(S))
@@ -760,7 +734,7 @@ class RRAE(Filter):
             _flag_fix(flags, clamped)
         # 2 innovation statistics with R̂
         ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
-        U, HPHt = _PHt(P_m, Hm)
+        U, HPHt = PHt(P_m, Hm)
         S = sym(HPHt + Rm)
         nt = nu / np.sqrt(diag(S))
         # 3 IGG-III equivalent weights
@@ -860,7 +834,7 @@ class RAKF(Filter):
         nu_raw = z - model.h(x_m, k)
         ok = np.isfinite(z)
         R = state.R
-        U, HPHt = _PHt(P_m, H)
+        U, HPHt = PHt(P_m, H)
         if p.adapt:
             lo, hi = _bounds(model.R0)
             d = forgetting_weight(kk, p.b)
@@ -868,7 +842,7 @@ class RAKF(Filter):
             _flag_fix(flags, clamped)
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R)
         if Hm is not H:
-            U, HPHt = _PHt(P_m, Hm)
+            U, HPHt = PHt(P_m, Hm)
         # 3 abnormality test and prior-covariance inflation
         nn = np.einsum("bi,bi->b", nu, nu)
         trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
@@ -959,7 +933,7 @@ class RSSHAKF(Filter):
         nu_raw = z - model.h(x_m, k)
         # 1 normalised innovation with R̂_{k−1}
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, state.R)
-        U, HPHt = _PHt(P_m, Hm)
+        U, HPHt = PHt(P_m, Hm)
         Sp = sym(HPHt + Rm)
         nt = nu / np.sqrt(diag(Sp))
         # 2–3 outlier channels: variance inflation R_ii · |ν̃_i|/c_r
@@ -977,7 +951,7 @@ class RSSHAKF(Filter):
         if p.adapt:
             lo, hi = _bounds(model.R0)
             upd = ok & ~out_ch if p.exclude_outliers else ok
-            HPHt0 = HPHt if Hm is H else _PHt(P_m, H)[1]
+            HPHt0 = HPHt if Hm is H else PHt(P_m, H)[1]
             R, clamped = _sage_husa_R(
                 state.R, nu, HPHt0, upd, forgetting_weight(kk, p.b), lo, hi, diagonal=True
             )
