@@ -195,8 +195,7 @@ def _flag_fix(flags: Array, fixed: Array) -> None:
     """
     fixed = np.asarray(fixed, dtype=bool)
     if fixed.any():
-        fixed = np.broadcast_to(fixed[:, None] if fixed.ndim == 1 else fixed, flags.shape)
-        flags[fixed & (flags == ACCEPTED)] = NUMERICAL_FIX
+        flags[(fixed[:, None] if fixed.ndim == 1 else fixed) & (flags == ACCEPTED)] = NUMERICAL_FIX
 
 
 def _eig_inside(R: Array, lo: float, hi: float) -> Array:
@@ -297,9 +296,11 @@ def _forward_subst(L: Array, v: Array) -> Array:
     costs ≈ 10× more; the same solution up to round-off).
     """
     e = np.empty_like(v)
-    e[:, 0] = v[:, 0] / L[:, 0, 0]
-    for i in range(1, v.shape[-1]):
-        e[:, i] = (v[:, i] - np.einsum("bj,bj->b", L[:, i, :i], e[:, :i])) / L[:, i, i]
+    for i in range(v.shape[-1]):
+        acc = v[:, i]
+        for j in range(i):
+            acc = acc - L[:, i, j] * e[:, j]
+        e[:, i] = acc / L[:, i, i]
     return e
 
 
@@ -341,17 +342,34 @@ def _sage_husa_R(
     simplified per-channel form of §4.9 (off-diagonals 0, each diagonal entry clamped).
     Returns ``(R̂_k (B, m, m), clamped (B, m))``.
     """
-    nu0 = np.where(ok, nu, 0.0)
+    all_ok = ok.all()  # then the np.where below are identities
+    nu0 = nu if all_ok else np.where(ok, nu, 0.0)
     if diagonal:
         r = (1.0 - d) * diag(R_prev) + d * (nu0**2 - diag(HPHt))
-        r = np.where(ok, r, diag(R_prev))
+        if not all_ok:
+            r = np.where(ok, r, diag(R_prev))
         clamped = (r < lo) | (r > hi)
-        r = np.clip(r, lo, hi)
-        return r[..., :, None] * np.eye(r.shape[-1]), clamped
+        return _diag_embed(np.minimum(np.maximum(r, lo), hi)), clamped
     new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
-    okk = ok[:, :, None] & ok[:, None, :]
-    new = np.where(okk, new, R_prev)
+    if not all_ok:
+        new = np.where(ok[:, :, None] & ok[:, None, :], new, R_prev)
     return _clamp(new, lo, hi)
+
+
+def _diag_embed(d: Array) -> Array:
+    """(B, m) -> (B, m, m) diagonal matrices (written through a strided view, no eye product)."""
+    B, m = d.shape
+    out = np.zeros((B, m, m))
+    out.reshape(B, m * m)[:, :: m + 1] = d
+    return out
+
+
+def _scale_diag(A: Array, f: Array) -> Array:
+    """A (B, m, m) with A_ii multiplied by f_i (B, m); off-diagonal entries unchanged."""
+    B, m = f.shape
+    out = np.array(np.broadcast_to(A, (B, m, m)))  # a C-contiguous copy
+    out.reshape(B, m * m)[:, :: m + 1] *= f
+    return out
 
 
 def _check_k0_k1(owner: str, k0: float, k1: float) -> None:
@@ -623,7 +641,7 @@ class IRAKF(Filter):
             # with the down-weighting (S1 shrinks ν only: P then shrinks as if ν were unweighted,
             # which locks out when P⁻ ≫ R̂, e.g. the first epochs of an INS, see the report)
             infl = np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)
-            R_used = np.where(np.eye(m, dtype=bool), Rm * infl[:, None, :], Rm)
+            R_used = _scale_diag(Rm, infl)
             S_used = sym(HPHt + R_used)
             K, fixed2 = _gain(U, S_used)
             fixed = fixed | fixed2
@@ -741,7 +759,6 @@ class RRAE(Filter):
         w, zone = igg3_weights(nt, p.k0, p.k1)
         w = np.where(ok, w, 1.0)
         zone = np.where(ok, zone, 0)
-        eye = np.eye(m, dtype=bool)
         if p.form == "literal_scaling":
             R_bar = Rm
             nu_w = w * nu
@@ -749,7 +766,7 @@ class RRAE(Filter):
             # 4 middle zone: equivalent variance R̄_ii = R̂_ii / w_i; rejection: ν_i ← 0
             mid = zone == 1
             infl = np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0)
-            R_bar = np.where(eye, Rm * infl[:, None, :], Rm)
+            R_bar = _scale_diag(Rm, infl)
             nu_w = np.where(zone == 2, 0.0, nu)
         # 5 gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
         S_bar = sym(HPHt + R_bar)
@@ -939,8 +956,7 @@ class RSSHAKF(Filter):
         # 2–3 outlier channels: variance inflation R_ii · |ν̃_i|/c_r
         out_ch = (np.abs(nt) > p.c_r) & ok
         infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)
-        eye = np.eye(m, dtype=bool)
-        R_used = np.where(eye, Rm * infl[:, None, :], Rm)
+        R_used = _scale_diag(Rm, infl)
         # 4 standard update with R_used (Joseph)
         S = sym(HPHt + R_used)
         K, fixed = _gain(U, S)
