@@ -234,11 +234,20 @@ class FilterRun:
         )
 
 
-def _stack(arrays: Sequence[Any], shape: tuple[int, ...], axis: int = 0) -> Array:
-    """np.stack of arrays broadcast to ``shape`` (only those that need it: broadcast_to is slow)."""
-    return np.stack(
-        [a if np.shape(a) == shape else np.broadcast_to(a, shape) for a in arrays], axis=axis
-    )
+def _stack(arrays: Sequence[Any], shape: tuple[int, ...]) -> Array:
+    """The per-epoch arrays stacked and broadcast to (L, *shape) (a read-only view may result).
+
+    The usual case — every epoch's array has the same shape, e.g. a P shared by all runs — is one
+    np.stack and one broadcast of the result (broadcast_to costs ≈ 10 µs of Python per call).
+    """
+    try:
+        st = np.stack(arrays)
+    except ValueError:  # shapes differ between epochs (a P that became per-run)
+        return np.stack([a if np.shape(a) == shape else np.broadcast_to(a, shape) for a in arrays])
+    if st.shape[1:] == shape:
+        return st
+    st = st.reshape((len(arrays),) + (1,) * (len(shape) + 1 - st.ndim) + st.shape[1:])
+    return np.broadcast_to(st, (len(arrays), *shape))
 
 
 def _quad_lapack(v: Array, S: Array) -> Array:
@@ -310,46 +319,52 @@ class _Recorder:
         self.stats: dict[str, Array] = {}
         self.runtime = 0.0
         self.diverged_at = np.full(B, -1)
-        self._pending: list[tuple[int, Any, Array | None]] = []
+        self._pending: list[tuple[int, Any]] = []
+        self.x_true = data.x_true if data.has_truth else None
         self._block = int(np.clip(4e6 / (8 * B * (n * n + m * m)), 1, 32))
 
-    def put(self, k: int, out: Any, x_true: Array | None) -> None:
-        self._pending.append((k, out, x_true))
+    def put(self, k: int, out: Any) -> None:
+        self._pending.append((k, out))
         if len(self._pending) >= self._block:
             self._flush()
 
-    def _put_field(self, dest: Array, ks: Any, vals: list[Any]) -> None:
-        """Write per-epoch values (None: keep the default) into dest[:, k] for k in ks."""
+    def _put_field(self, dest: Array, ks: Any, vals: list[Any], diagonal: bool = False) -> None:
+        """Write per-epoch values (None: keep the default) into dest[:, k] for k in ks; with
+        ``diagonal`` the values are matrices whose diagonal is written.
+        """
         if all(v is not None for v in vals):
-            shape = (dest.shape[0], *dest.shape[2:])
-            dest[:, ks] = _stack(vals, shape, axis=1)
+            shape = (dest.shape[0], *dest.shape[2:], *dest.shape[-1:]) if diagonal else (
+                dest.shape[0], *dest.shape[2:])
+            st = _stack(vals, shape)
+            if diagonal:
+                st = np.diagonal(st, axis1=-2, axis2=-1)
+            dest[:, ks] = st.swapaxes(0, 1)
             return
         for k, v in zip(range(dest.shape[1])[ks], vals, strict=True):
             if v is not None:
-                dest[:, k] = v
+                dest[:, k] = diag(v) if diagonal else v
 
     def _flush(self) -> None:
         items, self._pending = self._pending, []
         if not items:
             return
         B = self.B
-        ks: Any = [k for k, _, _ in items]
+        ks: Any = [k for k, _ in items]
         if ks == list(range(ks[0], ks[-1] + 1)):
             ks = slice(ks[0], ks[-1] + 1)  # the usual case: a basic slice, not a fancy index
-        outs = [o for _, o, _ in items]
-        t = lambda arrs: np.stack(arrs, axis=1)  # noqa: E731  (B, L, …)
-        x = t([o.x for o in outs])
-        n, m = x.shape[-1], outs[0].innov.shape[-1]
+        outs = [o for _, o in items]
+        n, m = self.x.shape[-1], self.innov.shape[-1]
+        x = np.stack([o.x for o in outs], axis=1)  # (B, L, n)
         P = _stack([o.P for o in outs], (B, n, n))  # (L, B, n, n)
         Pd = np.diagonal(P, axis1=-2, axis2=-1).swapaxes(0, 1)
         self.x[:, ks] = x
         self.P_diag[:, ks] = Pd
-        self.innov[:, ks] = t([o.innov for o in outs])
+        self.innov[:, ks] = np.stack([o.innov for o in outs], axis=1)
         S = _stack([o.S for o in outs], (B, m, m))
         self.S_diag[:, ks] = np.diagonal(S, axis1=-2, axis2=-1).swapaxes(0, 1)
-        self.R_used[:, ks] = _stack([diag(o.R_used) for o in outs], (B, m), axis=1)
+        self._put_field(self.R_used, ks, [o.R_used for o in outs], diagonal=True)
         if self.R_hat is not None:
-            self._put_field(self.R_hat, ks, [None if o.R_hat is None else diag(o.R_hat) for o in outs])
+            self._put_field(self.R_hat, ks, [o.R_hat for o in outs], diagonal=True)
         self._put_field(self.weights, ks, [o.weights for o in outs])
         self._put_field(self.flags, ks, [o.flags for o in outs])
         for name in dict.fromkeys(s for o in outs for s in o.stats):
@@ -365,14 +380,14 @@ class _Recorder:
         if no_nis:
             inn = np.stack([outs[j].innov for j in no_nis])
             self.nis[:, [items[j][0] for j in no_nis]] = _quad_stack(inn, S[no_nis]).T
-        if items[0][2] is not None:
-            dx = np.stack([o.x - xt for _, o, xt in items])
+        if self.x_true is not None:
+            dx = (x - self.x_true[:, ks]).swapaxes(0, 1)
             self.nees[:, ks] = _quad_stack(dx, P).T
         ok = np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2)  # (B, L)
         bad = ~ok.all(axis=1) & (self.diverged_at < 0)
         if bad.any():
             first = np.argmin(ok[bad], axis=1)
-            self.diverged_at[bad] = np.asarray([k for k, _, _ in items])[first]
+            self.diverged_at[bad] = np.asarray([k for k, _ in items])[first]
 
     def result(self) -> FilterRun:
         self._flush()
@@ -398,22 +413,21 @@ def run_filters(
     states = [f.init(model, data.x0, data.P0) for f in filters]
     recs = [_Recorder(f, data) for f in filters]
     K = data.K
-    for k in range(1, K + 1):
-        zk = data.z[:, k]
-        side = data.side(k)
-        xt = data.x_true[:, k] if data.has_truth else None
-        for i, f in enumerate(filters):
-            rec = recs[i]
-            t0 = time.perf_counter()
-            # a run that blows up is caught below by the finiteness check and reported as
-            # diverged (left out of the metrics); it must not stop the other runs
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+    # a run that blows up is caught by the recorder's finiteness check and reported as diverged
+    # (left out of the metrics); it must not stop the other runs
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for k in range(1, K + 1):
+            zk = data.z[:, k]
+            side = data.side(k)
+            for i, f in enumerate(filters):
+                rec = recs[i]
+                t0 = time.perf_counter()
                 st = f.predict(model, states[i], k)
                 states[i], out = f.update(model, st, k, zk, side)
-            rec.runtime += time.perf_counter() - t0
-            rec.put(k, out, xt)
-        if on_epoch is not None:
-            on_epoch(k, K)
+                rec.runtime += time.perf_counter() - t0
+                rec.put(k, out)
+            if on_epoch is not None:
+                on_epoch(k, K)
     return {f.key: r.result() for f, r in zip(filters, recs, strict=True)}
 
 
