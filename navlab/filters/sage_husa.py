@@ -201,21 +201,20 @@ def _flag_fix(flags: Array, fixed: Array) -> None:
 def _eig_inside(R: Array, lo: float, hi: float) -> Array:
     """(B,) True where every eigenvalue of symmetric R certainly lies inside (lo, hi).
 
-    m = 2: the closed-form eigenvalues (trace/2 ± √(((a − c)/2)² + b²)); otherwise Gershgorin
-    discs (each eigenvalue lies within R_ii ± Σ_j≠i |R_ij| of some i). A relative margin of 1e-10
-    covers the round-off of these formulas; NaN compares False. False only means "not sure".
+    m = 2: the closed-form eigenvalues (a + c ∓ √((a − c)² + 4b²))/2; otherwise Gershgorin
+    discs (each eigenvalue lies within R_ii ± Σ_j≠i |R_ij| of some i). Either is accurate to a
+    few ulp of max |λ| < hi, far inside the margin δ = 1e-9·hi; NaN compares False. False only
+    means "not sure".
     """
     m = R.shape[-1]
-    d = diag(R)
+    delta = 1e-9 * hi
     if m == 2:
-        a, b, c = d[:, 0], R[:, 0, 1], d[:, 1]
-        mid = 0.5 * (a + c)
-        rad = np.sqrt((0.5 * (a - c)) ** 2 + b * b)
-        tol = 1e-10 * (np.abs(mid) + rad)
-        return (mid - rad > lo + tol) & (mid + rad < hi - tol)
+        a, b, c = R[:, 0, 0], R[:, 0, 1], R[:, 1, 1]
+        t, r = a + c, np.hypot(a - c, b + b)  # 2·mid, 2·radius
+        return (t - r > 2.0 * (lo + delta)) & (t + r < 2.0 * (hi - delta))
+    d = diag(R)
     rad = np.abs(R).sum(axis=-1) - np.abs(d)
-    tol = 1e-10 * (np.abs(d) + rad)
-    return np.all((d - rad > lo + tol) & (d + rad < hi - tol), axis=-1)
+    return np.all((d - rad > lo + delta) & (d + rad < hi - delta), axis=-1)
 
 
 def _clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
@@ -614,9 +613,9 @@ class IRAKF(Filter):
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:  # rae_estimate with P_ref = P⁻ or P⁺_{k−1} chosen after projecting
             HPH_ref = np.where(use_prior[:, None, None], HPHt, PHt(state.P_post, H)[1])
-            R_hat = sym(_residual_cov(state.win.eta, state.win.ok, model.R0) + HPH_ref)
+            R_hat = _residual_cov(state.win.eta, state.win.ok, model.R0) + HPH_ref
             lo, hi = _bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
-            R_hat, clamped = _clamp(R_hat, lo, hi)
+            R_hat, clamped = _clamp(R_hat, lo, hi)  # (symmetrises R̂)
             _flag_fix(flags, clamped)
         else:
             R_hat = _batched(np.asarray(model.R0, dtype=float), B)
@@ -743,13 +742,15 @@ class RRAE(Filter):
         B, m = z.shape
         x_m, P_m = state.x, state.P
         H = model.H(x_m, k)
-        # 1 RAE R̂ with P⁺_{k−1} (S1 eq. 3)
-        R_hat = rae_estimate(state.win.eta, state.win.ok, H, state.P_post, model.R0, state.win.full)
+        # 1 RAE R̂ with P⁺_{k−1} (S1 eq. 3: rae_estimate, symmetrised by the clamp)
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:
+            R_hat = _residual_cov(state.win.eta, state.win.ok, model.R0) + PHt(state.P_post, H)[1]
             lo, hi = _bounds(model.R0)
             R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
+        else:
+            R_hat = _batched(np.asarray(model.R0, dtype=float), B)
         # 2 innovation statistics with R̂
         ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
         U, HPHt = PHt(P_m, Hm)
