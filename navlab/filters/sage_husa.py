@@ -54,6 +54,7 @@ from navlab.filters.base import (
 from navlab.filters.linalg import (
     Array,
     PHt,
+    bcast,
     diag,
     eigh_clamp,
     inv_small,
@@ -305,7 +306,7 @@ def _forward_subst(L: Array, v: Array) -> Array:
 
 def _zero_columns(K: Array, B: int, reject: Array) -> Array:
     """K with column i zeroed where reject[b, i]: (B, n, m)."""
-    return np.broadcast_to(K, (B, *K.shape[-2:])) * ~reject[:, None, :]
+    return bcast(K, (B, *K.shape[-2:])) * ~reject[:, None, :]
 
 
 class _Window(NamedTuple):
@@ -366,7 +367,7 @@ def _diag_embed(d: Array) -> Array:
 def _scale_diag(A: Array, f: Array) -> Array:
     """A (B, m, m) with A_ii multiplied by f_i (B, m); off-diagonal entries unchanged."""
     B, m = f.shape
-    out = np.array(np.broadcast_to(A, (B, m, m)))  # a C-contiguous copy
+    out = bcast(A, (B, m, m)).copy()  # C-contiguous
     out.reshape(B, m * m)[:, :: m + 1] *= f
     return out
 
