@@ -6,7 +6,8 @@
   shared, not copied: nothing may mutate them.
 * :func:`metrics_cached` — ``st.cache_data`` of the tidy metric table per spec (sweeps, bounded).
 * :func:`run_live` — run a spec in a few chunks of Monte Carlo runs, calling ``render`` with the
-  accumulated results after each chunk (progress bar, optional Stop button). A rerun that
+  accumulated results after each chunk (progress bar, optional Stop button); a run this process
+  has seen to take under ``STREAM_ABOVE_S`` is one chunk (see :func:`iter_chunks`). A rerun that
   interrupts it (a view control, Stop) keeps the partial results in the session and the next run
   of the same spec resumes from them: run r always draws from its own seed, so chunking never
   changes the numbers.
@@ -122,23 +123,67 @@ def _concat_data(a: Any, b: Any) -> Any:
                                      for f in per_run})
 
 
+# What every filter cost per epoch in this process, per scenario: (runs in that batch, seconds).
+# Only for choosing how to chunk a run (never shown as a measurement).
+_COST: dict[tuple[str, str], tuple[int, float]] = {}
+STREAM_ABOVE_S = 1.5  # a run expected to take less than this is computed in one batch
+
+
+def learn_cost(scenario: str, runs: int, K: int, out: dict[str, FilterRun]) -> None:
+    """Remember each filter's seconds per epoch (the largest batch seen is kept)."""
+    for key, fr in out.items():
+        if runs >= _COST.get((scenario, key), (0, 0.0))[0]:
+            _COST[(scenario, key)] = (runs, fr.runtime_s / max(K, 1))
+
+
+def estimated_seconds(spec: ExperimentSpec, K: int, runs: int) -> float | None:
+    """Filter time of ``runs`` more runs of ``spec`` from the costs learned so far (None: a
+    filter not seen yet on this scenario). Per-epoch cost is overhead-bound up to the batch
+    size it was measured at and taken as linear in the runs beyond it (an overestimate).
+    """
+    total = 0.0
+    for key in spec.filters:
+        hit = _COST.get((spec.scenario, key))
+        if hit is None or K <= 0:
+            return None
+        total += hit[1] * K * max(1.0, runs / hit[0])
+    return total
+
+
 def iter_chunks(
-    spec: ExperimentSpec, start: Results | None = None, first_chunk: int | None = None
+    spec: ExperimentSpec,
+    start: Results | None = None,
+    first_chunk: int | None = None,
+    on_epoch: Callable[[float], None] | None = None,
 ) -> Iterator[Results]:
     """Like :func:`navlab.experiment.iter_experiment`, but resumable from partial results.
 
+    Chunks: a quick first one (about a tenth of the runs), then the rest — unless the whole
+    remainder is expected (from this process's earlier runs) to take less than
+    ``STREAM_ABOVE_S``: then one batch, since every batch pays the per-epoch overhead of every
+    filter again and streaming a short run only makes it slower. ``first_chunk`` overrides.
+    ``on_epoch(runs_done)`` reports progress within a batch (fractional runs).
     ``Results.elapsed_s`` is the compute time (simulation + filtering) summed over chunks.
     """
     p = plan(spec)
     done = 0 if start is None else start.done_runs
     acc = start
     elapsed = 0.0 if start is None else start.elapsed_s
-    n = min(spec.runs - done, first_chunk or first_chunk_size(spec.runs))
+    remaining = spec.runs - done
+    n = min(remaining, first_chunk or first_chunk_size(spec.runs))
+    if first_chunk is None:
+        est = estimated_seconds(spec, p.scenario.epochs, remaining)
+        if est is not None and est <= STREAM_ABOVE_S:
+            n = remaining
     while done < spec.runs:
         t0 = time.perf_counter()
         runs = list(range(done, done + n))
         data = p.scenario.simulate(p.schedule, p.outliers, runs, spec.seed)
-        out = run_filters(data, p.filters)
+        tick = None
+        if on_epoch is not None:
+            tick = lambda k, K, d=done, b=n: on_epoch(d + b * k / K)  # noqa: E731
+        out = run_filters(data, p.filters, tick)
+        learn_cost(spec.scenario, n, data.K, out)
         if acc is None:
             acc_data, acc_runs = data, out
         else:
@@ -214,8 +259,16 @@ def run_live(
     if start is not None and render is not None:
         render(start)
     t0 = time.perf_counter()
+    shown = [0.0]
+
+    def tick(runs_done: float) -> None:  # progress within a batch, at most every 5 %
+        if runs_done - shown[0] >= 0.05 * spec.runs:
+            shown[0] = runs_done
+            prog.progress(min(1.0, runs_done / spec.runs),
+                          text=f"{runs_done:.0f}/{spec.runs} runs…")
+
     try:
-        for res in iter_chunks(spec, start, first_chunk):
+        for res in iter_chunks(spec, start, first_chunk, tick):
             _partials()[page] = (key, res)
             prog.progress(res.done_runs / spec.runs,
                           text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute")

@@ -101,8 +101,8 @@ def test_run_without_live_updates(open_page, monkeypatch):
     sizes = []
     real = runner.iter_chunks
 
-    def spy(spec, start=None, first_chunk=None):
-        for r in real(spec, start, first_chunk):
+    def spy(spec, start=None, first_chunk=None, on_epoch=None):
+        for r in real(spec, start, first_chunk, on_epoch):
             sizes.append(r.done_runs)
             yield r
 

@@ -12,6 +12,7 @@ from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
 from navlab.ui import figures as F
 from navlab.ui.colors import PINNED, filter_color, filter_colors
+from navlab.ui import runner
 from navlab.ui.runner import ResultStore, iter_chunks, next_chunk_size
 from navlab.ui.share import parse_config
 from navlab.ui.sweep import apply, grid, sweepables
@@ -119,6 +120,24 @@ def test_chunked_and_resumed_runs_equal_one_shot(res):
         for k in res.runs:
             np.testing.assert_array_equal(r.runs[k].x, res.runs[k].x)
     assert next_chunk_size(90) == 90 and next_chunk_size(900) == 300
+
+
+def test_a_run_expected_to_be_short_is_one_batch(monkeypatch):
+    """Streaming costs every filter's per-epoch overhead once per batch: a run this process has
+    seen to be quick is computed in one batch, an unknown or a long one streams."""
+    monkeypatch.setattr(runner, "_COST", {})
+    spec = dataclasses.replace(SPEC, runs=40)
+    ticks: list[float] = []
+    cold = list(iter_chunks(spec, on_epoch=ticks.append))
+    assert [c.done_runs for c in cold] == [4, 40]  # nothing known: a quick first chunk
+    assert ticks == sorted(ticks) and ticks[-1] == 40 and 0 < ticks[0] < 4
+    assert runner.estimated_seconds(spec, 30, 40) < runner.STREAM_ABOVE_S
+    warm = list(iter_chunks(spec))
+    assert [c.done_runs for c in warm] == [40]
+    np.testing.assert_array_equal(warm[0].runs["kf"].x, cold[-1].runs["kf"].x)
+    runner._COST[("cv2d", "kf")] = (36, 1.0)  # as if kf took 1 s per epoch
+    assert [c.done_runs for c in iter_chunks(spec)] == [4, 40]
+    assert runner.estimated_seconds(dataclasses.replace(spec, filters=("hakf",)), 30, 40) is None
 
 
 def test_result_store_is_bounded():
