@@ -180,6 +180,10 @@ def quad(v: Array, S: Array) -> Array:
     """Quadratic form ``vᵀ S⁻¹ v`` for v (B, m), S (m, m) or (B, m, m) -> (B,)."""
     if S.ndim == 2:
         return np.einsum("bi,bi->b", v, np.linalg.solve(S, v.T).T)
+    if S.shape[-1] == 2:  # closed form: (s11 v0² − 2 s01 v0 v1 + s00 v1²) / det S
+        a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+        v0, v1 = v[:, 0], v[:, 1]
+        return (d * v0 * v0 - 2.0 * b * v0 * v1 + a * v1 * v1) / (a * d - b * b)
     return np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
 
 

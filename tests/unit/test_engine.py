@@ -222,3 +222,33 @@ def test_scenario_filter_defaults_apply_and_the_spec_overrides_them(monkeypatch)
     spec = ExperimentSpec(filters=("chi2-kf",), runs=1, filter_params={"chi2-kf": {"c_gate": 2.0}})
     f = plan(spec).filters[0]
     assert f.params.per_channel and f.params.c_gate == 2.0
+
+
+def test_small_matrix_kernels_equal_lapack():
+    """The closed-form kernels the filters use for m ≤ 3 equal LAPACK's solutions."""
+    from navlab.filters.linalg import PHt, inv_small, kf_gain, quad
+
+    rng = np.random.default_rng(2)
+    for m in (1, 2, 3, 4):
+        A = rng.standard_normal((50, m, m))
+        S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(m)
+        U = rng.standard_normal((50, 5, m))
+        v = rng.standard_normal((50, m))
+        K, fixed = kf_gain(U, S)
+        np.testing.assert_allclose(K, U @ np.linalg.inv(S), rtol=1e-9, atol=1e-12)
+        assert not fixed.any()
+        ref = np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
+        np.testing.assert_allclose(quad(v, S), ref, rtol=1e-9)
+        if m <= 3:
+            inv, ill = inv_small(S)
+            np.testing.assert_allclose(inv, np.linalg.inv(S), rtol=1e-9, atol=1e-12)
+            assert not ill.any()
+    S = np.broadcast_to(np.eye(2), (4, 2, 2)).copy()
+    S[1] = [[1.0, 1.0], [1.0, 1.0]]  # singular: LU with jitter, flagged
+    K, fixed = kf_gain(np.ones((4, 3, 2)), S)
+    assert fixed.tolist() == [False, True, False, False] and np.isfinite(K).all()
+    H = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # a selection: indexing instead of products
+    P = rng.standard_normal((6, 3, 3))
+    U, HU = PHt(P, H)
+    np.testing.assert_array_equal(U, P @ H.T)
+    np.testing.assert_allclose(HU, H @ P @ H.T, rtol=1e-15)
