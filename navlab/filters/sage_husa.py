@@ -115,16 +115,25 @@ def irakf_weights(
     """
     a = np.abs(nu_tilde)
     above0, above1 = a > k0, a > k1
-    zone = np.where(above1, np.int8(2), above0.astype(np.int8))
+    zone = _zone(above0, above1, k0, k1)
     if middle == "literal":
         if sigma is None:
             raise ValueError("middle='literal' needs sigma")
         with np.errstate(divide="ignore"):
             mid = 1.0 / (k1 * sigma)
+    elif k0 > 0:  # k0/max(|ν̃|, k0) is k0/|ν̃| in the middle zone and exactly 1 below it (fmax: NaN → 1)
+        return np.where(above1, 0.0, k0 / np.fmax(a, k0)), zone
     else:
         mid = k0 / np.where(a > 0, a, 1.0)
     w = np.where(above1, 0.0, np.where(above0, mid, 1.0))
     return w, zone
+
+
+def _zone(above0: Array, above1: Array, k0: float, k1: float) -> Array:
+    """Zone code 0/1/2 (int8) from |ν̃| > k0 and |ν̃| > k1."""
+    if k1 >= k0:  # then above1 implies above0: the sum of the two 0/1 bytes
+        return above0.view(np.int8) + above1.view(np.int8)
+    return np.where(above1, np.int8(2), above0.astype(np.int8))
 
 
 def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
@@ -135,7 +144,7 @@ def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
     """
     a = np.abs(nu_tilde)
     above0, above1 = a > k0, a > k1
-    zone = np.where(above1, np.int8(2), above0.astype(np.int8))
+    zone = _zone(above0, above1, k0, k1)
     span = max(k1 - k0, 1e-300)
     mid = (k0 / np.where(a > 0, a, 1.0)) * ((k1 - a) / span) ** 2
     w = np.where(above1, 0.0, np.where(above0, mid, 1.0))
@@ -953,8 +962,7 @@ class RSSHAKF(Filter):
         # 1 normalised innovation with R̂_{k−1}
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, state.R)
         U, HPHt = PHt(P_m, Hm)
-        Sp = sym(HPHt + Rm)
-        nt = nu / np.sqrt(diag(Sp))
+        nt = nu / np.sqrt(diag(HPHt) + diag(Rm))  # diag of sym(H P⁻ Hᵀ + R̂_{k−1}), exactly
         # 2–3 outlier channels: variance inflation R_ii · |ν̃_i|/c_r
         out_ch = (np.abs(nt) > p.c_r) & ok
         infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)
