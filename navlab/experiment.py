@@ -284,6 +284,10 @@ def _quad_ldl(v: Array, S: Array) -> Array:
 def _quad_stack(v: Array, S: Array) -> Array:
     """vᵀ S⁻¹ v for v (L, B, d), S (L, B, d, d) -> (L, B); NaN where S is singular or not finite."""
     shape, d = v.shape[:2], v.shape[-1]
+    if S.shape[1] > 1 and S.strides[1] == 0:  # one S per epoch shared by every run (the KF's P)
+        with np.errstate(all="ignore"), contextlib.suppress(np.linalg.LinAlgError):
+            X = np.linalg.solve(S[:, 0], v.swapaxes(1, 2))  # (L, d, B): one solve per epoch
+            return np.einsum("lbi,lib->lb", v, X)
     v, S = v.reshape(-1, d), S.reshape(-1, d, d)
     with np.errstate(all="ignore"):
         if d > 8 or v.shape[0] < 512:
