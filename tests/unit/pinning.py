@@ -2,7 +2,48 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from pathlib import Path
+
 import numpy as np
+import pytest
+
+Cases = Callable[..., dict[str, np.ndarray]]
+
+
+def pin_fixtures(all_cases: Cases, pin: Path):
+    """Module-scoped fixtures ``current``, ``jittered`` (z perturbed at 1e-15 relative) and
+    ``pinned`` for a test module whose ``all_cases(perturb)`` computes every pinned quantity."""
+
+    @pytest.fixture(scope="module")
+    def current():
+        return all_cases()
+
+    @pytest.fixture(scope="module")
+    def jittered():
+        return all_cases(1e-15)
+
+    @pytest.fixture(scope="module")
+    def pinned():
+        with np.load(pin) as d:
+            return dict(d)
+
+    return current, jittered, pinned
+
+
+def case_names(pin: Path) -> list[str]:
+    """The pinned cases (keys are ``case/quantity``)."""
+    return sorted({k.rsplit("/", 1)[0] for k in np.load(pin).files}) if pin.exists() else []
+
+
+def regenerate(all_cases: Cases, pin: Path) -> None:
+    """Overwrite the pinned reference (only with NAVLAB_REGEN_PIN=1: a deliberate act)."""
+    if os.environ.get("NAVLAB_REGEN_PIN") != "1":
+        raise SystemExit("set NAVLAB_REGEN_PIN=1 to overwrite the pinned reference")
+    pin.parent.mkdir(exist_ok=True)
+    np.savez_compressed(pin, **all_cases())
+    print(f"wrote {pin} ({pin.stat().st_size} bytes)")
 
 
 def rel_diff(a: np.ndarray, b: np.ndarray, q: str) -> float:

@@ -16,12 +16,11 @@ Regenerate only deliberately: ``NAVLAB_REGEN_PIN=1 python tests/unit/test_linear
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
-from pinning import assert_matches_pin
+from pinning import assert_matches_pin, case_names, pin_fixtures, regenerate
 
 from navlab.errors import NavlabError
 from navlab.filters.base import LinearModel, SideInfo, make_filter
@@ -152,20 +151,7 @@ def all_cases(perturb: float = 0.0) -> dict[str, np.ndarray]:
     return out
 
 
-@pytest.fixture(scope="module")
-def current():
-    return all_cases()
-
-
-@pytest.fixture(scope="module")
-def jittered():
-    return all_cases(1e-15)
-
-
-@pytest.fixture(scope="module")
-def pinned():
-    with np.load(PIN) as d:
-        return dict(d)
+current, jittered, pinned = pin_fixtures(all_cases, PIN)
 
 
 def test_pinned_cases_exercise_the_branches(pinned):
@@ -177,7 +163,7 @@ def test_pinned_cases_exercise_the_branches(pinned):
     assert "corr/student-t-kf/x" in pinned  # a full R reached the filters that accept one
 
 
-CASE_NAMES = sorted({k.rsplit("/", 1)[0] for k in np.load(PIN).files}) if PIN.exists() else []
+CASE_NAMES = case_names(PIN)
 
 
 @pytest.mark.parametrize("case", CASE_NAMES)
@@ -187,8 +173,4 @@ def test_outputs_equal_the_pinned_reference(case, current, jittered, pinned):
 
 
 if __name__ == "__main__":
-    if os.environ.get("NAVLAB_REGEN_PIN") != "1":
-        raise SystemExit("set NAVLAB_REGEN_PIN=1 to overwrite the pinned reference")
-    PIN.parent.mkdir(exist_ok=True)
-    np.savez_compressed(PIN, **all_cases())
-    print(f"wrote {PIN} ({PIN.stat().st_size} bytes)")
+    regenerate(all_cases, PIN)
