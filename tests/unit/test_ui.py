@@ -11,8 +11,8 @@ import pytest
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
 from navlab.ui import figures as F
-from navlab.ui.colors import PINNED, filter_color, filter_colors
 from navlab.ui import runner
+from navlab.ui.colors import PINNED, filter_color, filter_colors
 from navlab.ui.runner import ResultStore, iter_chunks, next_chunk_size
 from navlab.ui.share import parse_config
 from navlab.ui.sweep import apply, grid, sweepables
