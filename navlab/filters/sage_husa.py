@@ -16,6 +16,14 @@ posterior residuals, and (except the classic SHAKF) protects itself against outl
 The weight functions and the RAE estimate are module-level pure functions so that tests (and the
 app) can call them on their own.
 
+Implementation note (speed; issue 6). With B runs of tiny matrices numpy's per-call overhead, not
+arithmetic, is the cost, so the updates avoid LAPACK and n×n×n products per epoch: U = P⁻Hᵀ and
+H P⁻ Hᵀ by indexing when H selects states (:func:`linalg.PHt`), the gain from the closed-form
+S⁻¹ for m ≤ 3 (:func:`_gain`, LU when S is ill-conditioned), the Joseph form from U and S
+(:func:`linalg.joseph_from_gain`, its exact expansion), and the eigenvalue clamp of R̂ only on the
+runs whose eigenvalues are not certainly inside the bounds (:func:`_clamp`). Every result equals
+the straightforward formulas up to round-off (tests/unit/test_linear_pinned.py).
+
 References
 ----------
 A. P. Sage, G. W. Husa, "Adaptive filtering with unknown prior statistics", JACC 1969.
@@ -284,12 +292,11 @@ def _sqrt_factor(S: Array) -> tuple[Array, Array]:
 
 
 def _gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """K = U S⁻¹ (U = P Hᵀ) with the same result and flag as :func:`linalg.gain`
-    (:func:`linalg.kf_gain` also flags an ill-conditioned S; these filters' flags are gain's).
+    """K = U S⁻¹ (U = P Hᵀ): the result and the flag of :func:`linalg.gain`, faster.
 
-    For m ≤ 3 the closed-form S⁻¹ (adjugate/det); where S is ill-conditioned (det tiny against
-    Π diag, which includes every singular S) the whole batch takes gain's LU path instead, so
-    ``fixed`` is exactly gain's.
+    For a batched S with m ≤ 3 the closed-form S⁻¹ (adjugate/det). Where any S is
+    ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes gain's
+    LU path, so ``fixed`` is exactly gain's (:func:`linalg.kf_gain` would also flag those runs).
     """
     m = S.shape[-1]
     if m <= 3 and S.ndim == 3:
