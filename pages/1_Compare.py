@@ -24,7 +24,8 @@ if c1.button("Run", type="primary", key="run_compare"):
 config_download(spec, key="dl_cfg_compare", container=c2)
 live = c3.toggle("Live updates", value=True, key="compare_live",
                  help="redraw as batches of runs finish (Stop possible between batches); a "
-                      "run expected to take under 1.5 s is one batch anyway. Off: always one "
+                      "run expected to be short, or whose first batch would cost most of the "
+                      "whole, is one batch anyway. Off: always one "
                       "batch, which is faster because every batch pays the per-epoch overhead "
                       "of every filter once")
 c4.caption(f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "

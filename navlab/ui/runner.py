@@ -6,8 +6,8 @@
   shared, not copied: nothing may mutate them.
 * :func:`metrics_cached` — ``st.cache_data`` of the tidy metric table per spec (sweeps, bounded).
 * :func:`run_live` — run a spec in a few chunks of Monte Carlo runs, calling ``render`` with the
-  accumulated results after each chunk (progress bar, optional Stop button); a run this process
-  has seen to take under ``STREAM_ABOVE_S`` is one chunk (see :func:`iter_chunks`). A rerun that
+  accumulated results after each chunk (progress bar, optional Stop button); a run that is short
+  or overhead-bound by this process's experience is one chunk (see :func:`iter_chunks`). A rerun that
   interrupts it (a view control, Stop) keeps the partial results in the session and the next run
   of the same spec resumes from them: run r always draws from its own seed, so chunking never
   changes the numbers.
@@ -123,31 +123,58 @@ def _concat_data(a: Any, b: Any) -> Any:
                                      for f in per_run})
 
 
-# What every filter cost per epoch in this process, per scenario: (runs in that batch, seconds).
-# Only for choosing how to chunk a run (never shown as a measurement).
-_COST: dict[tuple[str, str], tuple[int, float]] = {}
+# What every filter cost per epoch in this process, per scenario: {runs in the batch: seconds}
+# (the last few batch sizes). Only for choosing how to chunk a run, never shown as a measurement.
+_COST: dict[tuple[str, str], dict[int, float]] = {}
 STREAM_ABOVE_S = 1.5  # a run expected to take less than this is computed in one batch
+STREAM_GAIN = 0.5  # stream only if the first chunk takes at most this share of one batch
 
 
 def learn_cost(scenario: str, runs: int, K: int, out: dict[str, FilterRun]) -> None:
-    """Remember each filter's seconds per epoch (the largest batch seen is kept)."""
+    """Remember each filter's seconds per epoch at this batch size (the last 4 sizes)."""
     for key, fr in out.items():
-        if runs >= _COST.get((scenario, key), (0, 0.0))[0]:
-            _COST[(scenario, key)] = (runs, fr.runtime_s / max(K, 1))
+        seen = _COST.setdefault((scenario, key), {})
+        seen.pop(runs, None)
+        seen[runs] = fr.runtime_s / max(K, 1)
+        while len(seen) > 4:
+            seen.pop(next(iter(seen)))
+
+
+def _per_epoch(seen: dict[int, float], runs: int) -> float:
+    """Seconds per epoch at ``runs`` from costs at other batch sizes: a + b·runs through the two
+    sizes seen that are farthest apart (per-call overhead a, per-run work b); one size seen:
+    that cost up to its size, linear beyond (an overestimate).
+    """
+    (b1, c1), (b2, c2) = min(seen.items()), max(seen.items())
+    if b1 == b2:
+        return c1 * max(1.0, runs / b1)
+    slope = max(0.0, (c2 - c1) / (b2 - b1))
+    return max(0.0, c1 + slope * (runs - b1))
 
 
 def estimated_seconds(spec: ExperimentSpec, K: int, runs: int) -> float | None:
-    """Filter time of ``runs`` more runs of ``spec`` from the costs learned so far (None: a
-    filter not seen yet on this scenario). Per-epoch cost is overhead-bound up to the batch
-    size it was measured at and taken as linear in the runs beyond it (an overestimate).
+    """Filter time of ``runs`` runs of ``spec`` from the costs learned so far (None: a filter
+    not seen yet on this scenario, or K unknown).
     """
     total = 0.0
     for key in spec.filters:
-        hit = _COST.get((spec.scenario, key))
-        if hit is None or K <= 0:
+        seen = _COST.get((spec.scenario, key))
+        if not seen or K <= 0:
             return None
-        total += hit[1] * K * max(1.0, runs / hit[0])
+        total += K * _per_epoch(seen, runs)
     return total
+
+
+def _one_batch(spec: ExperimentSpec, K: int, remaining: int, first: int) -> bool:
+    """Whether to run the remaining runs as one batch: known to be short, or streaming would
+    not show results much sooner (the first chunk costs nearly a whole batch when per-epoch
+    overhead dominates) and would only add that chunk's time.
+    """
+    total = estimated_seconds(spec, K, remaining)
+    if total is None:
+        return False
+    head = estimated_seconds(spec, K, first)
+    return total <= STREAM_ABOVE_S or (head is not None and head > STREAM_GAIN * total)
 
 
 def iter_chunks(
@@ -158,10 +185,11 @@ def iter_chunks(
 ) -> Iterator[Results]:
     """Like :func:`navlab.experiment.iter_experiment`, but resumable from partial results.
 
-    Chunks: a quick first one (about a tenth of the runs), then the rest — unless the whole
-    remainder is expected (from this process's earlier runs) to take less than
-    ``STREAM_ABOVE_S``: then one batch, since every batch pays the per-epoch overhead of every
-    filter again and streaming a short run only makes it slower. ``first_chunk`` overrides.
+    Chunks: a quick first one (about a tenth of the runs), then the rest — unless the costs
+    learned from this process's earlier runs say the remainder takes less than
+    ``STREAM_ABOVE_S`` or the first chunk would take more than ``STREAM_GAIN`` of one batch:
+    then one batch, since every batch pays the per-epoch overhead of every filter again and
+    streaming such a run only makes it slower. ``first_chunk`` overrides.
     ``on_epoch(runs_done)`` reports progress within a batch (fractional runs).
     ``Results.elapsed_s`` is the compute time (simulation + filtering) summed over chunks.
     """
@@ -171,10 +199,8 @@ def iter_chunks(
     elapsed = 0.0 if start is None else start.elapsed_s
     remaining = spec.runs - done
     n = min(remaining, first_chunk or first_chunk_size(spec.runs))
-    if first_chunk is None:
-        est = estimated_seconds(spec, p.scenario.epochs, remaining)
-        if est is not None and est <= STREAM_ABOVE_S:
-            n = remaining
+    if first_chunk is None and _one_batch(spec, p.scenario.epochs, remaining, n):
+        n = remaining
     while done < spec.runs:
         t0 = time.perf_counter()
         runs = list(range(done, done + n))

@@ -122,22 +122,29 @@ def test_chunked_and_resumed_runs_equal_one_shot(res):
     assert next_chunk_size(90) == 90 and next_chunk_size(900) == 300
 
 
-def test_a_run_expected_to_be_short_is_one_batch(monkeypatch):
+def test_a_run_expected_to_be_short_or_overhead_bound_is_one_batch(monkeypatch):
     """Streaming costs every filter's per-epoch overhead once per batch: a run this process has
-    seen to be quick is computed in one batch, an unknown or a long one streams."""
+    seen to be quick, or whose first chunk would cost nearly a whole batch, is one batch; an
+    unknown run, or a long one whose cost grows with the runs, streams."""
     monkeypatch.setattr(runner, "_COST", {})
     spec = dataclasses.replace(SPEC, runs=40)
     ticks: list[float] = []
     cold = list(iter_chunks(spec, on_epoch=ticks.append))
     assert [c.done_runs for c in cold] == [4, 40]  # nothing known: a quick first chunk
     assert ticks == sorted(ticks) and ticks[-1] == 40 and 0 < ticks[0] < 4
+    assert set(runner._COST[("cv2d", "kf")]) == {4, 36}
     assert runner.estimated_seconds(spec, 30, 40) < runner.STREAM_ABOVE_S
     warm = list(iter_chunks(spec))
     assert [c.done_runs for c in warm] == [40]
     np.testing.assert_array_equal(warm[0].runs["kf"].x, cold[-1].runs["kf"].x)
-    runner._COST[("cv2d", "kf")] = (36, 1.0)  # as if kf took 1 s per epoch
-    assert [c.done_runs for c in iter_chunks(spec)] == [4, 40]
     assert runner.estimated_seconds(dataclasses.replace(spec, filters=("hakf",)), 30, 40) is None
+    for key in spec.filters:  # long and proportional to the runs: 0.01 s + 1 ms per run, per epoch
+        runner._COST[("cv2d", key)] = {4: 0.014, 36: 0.046}
+    assert runner.estimated_seconds(spec, 30, 40) == pytest.approx(3 * 30 * 0.05)
+    assert [c.done_runs for c in iter_chunks(spec)] == [4, 40]
+    for key in spec.filters:  # long but overhead-bound: the first chunk costs most of a batch
+        runner._COST[("cv2d", key)] = {4: 0.100, 36: 0.108}
+    assert [c.done_runs for c in iter_chunks(spec)] == [40]
 
 
 def test_result_store_is_bounded():
