@@ -153,8 +153,9 @@ def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
     a = np.abs(nu_tilde)
     above0, above1 = a > k0, a > k1
     zone = _zone(above0, above1, k0, k1)
+    # k1 ≤ k0: no middle zone (and (k1 − |ν̃|)/1e-300 would overflow)
     span = max(k1 - k0, 1e-300)
-    mid = (k0 / np.where(a > 0, a, 1.0)) * ((k1 - a) / span) ** 2
+    mid = (k0 / np.where(a > 0, a, 1.0)) * ((k1 - a) / span) ** 2 if k1 > k0 else 0.0
     w = np.where(above1, 0.0, np.where(above0, mid, 1.0))
     return w, zone
 

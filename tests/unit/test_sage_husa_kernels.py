@@ -1,0 +1,117 @@
+"""The fast kernels of navlab/filters/sage_husa.py against their straightforward references.
+
+The filters' end-to-end outputs are pinned in test_linear_pinned.py; these tests aim at the edge
+cases of each shortcut (eigenvalues at the clamp bounds, NaN runs, ill-conditioned S, k1 < k0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from navlab.filters.linalg import eigh_clamp, gain, sym
+from navlab.filters.sage_husa import (
+    _clamp,
+    _eig_inside,
+    _forward_subst,
+    _gain,
+    igg3_weights,
+    irakf_weights,
+)
+
+
+def _random_sym(rng, B, m, scale=1.0):
+    A = rng.standard_normal((B, m, m)) * scale
+    return sym(A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(m))
+
+
+def _clamp_reference(R, lo, hi):
+    """The pre-speed-work clamp: eigh on every finite run."""
+    good = np.all(np.isfinite(R), axis=(-2, -1))
+    out = np.full(R.shape, np.nan)
+    out[good], _ = eigh_clamp(R[good], lo, hi)
+    d0, d1 = np.diagonal(R, axis1=-2, axis2=-1), np.diagonal(out, axis1=-2, axis2=-1)
+    with np.errstate(invalid="ignore"):
+        changed = ~good[:, None] | (np.abs(d1 - d0) > 1e-9 * np.maximum(np.abs(d0), lo))
+    return out, changed
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+def test_clamp_equals_eigh_everywhere(m):
+    rng = np.random.default_rng(m)
+    R = _random_sym(rng, 400, m)
+    lo, hi = 0.3, 6.0  # many runs outside on either side, many inside
+    w = np.linalg.eigvalsh(R)
+    assert (w.min(-1) < lo).any() and (w.max(-1) > hi).any()
+    assert ((w.min(-1) > lo) & (w.max(-1) < hi)).any()
+    # eigenvalues exactly at a bound, and a NaN run
+    V = np.linalg.qr(rng.standard_normal((m, m)))[0]
+    R[0] = V @ np.diag(np.r_[lo, np.full(m - 1, 1.0)]) @ V.T
+    R[1] = V @ np.diag(np.r_[hi, np.full(m - 1, 1.0)]) @ V.T
+    R[2, 0, 0] = np.nan
+    out, changed = _clamp(R, lo, hi)
+    ref, ref_changed = _clamp_reference(R, lo, hi)
+    np.testing.assert_array_equal(changed, ref_changed)
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
+    np.testing.assert_allclose(out[3:], ref[3:], rtol=1e-12, atol=1e-12 * hi)
+
+
+def test_eig_inside_is_never_wrong_when_true():
+    rng = np.random.default_rng(7)
+    for m in (2, 3):
+        R = _random_sym(rng, 2000, m, scale=0.8)
+        w = np.linalg.eigvalsh(R)
+        inside = _eig_inside(R, 0.2, 3.0)
+        assert inside.any()
+        assert np.all((w[inside] > 0.2) & (w[inside] < 3.0))
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+def test_gain_equals_linalg_gain_including_the_singular_fallback(m):
+    rng = np.random.default_rng(10 + m)
+    B, n = 50, 5
+    P = _random_sym(rng, B, n)
+    H = rng.standard_normal((m, n))
+    S = sym(H @ P @ H.T + 0.5 * np.eye(m))
+    U = P @ H.T
+    K, fixed = _gain(U, S)
+    K_ref, fixed_ref = gain(P, H, S)
+    np.testing.assert_allclose(K, K_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(fixed, fixed_ref)
+    S[3] = 0.0  # a singular S: the batch takes gain's LU path with its jitter and flag
+    K, fixed = _gain(U, S)
+    K_ref, fixed_ref = gain(P, H, S)
+    np.testing.assert_allclose(K, K_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(fixed, fixed_ref)
+    assert fixed[3]
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 5])
+def test_forward_substitution_solves_the_triangular_system(m):
+    rng = np.random.default_rng(m)
+    L = np.linalg.cholesky(_random_sym(rng, 30, m))
+    v = rng.standard_normal((30, m))
+    e = _forward_subst(L, v)
+    np.testing.assert_allclose((L @ e[..., None])[..., 0], v, rtol=1e-10, atol=1e-12)
+
+
+def _weights_reference(a, k0, k1, mid):
+    zone = np.where(a > k1, 2, np.where(a > k0, 1, 0)).astype(np.int8)
+    return np.where(zone == 0, 1.0, np.where(zone == 1, mid, 0.0)), zone
+
+
+@pytest.mark.parametrize(("k0", "k1"), [(1.5, 3.0), (1.5, 1.5), (0.0, 3.0), (2.0, 1.0)])
+def test_weight_functions_match_their_three_segment_definitions(k0, k1):
+    rng = np.random.default_rng(3)
+    nt = rng.standard_normal((500, 2)) * 3
+    nt[0] = [np.nan, 0.0]
+    nt[1] = [k0, -k1]  # exactly at the thresholds
+    a = np.abs(nt)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        huber = k0 / np.where(a > 0, a, 1.0)
+        igg = huber * ((k1 - a) / max(k1 - k0, 1e-300)) ** 2
+    for got, ref in ((irakf_weights(nt, k0, k1), _weights_reference(a, k0, k1, huber)),
+                     (igg3_weights(nt, k0, k1), _weights_reference(a, k0, k1, igg))):
+        np.testing.assert_array_equal(got[1], ref[1])
+        assert got[1].dtype == np.int8
+        np.testing.assert_array_equal(got[0], ref[0])
