@@ -140,19 +140,18 @@ def PHt(P: Array, H: Array) -> tuple[Array, Array]:
 
 
 def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed).
+    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
+    :func:`gain`, faster.
 
-    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call); where an
-    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the batch takes the LU
-    path of :func:`solve_sym` instead and those runs are flagged ``fixed`` (flag 9) with any
-    that needed jitter.
+    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
+    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
+    the LU path of :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed
+    jitter.
     """
     if S.ndim == 3 and S.shape[-1] <= 3:
         Sinv, ill = inv_small(S)
         if not ill.any():
-            return U @ Sinv, ill
-        Kt, fixed = solve_sym(S, mT(bcast(U, (*S.shape[:1], *U.shape[-2:]))))
-        return mT(Kt), fixed | ill
+            return U @ Sinv, ill  # all False
     Kt, fixed = solve_sym(S, mT(U))
     return mT(Kt), fixed
 

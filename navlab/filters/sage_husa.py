@@ -19,7 +19,7 @@ app) can call them on their own.
 Implementation note (speed; issue 6). With B runs of tiny matrices numpy's per-call overhead, not
 arithmetic, is the cost, so the updates avoid LAPACK and n×n×n products per epoch: U = P⁻Hᵀ and
 H P⁻ Hᵀ by indexing when H selects states (:func:`linalg.PHt`), the gain from the closed-form
-S⁻¹ for m ≤ 3 (:func:`_gain`, LU when S is ill-conditioned), the Joseph form from U and S
+S⁻¹ for m ≤ 3 (:func:`linalg.kf_gain`, LU when S is ill-conditioned), the Joseph form from U and S
 (:func:`linalg.joseph_from_gain`, its exact expansion), and the eigenvalue clamp of R̂ only on the
 runs whose eigenvalues are not certainly inside the bounds (:func:`_clamp`). Every result equals
 the straightforward formulas up to round-off (tests/unit/test_linear_pinned.py).
@@ -65,8 +65,8 @@ from navlab.filters.linalg import (
     bcast,
     diag,
     eigh_clamp,
-    inv_small,
     joseph_from_gain,
+    kf_gain,
     mask_missing,
     mT,
     mv,
@@ -292,22 +292,6 @@ def _sqrt_factor(S: Array) -> tuple[Array, Array]:
     return L, bad
 
 
-def _gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """K = U S⁻¹ (U = P Hᵀ): the result and the flag of :func:`linalg.gain`, faster.
-
-    For a batched S with m ≤ 3 the closed-form S⁻¹ (adjugate/det). Where any S is
-    ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes gain's
-    LU path, so ``fixed`` is exactly gain's (:func:`linalg.kf_gain` would also flag those runs).
-    """
-    m = S.shape[-1]
-    if m <= 3 and S.ndim == 3:
-        Sinv, ill = inv_small(S)
-        if not ill.any():
-            return U @ Sinv, ill  # all False
-    Kt, fixed = solve_sym(S, mT(U))
-    return mT(Kt), fixed
-
-
 def _forward_subst(L: Array, v: Array) -> Array:
     """L⁻¹ v for lower-triangular L (B, m, m), v (B, m), row by row (a LAPACK solve per epoch
     costs ≈ 10× more; the same solution up to round-off).
@@ -479,7 +463,7 @@ class SageHusa(Filter):
         if Hm is not H:
             U, HPHt = PHt(P_m, Hm)
         S = sym(HPHt + Rm)
-        K, fixed = _gain(U, S)
+        K, fixed = kf_gain(U, S)
         x = x_m + mv(K, nu_m)
         P = joseph_from_gain(P_m, K, U, S)
         _flag_fix(flags, fixed)
@@ -606,7 +590,7 @@ class IRAKF(Filter):
         nt_s = nu_s / np.sqrt(diag(Ss))
         flag_s = (np.abs(nt_s) > p.C) & ok
         # the standard KF update (kalman.kf_update), reusing Ss; gated: detections' columns zeroed
-        K, _ = _gain(Us, Ss)
+        K, _ = kf_gain(Us, Ss)
         if p.skf_gated and flag_s.any():
             K = _zero_columns(K, B, flag_s)
         xs = state.xs + mv(K, nu_s)
@@ -643,7 +627,7 @@ class IRAKF(Filter):
         if Hm is not H:
             U, HPHt = PHt(P_m, Hm)
         S = sym(HPHt + Rm)
-        K, fixed = _gain(U, S)
+        K, fixed = kf_gain(U, S)
         sig = np.sqrt(diag(S))
         nt = nu / sig
         # 5 three-segment weights (eq. 7) + SKF detections: zero gain columns
@@ -660,7 +644,7 @@ class IRAKF(Filter):
             infl = np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)
             R_used = _scale_diag(Rm, infl)
             S_used = sym(HPHt + R_used)
-            K, fixed2 = _gain(U, S_used)
+            K, fixed2 = kf_gain(U, S_used)
             fixed = fixed | fixed2
             nu_w = nu
         else:
@@ -789,7 +773,7 @@ class RRAE(Filter):
             nu_w = np.where(zone == 2, 0.0, nu)
         # 5 gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
         S_bar = sym(HPHt + R_bar)
-        K, fixed = _gain(U, S_bar)
+        K, fixed = kf_gain(U, S_bar)
         x = x_m + mv(K, nu_w)
         P = sym(P_m - K @ mT(U))  # (I − K H) P⁻, with H P⁻ = Uᵀ (P⁻ symmetric)
         # 6 posterior residual into the window
@@ -899,7 +883,7 @@ class RAKF(Filter):
         psi = np.where(clip, p.c * np.sign(e), e)
         nu_c = mv(L, psi)
         # 5 update with the clipped innovation, Joseph form with R̂
-        K, fixed = _gain(U, S)
+        K, fixed = kf_gain(U, S)
         x = x_m + mv(K, nu_c)
         P = joseph_from_gain(P_m, K, U, S)
         flags[abnormal[:, None] & ok & (flags == ACCEPTED)] = EPOCH_ANOMALY
@@ -977,7 +961,7 @@ class RSSHAKF(Filter):
         R_used = _scale_diag(Rm, infl)
         # 4 standard update with R_used (Joseph)
         S = sym(HPHt + R_used)
-        K, fixed = _gain(U, S)
+        K, fixed = kf_gain(U, S)
         x = x_m + mv(K, nu)
         P = joseph_from_gain(P_m, K, U, S)
         # 5 simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)

@@ -243,10 +243,11 @@ def test_small_matrix_kernels_equal_lapack():
             inv, ill = inv_small(S)
             np.testing.assert_allclose(inv, np.linalg.inv(S), rtol=1e-9, atol=1e-12)
             assert not ill.any()
-    S = np.broadcast_to(np.eye(2), (4, 2, 2)).copy()
-    S[1] = [[1.0, 1.0], [1.0, 1.0]]  # singular: LU with jitter, flagged
-    K, fixed = kf_gain(np.ones((4, 3, 2)), S)
-    assert fixed.tolist() == [False, True, False, False] and np.isfinite(K).all()
+        K_ok = K
+        S[3] = 0.0  # a singular S: the batch takes the LU path; only that run is jittered, flagged
+        K, fixed = kf_gain(U, S)
+        assert fixed.tolist() == [i == 3 for i in range(50)] and np.isfinite(K).all()
+        np.testing.assert_allclose(np.delete(K, 3, 0), np.delete(K_ok, 3, 0), rtol=1e-9, atol=1e-12)
     H = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # a selection: indexing instead of products
     P = rng.standard_normal((6, 3, 3))
     U, HU = PHt(P, H)
