@@ -290,9 +290,14 @@ def _quad_stack(v: Array, S: Array) -> Array:
             return np.einsum("lbi,lib->lb", v, X)
     v, S = v.reshape(-1, d), S.reshape(-1, d, d)
     with np.errstate(all="ignore"):
-        if d > 8 or v.shape[0] < 512:
+        if d == 2:  # closed form: (s11 v0² − 2 s01 v0 v1 + s00 v1²) / det S
+            a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+            v0, v1 = v[:, 0], v[:, 1]
+            q = (c * v0 * v0 - 2.0 * b * v0 * v1 + a * v1 * v1) / (a * c - b * b)
+        elif d > 8 or v.shape[0] < 512:
             return _quad_lapack(v, S).reshape(shape)
-        q = _quad_ldl(v, S)
+        else:
+            q = _quad_ldl(v, S)
         redo = ~np.isfinite(q) & np.isfinite(v).all(axis=1) & np.isfinite(S).all(axis=(1, 2))
         if redo.any():  # a zero pivot of an indefinite or singular S: LU with pivoting decides
             q[redo] = _quad_lapack(v[redo], S[redo])

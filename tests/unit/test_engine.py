@@ -200,6 +200,11 @@ def test_quad_stack_matches_lapack_and_marks_singular_nan():
     assert np.isnan(q[4, 5]) and q[6, 7] == pytest.approx(-1 + 0.5 + 1 / 3)
     assert q[8, 9] == pytest.approx(3.0)
     assert np.isfinite(np.delete(q.ravel(), 4 * 40 + 5)).all()
+    S2 = np.broadcast_to(np.eye(2), (30, 40, 2, 2)).copy()
+    S2[1, 2] = [[1.0, 1.0], [1.0, 1.0]]  # singular 2×2 (the closed form's det = 0): NaN
+    S2[3, 4] = [[0.0, 1.0], [1.0, 0.0]]  # indefinite: still the quadratic form
+    q = _quad_stack(np.ones((30, 40, 2)) * [1.0, 2.0], S2)
+    assert np.isnan(q[1, 2]) and q[3, 4] == pytest.approx(4.0) and q[0, 0] == pytest.approx(5.0)
 
 
 def test_predict_cov_is_F_P_Ft_plus_Q():
