@@ -500,9 +500,14 @@ class StudentTKF(Filter):
         dof_m = np.count_nonzero(ok, axis=1).astype(float)
         # iterate whitened by R0 = L Lᵀ: then R_eff = I/λ is diagonal, so the iterations run in
         # measurement space (_MeasSpace) and tr(D R0⁻¹) = |L⁻¹(z − H x⁺)|² + tr(L⁻¹ H P⁺ Hᵀ L⁻ᵀ)
-        Li = np.linalg.inv(np.linalg.cholesky(R0m))
-        M = H @ P0 @ mT(H)
-        ms = _MeasSpace(Li @ M @ mT(Li), mv(Li, nu))  # missing channels: zero rows stay zero
+        M = PHt(P0, H)[1]
+        r0 = np.diagonal(R0)
+        if R0m is R0 and np.array_equal(np.diag(r0), R0):  # every channel, independent: scale
+            li = 1.0 / np.sqrt(r0)
+            ms = _MeasSpace(M * (li[:, None] * li), nu * li)
+        else:
+            Li = np.linalg.inv(np.linalg.cholesky(R0m))
+            ms = _MeasSpace(Li @ M @ mT(Li), mv(Li, nu))  # missing channels: zero rows stay zero
         lam = np.ones(B)
         ones = np.ones(m)
         for _ in range(p.iters):
@@ -516,7 +521,7 @@ class StudentTKF(Filter):
         w = np.where(ok, lam[:, None], 1.0) * np.ones((B, m))
         down = (lam < p.flag_below)[:, None] & ok
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=np.broadcast_to(Reff, (B, m, m)), weights=w,
+            x=x, P=P, innov=nu, S=S, R_used=bcast(Reff, (B, m, m)), weights=w,
             flags=_flags(down, any_fixed), stats={"lambda": lam},
         )
         return KFState(x, P), out
