@@ -135,6 +135,12 @@ def PHt(P: Array, H: Array) -> tuple[Array, Array]:
     if sel is not None:
         U = P[..., sel]
         return U, U[..., sel, :]
+    if H.ndim == 2 and P.ndim == 3:  # shared H: each product as one GEMM (see predict_cov)
+        B, n, _ = P.shape
+        m = H.shape[0]
+        U = (P.reshape(B * n, n) @ H.T).reshape(B, n, m)
+        HUt = np.ascontiguousarray(mT(U)).reshape(B * m, n) @ H.T  # rows (H U)ᵀ
+        return U, mT(HUt.reshape(B, m, m))
     U = P @ mT(H)
     return U, H @ U
 

@@ -186,7 +186,7 @@ def test_quad_stack_matches_lapack_and_marks_singular_nan():
     from navlab.experiment import _quad_stack
 
     rng = np.random.default_rng(0)
-    for d in (1, 2, 4, 8, 12):
+    for d in (1, 2, 4, 8, 12, 15):
         A = rng.standard_normal((30, 40, d, d))
         S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(d)
         v = rng.standard_normal((30, 40, d))
@@ -200,6 +200,11 @@ def test_quad_stack_matches_lapack_and_marks_singular_nan():
     assert np.isnan(q[4, 5]) and q[6, 7] == pytest.approx(-1 + 0.5 + 1 / 3)
     assert q[8, 9] == pytest.approx(3.0)
     assert np.isfinite(np.delete(q.ravel(), 4 * 40 + 5)).all()
+    S15 = np.broadcast_to(np.eye(15), (30, 40, 15, 15)).copy()
+    S15[2, 3, 0, 0] = -1.0  # indefinite (Cholesky fails): LU gives the quadratic form
+    S15[5, 6] = 0.0  # singular: NaN
+    q = _quad_stack(np.ones((30, 40, 15)), S15)
+    assert q[2, 3] == pytest.approx(13.0) and np.isnan(q[5, 6]) and q[0, 0] == pytest.approx(15)
     S2 = np.broadcast_to(np.eye(2), (30, 40, 2, 2)).copy()
     S2[1, 2] = [[1.0, 1.0], [1.0, 1.0]]  # singular 2×2 (the closed form's det = 0): NaN
     S2[3, 4] = [[0.0, 1.0], [1.0, 0.0]]  # indefinite: still the quadratic form
@@ -258,3 +263,7 @@ def test_small_matrix_kernels_equal_lapack():
     U, HU = PHt(P, H)
     np.testing.assert_array_equal(U, P @ H.T)
     np.testing.assert_allclose(HU, H @ P @ H.T, rtol=1e-15)
+    H = rng.standard_normal((2, 3))  # a general shared H: two GEMMs over the batch
+    U, HU = PHt(P, H)
+    np.testing.assert_allclose(U, P @ H.T, rtol=1e-12)
+    np.testing.assert_allclose(HU, H @ P @ H.T, rtol=1e-12)
