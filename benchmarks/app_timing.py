@@ -6,9 +6,9 @@
 Server side: a compare run on cv2d (100 epochs, 100 runs) with every linear filter (the KF-update
 filters of the HAKF and IRAKF papers with their baselines), with every registered filter, and with
 the page's default three; timed one-shot (``run_experiment``) and as the Compare page runs it
-(``navlab.ui.runner.iter_chunks``): the first time in a process it streams (a tenth of the runs,
-then the rest), again it is one batch when the learned cost says it takes < 1.5 s; and sins-gps
-(850 epochs, 50 runs, 4 filters).
+(``navlab.ui.runner.iter_chunks``): the first time in a process the chunking follows a cost prior,
+again the costs learned from the first (one batch when short or overhead-bound, else a tenth of
+the runs first); and sins-gps (850 epochs, 50 runs, 4 filters).
 Browser: Run → first results chart drawn (a Plotly legend visible), on a freshly started server
 (cold) and again (warm). Not a test: numbers depend on the machine's load (printed first).
 """
@@ -61,10 +61,10 @@ def server_timings(repeat: int) -> None:
             t = time.perf_counter()
             run_experiment(spec)
             one = time.perf_counter() - t
-            runner._COST.clear()  # the page's first run of these filters: streamed in chunks
+            runner._COST.clear()  # the page's first run of these filters: the cost prior decides
             cold = paged(spec)
-            warm = paged(spec)  # again: one batch if the learned cost says it is short
-            print(f"  [{i}] one-shot {one:6.2f} s   as the page runs it: first time (streamed) "
+            warm = paged(spec)  # again: the costs learned decide
+            print(f"  [{i}] one-shot {one:6.2f} s   as the page runs it: first time "
                   f"{cold:6.2f} s, again {warm:6.2f} s")
 
 

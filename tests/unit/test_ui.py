@@ -123,21 +123,23 @@ def test_chunked_and_resumed_runs_equal_one_shot(res):
 
 
 def test_a_run_expected_to_be_short_or_overhead_bound_is_one_batch(monkeypatch):
-    """Streaming costs every filter's per-epoch overhead once per batch: a run this process has
-    seen to be quick, or whose first chunk would cost nearly a whole batch, is one batch; an
-    unknown run, or a long one whose cost grows with the runs, streams."""
+    """Streaming costs every filter's per-epoch overhead once per batch: a run expected to be
+    quick, or whose first chunk would cost nearly a whole batch, is one batch; a long run whose
+    cost grows with the runs streams. Costs are learned per scenario and filter."""
     monkeypatch.setattr(runner, "_COST", {})
     spec = dataclasses.replace(SPEC, runs=40)
     ticks: list[float] = []
     cold = list(iter_chunks(spec, on_epoch=ticks.append))
-    assert [c.done_runs for c in cold] == [4, 40]  # nothing known: a quick first chunk
+    assert [c.done_runs for c in cold] == [40]  # short by the prior: one batch, with progress
     assert ticks == sorted(ticks) and ticks[-1] == 40 and 0 < ticks[0] < 4
-    assert set(runner._COST[("cv2d", "kf")]) == {4, 36}
+    big = dataclasses.replace(spec, runs=4000)  # 20× the prior's batch: streams
+    assert runner.estimated_seconds(big, 30, 4000) > runner.STREAM_ABOVE_S
+    assert runner._one_batch(big, 30, 4000, 25) is False
+    streamed = list(iter_chunks(spec, first_chunk=4))
+    assert [c.done_runs for c in streamed] == [4, 40]
+    np.testing.assert_array_equal(streamed[-1].runs["kf"].x, cold[-1].runs["kf"].x)
+    assert set(runner._COST[("cv2d", "kf")]) == {4, 36, 40}
     assert runner.estimated_seconds(spec, 30, 40) < runner.STREAM_ABOVE_S
-    warm = list(iter_chunks(spec))
-    assert [c.done_runs for c in warm] == [40]
-    np.testing.assert_array_equal(warm[0].runs["kf"].x, cold[-1].runs["kf"].x)
-    assert runner.estimated_seconds(dataclasses.replace(spec, filters=("hakf",)), 30, 40) is None
     for key in spec.filters:  # long and proportional to the runs: 0.01 s + 1 ms per run, per epoch
         runner._COST[("cv2d", key)] = {4: 0.014, 36: 0.046}
     assert runner.estimated_seconds(spec, 30, 40) == pytest.approx(3 * 30 * 0.05)
