@@ -59,6 +59,7 @@ from navlab.filters.linalg import (
     bcast,
     cofactor_index,
     diag,
+    diag_embed,
     joseph_from_gain,
     kf_gain,
     mask_missing,
@@ -94,11 +95,6 @@ def _rowsum(a: Array) -> Array:
     if m == 1:
         return a[:, 0]
     return a[:, 0] + a[:, 1] if m == 2 else a.sum(axis=-1)
-
-
-def _diag_embed(d: Array) -> Array:
-    """(B, m) -> (B, m, m) diagonal matrices."""
-    return d[..., :, None] * np.eye(d.shape[-1])
 
 
 class _MeasSpace:
@@ -151,7 +147,7 @@ class _MeasSpace:
             resid = Rt * (Sd[:, ::-1] * self.nu - self.c) * inv
             return resid, self.dM - (self.A1 * Sd[:, 1:] + self.A0 * Sd[:, :1] - self.C) * inv
         if m > 3:
-            S = self.Mb + _diag_embed(Rt)
+            S = self.Mb + diag_embed(Rt)
             X, fixed = solve_sym(S, self.rhs)
             self.ill |= fixed
             return Rt * X[..., 0], self.dM - np.einsum("bij,bji->bi", self.Mb, X[..., 1:])
@@ -249,7 +245,7 @@ class HuberKF(Filter):
             if not all_ok:
                 w = np.where(ok, w, 1.0)
             # (10) R̃ = L Ψ⁻¹ Lᵀ (for diagonal R0: R0_jj / w_j)
-            Rt = _diag_embed(r0 / w) if diagonal else (L / w[:, None, :]) @ L.T
+            Rt = diag_embed(r0 / w) if diagonal else (L / w[:, None, :]) @ L.T
             _, _, H_u, Rt_m = mask_missing(z, nu, H, Rt)
             x, P, S, fixed = _finish(model, x0, P0, H_u, nu_m, Rt_m)
             if p.irls_iters > 1:
@@ -386,11 +382,11 @@ class _VBBase(Filter):
                     break
         Rt, w = Rt_last, w_last
         any_fixed = ms.ill  # (m > 3 only; for m ≤ 3 _finish checks the final S)
-        R_used = _diag_embed(Rt)  # the R in the last gain (R̃^(N−1))
+        R_used = diag_embed(Rt)  # the R in the last gain (R̃^(N−1))
         _, _, H_u, R_used = mask_missing(z, nu, H, R_used)
         x, P, S, fixed = _finish(model, x0, P0, H_u, nu, R_used)
         any_fixed |= fixed
-        R_hat = _diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
+        R_hat = diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
         stats = {
             "vb_iters": iters,
             "vb_delta": delta,

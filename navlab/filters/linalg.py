@@ -197,6 +197,14 @@ def diag(A: Array) -> Array:
     return A.diagonal(axis1=-2, axis2=-1)
 
 
+def diag_embed(d: Array) -> Array:
+    """(B, m) -> (B, m, m) diagonal matrices (written through a strided view, no eye product)."""
+    B, m = d.shape
+    out = np.zeros((B, m, m))
+    out.reshape(B, m * m)[:, :: m + 1] = d
+    return out
+
+
 def mask_missing(z: Array, nu: Array, H: Array, R: Array) -> tuple[Array, Array, Array, Array]:
     """Drop unavailable channels (NaN in ``z``) exactly.
 

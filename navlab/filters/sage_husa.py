@@ -64,6 +64,7 @@ from navlab.filters.linalg import (
     PHt,
     bcast,
     diag,
+    diag_embed,
     eigh_clamp,
     joseph_from_gain,
     kf_gain,
@@ -350,19 +351,11 @@ def _sage_husa_R(
         if not all_ok:
             r = np.where(ok, r, diag(R_prev))
         clamped = (r < lo) | (r > hi)
-        return _diag_embed(np.minimum(np.maximum(r, lo), hi)), clamped
+        return diag_embed(np.minimum(np.maximum(r, lo), hi)), clamped
     new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
     if not all_ok:
         new = np.where(ok[:, :, None] & ok[:, None, :], new, R_prev)
     return _clamp(new, lo, hi)
-
-
-def _diag_embed(d: Array) -> Array:
-    """(B, m) -> (B, m, m) diagonal matrices (written through a strided view, no eye product)."""
-    B, m = d.shape
-    out = np.zeros((B, m, m))
-    out.reshape(B, m * m)[:, :: m + 1] = d
-    return out
 
 
 def _scale_diag(A: Array, f: Array) -> Array:
