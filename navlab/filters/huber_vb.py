@@ -102,10 +102,11 @@ class _MeasSpace:
 
     ``step(R̃)`` returns, for S = M + diag(R̃) (R̃ (B, m) diagonal, > 0): the posterior residual
     z − H x⁺ = R̃ S⁻¹ ν and diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M). Everything that does not change
-    between iterations is formed once, and for m ≤ 3 S⁻¹ is the closed-form adjugate/det: Python
-    overhead, not arithmetic, dominates these tiny problems (a LAPACK call per iteration cost
-    ≈ 3× more). S is SPD (M ⪰ 0, R̃ > 0); ``ill`` records an S whose det is tiny against the
-    product of its diagonal, and the final gain is always formed by an LU solve (:func:`_finish`).
+    between iterations is formed once, and for m ≤ 3 S⁻¹ is the closed-form adjugate/det (for
+    m ≤ 2 element by element): Python overhead, not arithmetic, dominates these tiny problems (a
+    LAPACK call per iteration cost ≈ 3× more). S is SPD (M ⪰ 0, R̃ > 0); for m > 3 ``ill``
+    records an S that needed jitter; the final gain is formed by :func:`_finish`, which checks
+    the final S itself.
     """
 
     def __init__(self, M: Array, nu: Array) -> None:

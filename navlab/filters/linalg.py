@@ -104,13 +104,6 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
         return np.linalg.solve(S + jitter, Y), fixed
 
 
-def gain(P: Array, H: Array, S: Array) -> tuple[Array, Array]:
-    """Kalman gain ``K = P Hᵀ S⁻¹`` via a solve with S (never an explicit inverse)."""
-    PHt = P @ mT(H)
-    Kt, fixed = solve_sym(S, mT(PHt))
-    return mT(Kt), fixed
-
-
 _SEL_CACHE: dict[tuple, Array | None] = {}
 
 
@@ -147,7 +140,7 @@ def PHt(P: Array, H: Array) -> tuple[Array, Array]:
 
 def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
     """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
-    :func:`gain`, faster.
+    an LU solve (:func:`solve_sym`), faster.
 
     For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
     S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
@@ -160,16 +153,6 @@ def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
             return U @ Sinv, ill  # all False
     Kt, fixed = solve_sym(S, mT(U))
     return mT(Kt), fixed
-
-
-def joseph(P: Array, K: Array, H: Array, R: Array) -> Array:
-    """Joseph-form covariance update ``(I−KH) P (I−KH)ᵀ + K R Kᵀ``, symmetrised.
-
-    Valid for any gain K (zeroed columns, re-scaled innovations), not only the optimal one.
-    """
-    n = P.shape[-1]
-    IKH = np.eye(n) - K @ H
-    return sym(IKH @ P @ mT(IKH) + K @ R @ mT(K))
 
 
 def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:

@@ -236,7 +236,7 @@ def test_scenario_filter_defaults_apply_and_the_spec_overrides_them(monkeypatch)
 
 def test_small_matrix_kernels_equal_lapack():
     """The closed-form kernels the filters use for m ≤ 3 equal LAPACK's solutions."""
-    from navlab.filters.linalg import PHt, inv_small, kf_gain, quad
+    from navlab.filters.linalg import PHt, inv_small, joseph_from_gain, kf_gain, quad
 
     rng = np.random.default_rng(2)
     for m in (1, 2, 3, 4):
@@ -247,6 +247,14 @@ def test_small_matrix_kernels_equal_lapack():
         K, fixed = kf_gain(U, S)
         np.testing.assert_allclose(K, U @ np.linalg.inv(S), rtol=1e-9, atol=1e-12)
         assert not fixed.any()
+        if m <= 3:  # the Joseph form from U = P Hᵀ and S = H P Hᵀ + R, for any gain
+            H = rng.standard_normal((m, 5))
+            P = rng.standard_normal((50, 5, 5))
+            P = P @ np.swapaxes(P, -1, -2)
+            R = S - H @ P @ H.T  # so that S = H P Hᵀ + R
+            IKH = np.eye(5) - K @ H
+            ref = IKH @ P @ np.swapaxes(IKH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+            np.testing.assert_allclose(joseph_from_gain(P, K, P @ H.T, S), ref, atol=1e-9)
         ref = np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
         np.testing.assert_allclose(quad(v, S), ref, rtol=1e-9)
         if m <= 3:
@@ -257,7 +265,7 @@ def test_small_matrix_kernels_equal_lapack():
         S[3] = 0.0  # a singular S: the batch takes the LU path; only that run is jittered, flagged
         K, fixed = kf_gain(U, S)
         assert fixed.tolist() == [i == 3 for i in range(50)] and np.isfinite(K).all()
-        np.testing.assert_allclose(np.delete(K, 3, 0), np.delete(K_ok, 3, 0), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(np.delete(K, 3, 0), np.delete(K_ok, 3, 0), rtol=1e-8, atol=1e-10)
     H = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # a selection: indexing instead of products
     P = rng.standard_normal((6, 3, 3))
     U, HU = PHt(P, H)
