@@ -126,6 +126,7 @@ def _concat_data(a: Any, b: Any) -> Any:
 # What every filter cost per epoch in this process, per scenario: {runs in the batch: seconds}
 # (the last few batch sizes). Only for choosing how to chunk a run, never shown as a measurement.
 _COST: dict[tuple[str, str], dict[int, float]] = {}
+_COST_LOCK = threading.Lock()  # sessions run in threads of one process
 STREAM_ABOVE_S = 1.5  # a run expected to take less than this is computed in one batch
 STREAM_GAIN = 0.5  # stream only if the first chunk takes at most this share of one batch
 # Before a filter has run on a scenario: 1 ms per epoch up to 200 runs, growing with the runs
@@ -136,12 +137,14 @@ _PRIOR = {200: 1e-3}
 
 def learn_cost(scenario: str, runs: int, K: int, out: dict[str, FilterRun]) -> None:
     """Remember each filter's seconds per epoch at this batch size (the last 4 sizes)."""
-    for key, fr in out.items():
-        seen = _COST.setdefault((scenario, key), {})
-        seen.pop(runs, None)
-        seen[runs] = fr.runtime_s / max(K, 1)
-        while len(seen) > 4:
-            seen.pop(next(iter(seen)))
+    with _COST_LOCK:
+        for key, fr in out.items():
+            seen = dict(_COST.get((scenario, key), {}))
+            seen.pop(runs, None)
+            seen[runs] = fr.runtime_s / max(K, 1)
+            while len(seen) > 4:
+                seen.pop(next(iter(seen)))
+            _COST[(scenario, key)] = seen  # replaced, never mutated: readers need no lock
 
 
 def _per_epoch(seen: dict[int, float], runs: int) -> float:
