@@ -22,7 +22,7 @@ import numpy as np
 
 from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
-from navlab.filters.linalg import Array, diag
+from navlab.filters.linalg import Array, diag, quad
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
 from navlab.scenarios.base import Scenario, ScenarioData, get_scenario_class
 
@@ -306,10 +306,8 @@ def _quad_stack(v: Array, S: Array) -> Array:
             return np.einsum("lbi,lib->lb", v, X)
     v, S = v.reshape(-1, d), S.reshape(-1, d, d)
     with np.errstate(all="ignore"):
-        if d == 2:  # closed form: (s11 v0² − 2 s01 v0 v1 + s00 v1²) / det S
-            a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-            v0, v1 = v[:, 0], v[:, 1]
-            q = (c * v0 * v0 - 2.0 * b * v0 * v1 + a * v1 * v1) / (a * c - b * b)
+        if d == 2:  # linalg.quad's closed form (a singular S gives inf/NaN: redone by LU below)
+            q = quad(v, S)
         elif v.shape[0] < 512:
             return _quad_lapack(v, S).reshape(shape)
         elif d > 8:
