@@ -148,15 +148,18 @@ def learn_cost(scenario: str, runs: int, K: int, out: dict[str, FilterRun]) -> N
 
 
 def _per_epoch(seen: dict[int, float], runs: int) -> float:
-    """Seconds per epoch at ``runs`` from costs at other batch sizes: a + b·runs through the two
-    sizes seen that are farthest apart (per-call overhead a, per-run work b); one size seen:
-    that cost up to its size, linear beyond (an overestimate).
+    """Seconds per epoch at ``runs`` from costs at other batch sizes. Between the smallest and the
+    largest size seen: the line through them (per-call overhead + per-run work); below: the
+    smallest size's cost; beyond the largest: that cost scaled with the runs — an upper bound,
+    since small batches are overhead-bound and the slope between two of them is mostly noise
+    (a flat or falling pair once made a 30× larger run look short).
     """
     (b1, c1), (b2, c2) = min(seen.items()), max(seen.items())
-    if b1 == b2:
-        return c1 * max(1.0, runs / b1)
-    slope = max(0.0, (c2 - c1) / (b2 - b1))
-    return max(0.0, c1 + slope * (runs - b1))
+    if runs >= b2:
+        return c2 * runs / b2
+    if runs <= b1:
+        return c1
+    return c1 + max(0.0, c2 - c1) * (runs - b1) / (b2 - b1)
 
 
 def estimated_seconds(spec: ExperimentSpec, K: int, runs: int) -> float | None:

@@ -142,11 +142,16 @@ def test_a_run_expected_to_be_short_or_overhead_bound_is_one_batch(monkeypatch):
     assert runner.estimated_seconds(spec, 30, 40) < runner.STREAM_ABOVE_S
     for key in spec.filters:  # long and proportional to the runs: 0.01 s + 1 ms per run, per epoch
         runner._COST[("cv2d", key)] = {4: 0.014, 36: 0.046}
-    assert runner.estimated_seconds(spec, 30, 40) == pytest.approx(3 * 30 * 0.05)
+    assert runner.estimated_seconds(spec, 30, 20) == pytest.approx(3 * 30 * 0.03)
+    assert runner.estimated_seconds(spec, 30, 72) == pytest.approx(3 * 30 * 0.092)
     assert [c.done_runs for c in iter_chunks(spec)] == [4, 40]
     for key in spec.filters:  # long but overhead-bound: the first chunk costs most of a batch
         runner._COST[("cv2d", key)] = {4: 0.100, 36: 0.108}
     assert [c.done_runs for c in iter_chunks(spec)] == [40]
+    for key in spec.filters:  # two small batches, the larger one measured faster (noise)
+        runner._COST[("cv2d", key)] = {40: 0.0004, 100: 0.0003}
+    assert runner.estimated_seconds(big, 100, 3000) == pytest.approx(3 * 100 * 0.009)
+    assert runner._one_batch(big, 100, 3000, 25) is False  # a 30× larger run still streams
 
 
 def test_result_store_is_bounded():
