@@ -61,5 +61,7 @@ The real data are not part of the repository; the app reads them from `../shared
 folder named by `NAVLAB_DATA`.
 """
     )
-    st.caption("Command line: `python -m navlab list filters` · "
-               "`python -m navlab run --scenario cv2d --filters kf,oracle-kf,chi2-kf --runs 100`")
+    st.caption(
+        "Command line: `python -m navlab list filters` · "
+        "`python -m navlab run --scenario cv2d --filters kf,oracle-kf,chi2-kf --runs 100`"
+    )

@@ -40,15 +40,21 @@ def server_timings(repeat: int) -> None:
     every = tuple(reg)
     cases = [
         ("cv2d, 100 runs, every linear (KF-update) filter", ExperimentSpec(filters=linear, runs=100)),
-        ("cv2d, 100 runs, every registered filter (EKF/UKF/VB-EKF/WLS too)",
-         ExperimentSpec(filters=every, runs=100)),
+        (
+            "cv2d, 100 runs, every registered filter (EKF/UKF/VB-EKF/WLS too)",
+            ExperimentSpec(filters=every, runs=100),
+        ),
         ("cv2d, 100 runs, kf/oracle-kf/chi2-kf (the page's default)", ExperimentSpec(runs=100)),
     ]
     if "sins-gps" in scenario_registry():
         sg = scenario_registry()["sins-gps"]
-        cases.append(("sins-gps, 50 runs, its 4 default filters",
-                      ExperimentSpec(scenario="sins-gps", filters=tuple(sg.default_filters)[:4],
-                                     runs=50)))
+        cases.append(
+            (
+                "sins-gps, 50 runs, its 4 default filters",
+                ExperimentSpec(scenario="sins-gps", filters=tuple(sg.default_filters)[:4], runs=50),
+            )
+        )
+
     def paged(spec: ExperimentSpec) -> float:
         t = time.perf_counter()
         for _r in iter_chunks(spec):
@@ -64,8 +70,10 @@ def server_timings(repeat: int) -> None:
             runner._COST.clear()  # the page's first run of these filters: the cost prior decides
             cold = paged(spec)
             warm = paged(spec)  # again: the costs learned decide
-            print(f"  [{i}] one-shot {one:6.2f} s   as the page runs it: first time "
-                  f"{cold:6.2f} s, again {warm:6.2f} s")
+            print(
+                f"  [{i}] one-shot {one:6.2f} s   as the page runs it: first time "
+                f"{cold:6.2f} s, again {warm:6.2f} s"
+            )
 
 
 def browser_timings(repeat: int) -> None:
@@ -85,15 +93,13 @@ def browser_timings(repeat: int) -> None:
             time.sleep(2)  # a user reads the page before pressing Run
             t0 = time.monotonic()
             page.get_by_role("button", name="Run", exact=True).click()
-            expect(page.locator('[data-testid="stPlotlyChart"] .legendtext').first).to_be_visible(
-                timeout=T)
+            expect(page.locator('[data-testid="stPlotlyChart"] .legendtext').first).to_be_visible(timeout=T)
             first = time.monotonic() - t0
             expect(page.get_by_text(re.compile(r"runs \(complete\)"))).to_be_visible(timeout=T)
             done = time.monotonic() - t0
             cap = page.get_by_text(re.compile(r"done: \d+ runs")).inner_text()
             kind = "cold (fresh server)" if i == 0 else "warm"
-            print(f"  [{i}] {kind}: Run → first chart {first:5.2f} s, → complete {done:5.2f} s "
-                  f"({cap})")
+            print(f"  [{i}] {kind}: Run → first chart {first:5.2f} s, → complete {done:5.2f} s ({cap})")
         b.close()
 
 

@@ -48,10 +48,14 @@ def main() -> None:
         p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=a.runs, seed=1))
         data = p.scenario.simulate(p.schedule, p.outliers, range(a.runs), 1)
         steps = data.B * data.K
-        print(f"\n{scenario}: {data.B} runs x {data.K} epochs, n={data.x0.shape[1]}, "
-              f"m={data.z.shape[2]}; best of {a.repeat}")
-        print(f"{'filter':>16} {'us/run-step':>12} {'x kf':>6}   {'one-off training':>16} "
-              f"{'x kf without it':>15}")
+        print(
+            f"\n{scenario}: {data.B} runs x {data.K} epochs, n={data.x0.shape[1]}, "
+            f"m={data.z.shape[2]}; best of {a.repeat}"
+        )
+        print(
+            f"{'filter':>16} {'us/run-step':>12} {'x kf':>6}   {'one-off training':>16} "
+            f"{'x kf without it':>15}"
+        )
         base = None
         for key in keys:
             runs = []

@@ -50,9 +50,7 @@ def _list(what: str) -> pd.DataFrame:
     if what == "reproductions":
         from navlab.reproduce import REPRODUCTIONS
 
-        return pd.DataFrame(
-            [(k, r.title) for k, r in REPRODUCTIONS.items()], columns=["key", "title"]
-        )
+        return pd.DataFrame([(k, r.title) for k, r in REPRODUCTIONS.items()], columns=["key", "title"])
     raise NavlabError(f"nothing called '{what}' to list")
 
 
@@ -63,8 +61,16 @@ def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
     elif fmt == "csv":
         text = df.to_csv(index=False)
     else:
-        with pd.option_context("display.width", 200, "display.max_columns", 50,
-                               "display.max_colwidth", 80, "display.max_rows", 10000):
+        with pd.option_context(
+            "display.width",
+            200,
+            "display.max_columns",
+            50,
+            "display.max_colwidth",
+            80,
+            "display.max_rows",
+            10000,
+        ):
             text = df.to_string(index=False) + "\n"
     if out:
         try:
@@ -125,8 +131,10 @@ def _run(a: argparse.Namespace) -> int:
     spec = _spec_from_args(a)
     progress = None
     if sys.stderr.isatty() and not a.quiet:
+
         def progress(done: int, total: int) -> None:
             print(f"\r{done}/{total} runs", end="" if done < total else "\n", file=sys.stderr)
+
     # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
     chunk = max(1, spec.runs // 10) if progress is not None else None
     res = run_experiment(spec, on_progress=progress, chunk_runs=chunk)
@@ -180,8 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
     pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
     pr.add_argument("--config", help="experiment spec JSON (flags given here override it)")
     pr.add_argument("--scenario", help="scenario key (default cv2d)")
-    pr.add_argument("--filters", type=lambda s: [x.strip() for x in s.split(",") if x.strip()],
-                    help="comma-separated filter keys")
+    pr.add_argument(
+        "--filters",
+        type=lambda s: [x.strip() for x in s.split(",") if x.strip()],
+        help="comma-separated filter keys",
+    )
     pr.add_argument("--runs", type=int, help="Monte Carlo runs")
     pr.add_argument("--seed", type=int, help="base seed")
     pr.add_argument("--epochs", type=int, help="number of epochs (default: the scenario's)")
@@ -189,8 +200,12 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--outliers", help="outlier model key")
     pr.add_argument("--contamination", type=float, help="outlier ratio α (mixture)")
     pr.add_argument("--outlier-scale", type=float, help="outlier scale κ (in σ)")
-    pr.add_argument("--set", action="append", metavar="GROUP.NAME=VALUE",
-                    help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V")
+    pr.add_argument(
+        "--set",
+        action="append",
+        metavar="GROUP.NAME=VALUE",
+        help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V",
+    )
     pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
@@ -234,6 +249,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception as exc:  # an internal error: one line unless --debug
         if debug or os.environ.get("NAVLAB_DEBUG"):
             raise
-        print(f"navlab: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
-              file=sys.stderr)
+        print(f"navlab: internal error: {type(exc).__name__}: {exc} (rerun with --debug)", file=sys.stderr)
         return 1

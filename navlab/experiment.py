@@ -99,7 +99,7 @@ class ExperimentSpec:
             if isinstance(f, str):
                 f = [s.strip() for s in f.split(",") if s.strip()]
             if not isinstance(f, (list, tuple)) or not all(isinstance(s, str) for s in f):
-                raise NavlabError("'filters' must be a list of filter keys, e.g. [\"kf\", \"chi2-kf\"]")
+                raise NavlabError('\'filters\' must be a list of filter keys, e.g. ["kf", "chi2-kf"]')
             d["filters"] = tuple(f)
         for name in ("noise_params", "outlier_params", "scenario_params", "filter_params"):
             if name in d and not isinstance(d[name], Mapping):
@@ -157,9 +157,7 @@ def plan(spec: ExperimentSpec) -> Plan:
         raise NavlabError("each filter may be chosen only once")
     unknown_fp = sorted(set(spec.filter_params) - set(spec.filters))
     if unknown_fp:
-        raise NavlabError(
-            f"filter_params names filter(s) not in the run: {', '.join(unknown_fp)}"
-        )
+        raise NavlabError(f"filter_params names filter(s) not in the run: {', '.join(unknown_fp)}")
     filters = []
     for key in spec.filters:
         cls = get_filter_class(key)
@@ -277,7 +275,7 @@ def _quad_ldl(v: Array, S: Array) -> Array:
         piv = A[i, i]
         q += A[i, d] ** 2 / piv
         if i + 1 < d:
-            A[i + 1:, i:] -= (A[i + 1:, i] / piv)[:, None] * A[i, i:][None]
+            A[i + 1 :, i:] -= (A[i + 1 :, i] / piv)[:, None] * A[i, i:][None]
     return q
 
 
@@ -358,8 +356,11 @@ class _Recorder:
         ``diagonal`` the values are matrices whose diagonal is written.
         """
         if all(v is not None for v in vals):
-            shape = (dest.shape[0], *dest.shape[2:], *dest.shape[-1:]) if diagonal else (
-                dest.shape[0], *dest.shape[2:])
+            shape = (
+                (dest.shape[0], *dest.shape[2:], *dest.shape[-1:])
+                if diagonal
+                else (dest.shape[0], *dest.shape[2:])
+            )
             st = _stack(vals, shape)
             if diagonal:
                 st = np.diagonal(st, axis1=-2, axis2=-1)
@@ -418,10 +419,21 @@ class _Recorder:
         self._flush()
         f = self.f
         return FilterRun(
-            key=f.key, label=f.label, x=self.x, P_diag=self.P_diag, innov=self.innov,
-            S_diag=self.S_diag, nis=self.nis, nees=self.nees, R_used=self.R_used,
-            R_hat=self.R_hat, weights=self.weights, flags=self.flags, stats=self.stats,
-            runtime_s=self.runtime, diverged_at=self.diverged_at,
+            key=f.key,
+            label=f.label,
+            x=self.x,
+            P_diag=self.P_diag,
+            innov=self.innov,
+            S_diag=self.S_diag,
+            nis=self.nis,
+            nees=self.nees,
+            R_used=self.R_used,
+            R_hat=self.R_hat,
+            weights=self.weights,
+            flags=self.flags,
+            stats=self.stats,
+            runtime_s=self.runtime,
+            diverged_at=self.diverged_at,
         )
 
 
@@ -486,9 +498,7 @@ def _concat_data(parts: Sequence[ScenarioData]) -> ScenarioData:
     )
 
 
-def iter_experiment(
-    spec: ExperimentSpec, chunk_runs: int | None = None
-) -> Iterator[Results]:
+def iter_experiment(spec: ExperimentSpec, chunk_runs: int | None = None) -> Iterator[Results]:
     """Run the Monte Carlo in chunks of runs; yield the accumulated results after each chunk.
 
     Chunking never changes the numbers: run r draws from its own seed whatever the chunk.

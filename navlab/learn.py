@@ -417,8 +417,7 @@ class TinySpec:
             raise NavlabError(f"epochs must be a whole number in [1, 200], got {self.epochs!r}")
         if not isinstance(self.outlier_epoch, int) or not 0 <= self.outlier_epoch <= self.epochs:
             raise NavlabError(
-                f"outlier_epoch must be 0 (none) or an epoch in 1 … {self.epochs}, "
-                f"got {self.outlier_epoch!r}"
+                f"outlier_epoch must be 0 (none) or an epoch in 1 … {self.epochs}, got {self.outlier_epoch!r}"
             )
         if self.outlier_channel not in ("first", "all"):
             raise NavlabError("outlier_channel must be 'first' or 'all'")
@@ -459,9 +458,7 @@ class TinyData:
         return int(self.z.shape[0] - 1)
 
     def side(self, k: int) -> SideInfo:
-        return SideInfo(
-            R_true=self.R_true[None, k], bias=self.bias[None, k], outlier=self.outlier[None, k]
-        )
+        return SideInfo(R_true=self.R_true[None, k], bias=self.bias[None, k], outlier=self.outlier[None, k])
 
 
 def tiny_model(spec: TinySpec) -> tuple[LinearModel, tuple[str, ...], tuple[str, ...]]:
@@ -555,9 +552,28 @@ class StepThrough:
 
 
 STEP_COLUMNS = [
-    "epoch", "t", "channel", "z", "z_pred", "truth", "innov", "S", "innov_norm", "nis",
-    "nis_threshold", "nis_exceeds", "dof", "nis_nominal", "nis_nominal_exceeds", "R_true",
-    "R_used", "R_hat", "weight", "flag", "flag_name", "outlier",
+    "epoch",
+    "t",
+    "channel",
+    "z",
+    "z_pred",
+    "truth",
+    "innov",
+    "S",
+    "innov_norm",
+    "nis",
+    "nis_threshold",
+    "nis_exceeds",
+    "dof",
+    "nis_nominal",
+    "nis_nominal_exceeds",
+    "R_true",
+    "R_used",
+    "R_hat",
+    "weight",
+    "flag",
+    "flag_name",
+    "outlier",
 ]
 STATE_COLUMNS = ["epoch", "state", "truth", "prior", "posterior", "P_prior", "P_post", "error"]
 
@@ -586,8 +602,15 @@ def _vec(a: Any, m: int, default: float) -> Array:
 
 def _not_applicable(cls: type[Filter], reason: str, data: TinyData | None) -> StepThrough:
     return StepThrough(
-        cls.key, cls.label, False, reason, data, pd.DataFrame(columns=STEP_COLUMNS),
-        pd.DataFrame(columns=STATE_COLUMNS), {}, float("nan"),
+        cls.key,
+        cls.label,
+        False,
+        reason,
+        data,
+        pd.DataFrame(columns=STEP_COLUMNS),
+        pd.DataFrame(columns=STATE_COLUMNS),
+        {},
+        float("nan"),
     )
 
 
@@ -599,9 +622,7 @@ def _precheck(cls: type[Filter]) -> str | None:
     return None
 
 
-def step_through(
-    key: str, spec: TinySpec | None = None, params: dict[str, Any] | None = None
-) -> StepThrough:
+def step_through(key: str, spec: TinySpec | None = None, params: dict[str, Any] | None = None) -> StepThrough:
     """Run filter ``key`` on the tiny example with B = 1 and record every step.
 
     Uses the filter's own ``init`` / ``predict`` / ``update``. Any failure of the filter on this
@@ -649,11 +670,18 @@ def _run(flt: Filter, data: TinyData):
     extra: dict[int, dict[str, Array]] = {}
     xt = data.x_true
     for i in range(n):
-        srows.append({
-            "epoch": 0, "state": data.state_names[i], "truth": xt[0, i], "prior": np.nan,
-            "posterior": data.x0[i], "P_prior": np.nan, "P_post": data.P0[i, i],
-            "error": data.x0[i] - xt[0, i],
-        })
+        srows.append(
+            {
+                "epoch": 0,
+                "state": data.state_names[i],
+                "truth": xt[0, i],
+                "prior": np.nan,
+                "posterior": data.x0[i],
+                "P_prior": np.nan,
+                "P_post": data.P0[i, i],
+                "error": data.x0[i] - xt[0, i],
+            }
+        )
     for k in range(1, data.K + 1):
         st = flt.predict(model, state, k)
         x_prior = np.asarray(st.x, dtype=float).reshape(-1, n)[0].copy()
@@ -696,15 +724,26 @@ def _run(flt: Filter, data: TinyData):
                 extra.setdefault(k, {})[name] = a
         for i in range(m):
             row = {
-                "epoch": k, "t": k * spec.dt, "channel": data.channel_names[i],
-                "z": data.z[k, i], "z_pred": data.z[k, i] - innov[i],
-                "truth": float(model.H_[i] @ xt[k]), "innov": innov[i], "S": S[i, i],
+                "epoch": k,
+                "t": k * spec.dt,
+                "channel": data.channel_names[i],
+                "z": data.z[k, i],
+                "z_pred": data.z[k, i] - innov[i],
+                "truth": float(model.H_[i] @ xt[k]),
+                "innov": innov[i],
+                "S": S[i, i],
                 "innov_norm": innov[i] / math.sqrt(S[i, i]) if S[i, i] > 0 else np.nan,
-                "nis": nis, "nis_threshold": thr, "nis_exceeds": bool(nis > thr), "dof": dof,
-                "nis_nominal": nis_nom, "nis_nominal_exceeds": bool(nis_nom > thr),
-                "R_true": data.R_true[k, i], "R_used": R_used[i, i],
+                "nis": nis,
+                "nis_threshold": thr,
+                "nis_exceeds": bool(nis > thr),
+                "dof": dof,
+                "nis_nominal": nis_nom,
+                "nis_nominal_exceeds": bool(nis_nom > thr),
+                "R_true": data.R_true[k, i],
+                "R_used": R_used[i, i],
                 "R_hat": np.nan if R_hat is None else R_hat[i, i],
-                "weight": weights[i], "flag": int(flags[i]),
+                "weight": weights[i],
+                "flag": int(flags[i]),
                 "flag_name": FLAG_NAMES.get(int(flags[i]), str(int(flags[i]))),
                 "outlier": bool(data.outlier[k, i]),
             }
@@ -712,11 +751,18 @@ def _run(flt: Filter, data: TinyData):
             row.update({name: float(v[i]) for name, v in perch.items()})
             rows.append(row)
         for i in range(n):
-            srows.append({
-                "epoch": k, "state": data.state_names[i], "truth": xt[k, i],
-                "prior": x_prior[i], "posterior": x_post[i], "P_prior": P_prior[i, i],
-                "P_post": P_post[i, i], "error": x_post[i] - xt[k, i],
-            })
+            srows.append(
+                {
+                    "epoch": k,
+                    "state": data.state_names[i],
+                    "truth": xt[k, i],
+                    "prior": x_prior[i],
+                    "posterior": x_post[i],
+                    "P_prior": P_prior[i, i],
+                    "P_post": P_post[i, i],
+                    "error": x_post[i] - xt[k, i],
+                }
+            )
     return rows, srows, extra
 
 

@@ -158,8 +158,15 @@ def headline_table(res: Results) -> pd.DataFrame:
     df = summarize(res)
     wanted = [f"rmse_{g}" for g in res.data.groups]
     wanted += list(res.data.extras.get("metrics", {}))
-    wanted += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "diverged",
-               "us_per_run_step"]
+    wanted += [
+        "anees",
+        "anis",
+        "rhat_err_pct",
+        "detected_pct",
+        "false_alarm_pct",
+        "diverged",
+        "us_per_run_step",
+    ]
     df = df[df.metric.isin(wanted)]
     wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
     return wide[[c for c in wanted if c in wide.columns]]

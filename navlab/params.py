@@ -118,9 +118,7 @@ def describe(cls: type) -> list[dict[str, Any]]:
 
 def as_dict(obj: Any) -> dict[str, Any]:
     """Plain-dict form of a parameter dataclass (tuples become lists, for JSON)."""
-    return {
-        k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(obj).items()
-    }
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(obj).items()}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,9 +20,12 @@ def noise_defaults() -> PageDefaults:
     return PageDefaults(filters=filters, runs=50, noise_schedule="step", outliers="isolated")
 
 
-frame("Noise: R̂ inspection", "📈",
-      "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
-      "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.")
+frame(
+    "Noise: R̂ inspection",
+    "📈",
+    "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
+    "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.",
+)
 
 spec = sidebar_experiment(noise_defaults(), "noise")
 
@@ -30,8 +33,10 @@ c1, c2, c3 = st.columns([1, 1, 4])
 if c1.button("Run", type="primary", key="run_noise"):
     request_run(PAGE, spec)
 config_download(spec, key="dl_cfg_noise", container=c2)
-c3.caption(f"{len(spec.filters)} filters × {spec.runs} runs · noise `{spec.noise_schedule}` · "
-           f"outliers `{spec.outliers}`")
+c3.caption(
+    f"{len(spec.filters)} filters × {spec.runs} runs · noise `{spec.noise_schedule}` · "
+    f"outliers `{spec.outliers}`"
+)
 
 view = NoiseView(PAGE)
 if run_requested(PAGE, spec):

@@ -10,7 +10,8 @@ from navlab.ui import reproduce as ui
 from navlab.ui.frame import frame
 
 frame(
-    "Reproduce the papers", ":material/article:",
+    "Reproduce the papers",
+    ":material/article:",
     "Each reproduction runs a paper's experiment with navlab and lays the paper's numbers beside "
     "navlab's: the relative difference, and a note on why they differ (a reconstruction, an "
     "undefined metric, a typo in the paper). The URL keeps the selection.",
@@ -38,13 +39,19 @@ st.markdown(f"**{rep.title}**  \n{rep.paper}")
 n_paper = ui.paper_runs(rep)
 c1, c2, c3 = st.columns([2, 1, 1])
 full = c1.checkbox(
-    f"Use the paper's Monte Carlo count ({n_paper} runs)" if n_paper else
-    "Use the paper's Monte Carlo count",
-    key="rep_full", bind="query-params",
+    f"Use the paper's Monte Carlo count ({n_paper} runs)" if n_paper else "Use the paper's Monte Carlo count",
+    key="rep_full",
+    bind="query-params",
     help="Slower; the small default is enough to see the picture.",
 )
 runs = c2.number_input(
-    "Monte Carlo runs", 1, 5000, step=1, key="rep_runs", bind="query-params", disabled=full,
+    "Monte Carlo runs",
+    1,
+    5000,
+    step=1,
+    key="rep_runs",
+    bind="query-params",
+    disabled=full,
 )
 seed = c3.number_input("Seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params")
 config = (key, None if full else int(runs), int(seed))
@@ -77,7 +84,8 @@ if st.button("Run", type="primary", icon=":material/play_arrow:"):
         else:
             done.add(config)
             status.update(
-                label=f"{label}: done in {time.perf_counter() - t0:.1f} s", state="complete",
+                label=f"{label}: done in {time.perf_counter() - t0:.1f} s",
+                state="complete",
                 expanded=False,
             )
 
@@ -99,24 +107,35 @@ if diff.empty:
     st.info("This reproduction reports no paper numbers (navlab's values only).")
 else:
     st.caption("Largest disagreement first; the note says why navlab and the paper differ.")
-    show = diff[["experiment", "filter", "metric", "paper", "value", "rel_diff", "verdict",
-                 "unit", "note"]].rename(columns={"value": "navlab"})
+    show = diff[
+        ["experiment", "filter", "metric", "paper", "value", "rel_diff", "verdict", "unit", "note"]
+    ].rename(columns={"value": "navlab"})
     st.dataframe(
-        show.style.format({"paper": "{:.4g}", "navlab": "{:.4g}", "rel_diff": "{:+.1%}"},
-                          na_rep="—")
-        .map(lambda v: {"close": "background-color: #d9f2d9",
-                        "differs": "background-color: #fff1c2",
-                        "far": "background-color: #f8d0d0"}.get(v, ""), subset=["verdict"])
+        show.style.format({"paper": "{:.4g}", "navlab": "{:.4g}", "rel_diff": "{:+.1%}"}, na_rep="—")
+        .map(
+            lambda v: {
+                "close": "background-color: #d9f2d9",
+                "differs": "background-color: #fff1c2",
+                "far": "background-color: #f8d0d0",
+            }.get(v, ""),
+            subset=["verdict"],
+        )
         .map(lambda v: "font-weight: 600", subset=["paper", "navlab"]),
-        hide_index=True, width="stretch",
+        hide_index=True,
+        width="stretch",
         column_config={"note": st.column_config.TextColumn("why they differ", width="large")},
     )
-    st.plotly_chart(ui.reldiff_figure(table), width="stretch", config=ui.CONFIG,
-                    alt="Relative difference navlab vs paper per reported number")
+    st.plotly_chart(
+        ui.reldiff_figure(table),
+        width="stretch",
+        config=ui.CONFIG,
+        alt="Relative difference navlab vs paper per reported number",
+    )
     groups = {f"{e} · {m}": (e, m) for e, m in ui.paper_groups(table)}
     g = groups[st.selectbox("Bar chart of", list(groups), key="rep_bar")]
-    st.plotly_chart(ui.bar_figure(table, *g), width="stretch", config=ui.CONFIG,
-                    alt=f"Paper vs navlab, {g[0]} {g[1]}")
+    st.plotly_chart(
+        ui.bar_figure(table, *g), width="stretch", config=ui.CONFIG, alt=f"Paper vs navlab, {g[0]} {g[1]}"
+    )
 
 if curves:
     st.subheader("Curves")
@@ -130,17 +149,29 @@ if curves:
             elif groups:
                 measure = st.selectbox("Quantity", list(groups), key=f"curve_{name}")
                 cols = groups[measure]
-            st.plotly_chart(ui.curve_figure(df, name, measure, cols), width="stretch",
-                            config=ui.CONFIG, alt=f"Curves from {name}")
-            st.download_button(f"Download {name}", df.to_csv(index=False).encode(),
-                               file_name=name.replace("/", "_"), mime="text/csv",
-                               on_click="ignore", key=f"dl_{name}")
+            st.plotly_chart(
+                ui.curve_figure(df, name, measure, cols),
+                width="stretch",
+                config=ui.CONFIG,
+                alt=f"Curves from {name}",
+            )
+            st.download_button(
+                f"Download {name}",
+                df.to_csv(index=False).encode(),
+                file_name=name.replace("/", "_"),
+                mime="text/csv",
+                on_click="ignore",
+                key=f"dl_{name}",
+            )
 
 st.subheader("Full table")
 st.dataframe(ui.style_table(table), hide_index=True, width="stretch")
 runs_txt = "paper" if config[1] is None else f"{config[1]}runs"
 st.download_button(
-    "Download the table (CSV)", table.to_csv(index=False).encode(),
-    file_name=f"navlab-reproduce-{key}-{runs_txt}-seed{config[2]}.csv", mime="text/csv",
-    on_click="ignore", type="primary",
+    "Download the table (CSV)",
+    table.to_csv(index=False).encode(),
+    file_name=f"navlab-reproduce-{key}-{runs_txt}-seed{config[2]}.csv",
+    mime="text/csv",
+    on_click="ignore",
+    type="primary",
 )

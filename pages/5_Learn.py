@@ -7,7 +7,8 @@ from navlab.ui import learn as ui
 from navlab.ui.frame import frame
 
 frame(
-    "Learn: filters step by step", ":material/school:",
+    "Learn: filters step by step",
+    ":material/school:",
     "Pick a filter: its idea, its key equations and the paper, then step through its updates on "
     "a tiny constant-velocity example with an outlier you place. The URL keeps the filter, the "
     "example and the step, so a link shows the same update.",
@@ -18,8 +19,15 @@ frame(
 # still initialises them (bind="query-params"), and the ◀/▶ buttons and range clamping can move
 # them freely.
 DEFAULTS = {
-    "filter": "kf", "ex_dims": "1-D", "ex_epochs": 8, "ex_outk": 5, "ex_outsize": 10.0,
-    "ex_outall": False, "ex_noise": 1.0, "ex_seed": 0, "step": 1,
+    "filter": "kf",
+    "ex_dims": "1-D",
+    "ex_epochs": 8,
+    "ex_outk": 5,
+    "ex_outsize": 10.0,
+    "ex_outall": False,
+    "ex_noise": 1.0,
+    "ex_seed": 0,
+    "step": 1,
 }
 for k, v in DEFAULTS.items():
     st.session_state.setdefault(k, v)
@@ -39,36 +47,59 @@ st.divider()
 st.subheader("Step through single updates")
 with st.expander("The tiny example", expanded=True):
     c1, c2, c3 = st.columns(3)
-    dims = c1.segmented_control(
-        "Model", ["1-D", "2-D"], key="ex_dims", bind="query-params",
-        help="1-D: state [p, v], p measured; 2-D: state [x, y, v_x, v_y], x and y measured",
-    ) or "1-D"
+    dims = (
+        c1.segmented_control(
+            "Model",
+            ["1-D", "2-D"],
+            key="ex_dims",
+            bind="query-params",
+            help="1-D: state [p, v], p measured; 2-D: state [x, y, v_x, v_y], x and y measured",
+        )
+        or "1-D"
+    )
     epochs = c1.slider("Epochs", 2, 30, key="ex_epochs", bind="query-params")
     if st.session_state["ex_outk"] > epochs:
         st.session_state["ex_outk"] = epochs
     oe = c2.slider("Outlier at epoch (0 = none)", 0, epochs, key="ex_outk", bind="query-params")
     os_ = c2.slider(
-        "Outlier size (measurement σ)", -30.0, 30.0, step=0.5, key="ex_outsize", bind="query-params",
+        "Outlier size (measurement σ)",
+        -30.0,
+        30.0,
+        step=0.5,
+        key="ex_outsize",
+        bind="query-params",
     )
-    oall = c2.checkbox("Outlier on every channel", key="ex_outall", bind="query-params",
-                       help="Otherwise only the first channel (p or x) is hit.")
+    oall = c2.checkbox(
+        "Outlier on every channel",
+        key="ex_outall",
+        bind="query-params",
+        help="Otherwise only the first channel (p or x) is hit.",
+    )
     ns = c3.slider(
-        "True noise σ / assumed σ", 0.25, 5.0, step=0.25, key="ex_noise", bind="query-params",
+        "True noise σ / assumed σ",
+        0.25,
+        5.0,
+        step=0.25,
+        key="ex_noise",
+        bind="query-params",
         help="Above 1 the filters' R is too small: watch the adaptive filters' R̂ grow.",
     )
     seed = c3.number_input("Noise seed", 0, 10_000, step=1, key="ex_seed", bind="query-params")
 
 spec = TinySpec(
-    dims=2 if dims == "2-D" else 1, epochs=int(epochs), outlier_epoch=int(oe),
-    outlier_size=float(os_), outlier_channel="all" if oall else "first",
-    noise_scale=float(ns), seed=int(seed),
+    dims=2 if dims == "2-D" else 1,
+    epochs=int(epochs),
+    outlier_epoch=int(oe),
+    outlier_size=float(os_),
+    outlier_channel="all" if oall else "first",
+    noise_scale=float(ns),
+    seed=int(seed),
 )
 res = ui.safe_step_through(key, spec)
 if res is None:
     st.stop()
 if not res.applicable:
-    st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}",
-               icon=":material/block:")
+    st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}", icon=":material/block:")
 else:
     note = caveat(key)
     if note:
@@ -79,12 +110,17 @@ else:
     ui.step_buttons(res.epochs)
     ui.render_step(res, int(step))
     st.plotly_chart(
-        ui.overview_figure(res, int(step)), width="stretch", config=ui.CONFIG,
+        ui.overview_figure(res, int(step)),
+        width="stretch",
+        config=ui.CONFIG,
         alt="Step-through overview: measurements, NIS against the χ² threshold, R and weights",
     )
     st.download_button(
-        "Download the step table (CSV)", res.steps.to_csv(index=False).encode(),
-        file_name=f"navlab-learn-{key}.csv", mime="text/csv", on_click="ignore",
+        "Download the step table (CSV)",
+        res.steps.to_csv(index=False).encode(),
+        file_name=f"navlab-learn-{key}.csv",
+        mime="text/csv",
+        on_click="ignore",
     )
 
 with st.expander("Which filters can run on the tiny example?"):

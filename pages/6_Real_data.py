@@ -10,9 +10,12 @@ from navlab.ui.frame import frame
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.widgets import BIND
 
-frame("Real data", "🚗",
-      "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
-      "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.")
+frame(
+    "Real data",
+    "🚗",
+    "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
+    "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.",
+)
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
@@ -25,11 +28,24 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     filters = st.multiselect("Filters", options, default=defaults, key=f"rd_flt_{scen}", bind=BIND)
     st.caption(" · ".join(f"`{k}` {registry()[k].label}" for k in filters))
     is_drive = scen == "drive0708"
-    epochs = st.number_input("Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
-                             0, 100000, 120 if is_drive else 300, step=10, key=f"rd_ep_{scen}", bind=BIND)
-    runs = st.number_input("Noise/outlier injections (runs)", 1, 50, 1, key=f"rd_runs_{scen}", bind=BIND,
-                           help="each run adds an independent draw of noise and outliers to the "
-                                "same real measurements")
+    epochs = st.number_input(
+        "Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
+        0,
+        100000,
+        120 if is_drive else 300,
+        step=10,
+        key=f"rd_ep_{scen}",
+        bind=BIND,
+    )
+    runs = st.number_input(
+        "Noise/outlier injections (runs)",
+        1,
+        50,
+        1,
+        key=f"rd_runs_{scen}",
+        bind=BIND,
+        help="each run adds an independent draw of noise and outliers to the same real measurements",
+    )
     seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed", bind=BIND)
     sp = {}
     if is_drive:
@@ -40,10 +56,12 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
         sp["outage_start_s"] = o1.number_input("Outage start (s)", 0.0, 1e4, 0.0, key="rd_out0", bind=BIND)
         sp["outage_len_s"] = o2.number_input("Outage length (s)", 0.0, 1e4, 0.0, key="rd_outlen", bind=BIND)
     else:
-        sp["variance_model"] = st.selectbox("Variance model", ["cn0-elevation", "file"],
-                                            key="rd_varmodel", bind=BIND)
-        contamination = st.slider("Extra injected outliers α", 0.0, 0.5, 0.0, 0.01,
-                                  key="rd_alpha_sl", bind=BIND)
+        sp["variance_model"] = st.selectbox(
+            "Variance model", ["cn0-elevation", "file"], key="rd_varmodel", bind=BIND
+        )
+        contamination = st.slider(
+            "Extra injected outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_sl", bind=BIND
+        )
         scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_sl", bind=BIND)
 
 upload_error = None
@@ -52,7 +70,8 @@ if rec == "upload":
         "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`, "
         "vehicle axes x right, y forward, z up), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m`, "
         "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
-        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). The drive must start at rest.")
+        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). The drive must start at rest."
+    )
     u1, u2, u3 = st.columns(3)
     f_imu = u1.file_uploader("imu.csv", type=["csv", "txt"], key="rd_up_imu")
     f_gnss = u2.file_uploader("gnss.csv", type=["csv", "txt"], key="rd_up_gnss")
@@ -61,29 +80,40 @@ if rec == "upload":
         st.info("Upload at least imu.csv and gnss.csv.")
         st.stop()
     try:
-        folder = R.save_upload(f_imu.getvalue(), f_gnss.getvalue(),
-                               f_truth.getvalue() if f_truth is not None else None)
+        folder = R.save_upload(
+            f_imu.getvalue(), f_gnss.getvalue(), f_truth.getvalue() if f_truth is not None else None
+        )
     except NavlabError as exc:
         st.error(str(exc))
         st.stop()
     sp["data_dir"] = str(folder)
-    sp["add_noise"] = st.toggle("Add the σ / outliers above to the uploaded GNSS", False,
-                                key="rd_addnoise", bind=BIND)
+    sp["add_noise"] = st.toggle(
+        "Add the σ / outliers above to the uploaded GNSS", False, key="rd_addnoise", bind=BIND
+    )
 
 if not filters:
     st.warning("Choose at least one filter.")
     st.stop()
 
-spec = R.build_spec(rec, filters, epochs=int(epochs), runs=int(runs), seed=int(seed),
-                    contamination=float(contamination), outlier_scale=float(scale),
-                    scenario_params=sp)
+spec = R.build_spec(
+    rec,
+    filters,
+    epochs=int(epochs),
+    runs=int(runs),
+    seed=int(seed),
+    contamination=float(contamination),
+    outlier_scale=float(scale),
+    scenario_params=sp,
+)
 key = spec.to_json()
 store = result_store()
 
 c1, c2 = st.columns([1, 5])
 run_clicked = c1.button("Run", type="primary", key="rd_run")
-c2.caption(f"{len(filters)} filters × {runs} run(s) · scenario `{spec.scenario}` · "
-           f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`")
+c2.caption(
+    f"{len(filters)} filters × {runs} run(s) · scenario `{spec.scenario}` · "
+    f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`"
+)
 
 res = store.get(key)
 if run_clicked and res is None:
@@ -110,23 +140,31 @@ else:
         run = st.number_input("Show run", 0, d.B - 1, 0, key="rd_show_run")
     st.subheader("Results")
     st.dataframe(R.metrics_table(res).round(3), key="rd_table")
-    st.caption(f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
-               "Median/90 % horizontal errors pool every epoch and run.")
-    st.plotly_chart(R.track_figure(res, run), width="stretch", config={"displaylogo": False},
-                    key="rd_track")
+    st.caption(
+        f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
+        "Median/90 % horizontal errors pool every epoch and run."
+    )
+    st.plotly_chart(R.track_figure(res, run), width="stretch", config={"displaylogo": False}, key="rd_track")
     log_y = st.toggle("log scale", False, key="rd_log")
-    st.plotly_chart(R.error_figure(res, run, log_y), width="stretch",
-                    config={"displaylogo": False}, key="rd_err")
+    st.plotly_chart(
+        R.error_figure(res, run, log_y), width="stretch", config={"displaylogo": False}, key="rd_err"
+    )
     if any(fr.R_hat is not None for fr in res.runs.values()):
-        ch = st.selectbox("Channel (satellite or axis) for R̂", list(range(len(d.channel_names))),
-                          format_func=lambda i: d.channel_names[i], key="rd_ch")
-        st.plotly_chart(R.rhat_figure(res, ch, run), width="stretch",
-                        config={"displaylogo": False}, key="rd_rhat")
+        ch = st.selectbox(
+            "Channel (satellite or axis) for R̂",
+            list(range(len(d.channel_names))),
+            format_func=lambda i: d.channel_names[i],
+            key="rd_ch",
+        )
+        st.plotly_chart(
+            R.rhat_figure(res, ch, run), width="stretch", config={"displaylogo": False}, key="rd_rhat"
+        )
         if d.scenario == "smartloc-berlin":
-            st.caption("Pseudorange channels are whitened by the variance model: R̂ is a variance "
-                       "multiplier (1 = the model is right).")
-    st.plotly_chart(R.flags_figure(res, run), width="stretch", config={"displaylogo": False},
-                    key="rd_flags")
+            st.caption(
+                "Pseudorange channels are whitened by the variance model: R̂ is a variance "
+                "multiplier (1 = the model is right)."
+            )
+    st.plotly_chart(R.flags_figure(res, run), width="stretch", config={"displaylogo": False}, key="rd_flags")
     ft = R.flag_table(res)
     if not ft.empty and ft.shape[1]:
         st.caption("Share of measurement entries per decision (%)")

@@ -100,8 +100,9 @@ Range = tuple[float, float, str]
 
 def _read_text(path: Path) -> str:
     if not path.is_file():
-        raise NavlabError(f"{path}: file not found; check the data directory ({ENV_VAR} or --set "
-                          f"scenario.data_dir=...)")
+        raise NavlabError(
+            f"{path}: file not found; check the data directory ({ENV_VAR} or --set scenario.data_dir=...)"
+        )
     try:
         raw = path.read_bytes()
     except OSError as exc:
@@ -224,8 +225,19 @@ class DriveRecording:
 
 
 IMU_COLS = ("f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps")
-GNSS_COLS = ("t_s", "lat_deg", "lon_deg", "h_m", "q", "sigma_n_m", "sigma_e_m", "sigma_u_m",
-             "vn_mps", "ve_mps", "vu_mps")
+GNSS_COLS = (
+    "t_s",
+    "lat_deg",
+    "lon_deg",
+    "h_m",
+    "q",
+    "sigma_n_m",
+    "sigma_e_m",
+    "sigma_u_m",
+    "vn_mps",
+    "ve_mps",
+    "vu_mps",
+)
 
 
 def read_rtklib_tag(path: Path) -> tuple[float, np.ndarray]:
@@ -240,13 +252,16 @@ def read_rtklib_tag(path: Path) -> tuple[float, np.ndarray]:
         )
     _tick_f, t_start, frac = struct.unpack("<IId", b[60:76])
     if (len(b) - 76) % 8:
-        raise NavlabError(f"{path}: truncated after byte {len(b) - (len(b) - 76) % 8}; "
-                          "the records are 8 bytes each — use an intact copy")
+        raise NavlabError(
+            f"{path}: truncated after byte {len(b) - (len(b) - 76) % 8}; "
+            "the records are 8 bytes each — use an intact copy"
+        )
     rec = np.frombuffer(b[76:], dtype="<u4").reshape(-1, 2)
     ticks = rec[:, 0].astype(float)
     if not math.isfinite(frac) or not 0 <= frac < 1 or np.any(np.diff(ticks) < 0):
-        raise NavlabError(f"{path}: corrupt header or tick records (fraction {frac!r}); "
-                          "use an intact copy of the tag file")
+        raise NavlabError(
+            f"{path}: corrupt header or tick records (fraction {frac!r}); use an intact copy of the tag file"
+        )
     return float(t_start) + float(frac), ticks
 
 
@@ -277,13 +292,35 @@ def read_rtklib_pos(path: Path) -> pd.DataFrame:
         body.append(" ".join(parts[2:]))
     if not body:
         raise NavlabError(f"{path}: no solution epochs found (only header lines)")
-    names = ("lat_deg", "lon_deg", "h_m", "q", "ns", "sdn_m", "sde_m", "sdu_m", "sdne_m", "sdeu_m",
-             "sdun_m", "age_s", "ratio", "vn_mps", "ve_mps", "vu_mps")
+    names = (
+        "lat_deg",
+        "lon_deg",
+        "h_m",
+        "q",
+        "ns",
+        "sdn_m",
+        "sde_m",
+        "sdu_m",
+        "sdne_m",
+        "sdeu_m",
+        "sdun_m",
+        "age_s",
+        "ratio",
+        "vn_mps",
+        "ve_mps",
+        "vu_mps",
+    )
     ranges = {
-        "lat_deg": (-90.0, 90.0, "deg"), "lon_deg": (-180.0, 360.0, "deg"),
-        "h_m": (-1000.0, 1e5, "m"), "q": (0.0, 7.0, ""), "sdn_m": (0.0, 1e4, "m"),
-        "sde_m": (0.0, 1e4, "m"), "sdu_m": (0.0, 1e4, "m"), "vn_mps": (-500.0, 500.0, "m/s"),
-        "ve_mps": (-500.0, 500.0, "m/s"), "vu_mps": (-500.0, 500.0, "m/s"),
+        "lat_deg": (-90.0, 90.0, "deg"),
+        "lon_deg": (-180.0, 360.0, "deg"),
+        "h_m": (-1000.0, 1e5, "m"),
+        "q": (0.0, 7.0, ""),
+        "sdn_m": (0.0, 1e4, "m"),
+        "sde_m": (0.0, 1e4, "m"),
+        "sdu_m": (0.0, 1e4, "m"),
+        "vn_mps": (-500.0, 500.0, "m/s"),
+        "ve_mps": (-500.0, 500.0, "m/s"),
+        "vu_mps": (-500.0, 500.0, "m/s"),
     }
     # line numbers: body lines are exactly the non-header lines in order
     data_lines = [ln for ln in lines if ln.strip() and not ln.strip().startswith("%")]
@@ -311,11 +348,17 @@ def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
     f_imu = d / "imu_1934.csv"
     lim_g, lim_w = 16.0, 2000.0
     raw = _parse_rows(
-        f_imu, ("ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "ms"),
-        ranges={"ax_g": (-lim_g, lim_g, "g"), "ay_g": (-lim_g, lim_g, "g"),
-                "az_g": (-lim_g, lim_g, "g"), "gx_dps": (-lim_w, lim_w, "deg/s"),
-                "gy_dps": (-lim_w, lim_w, "deg/s"), "gz_dps": (-lim_w, lim_w, "deg/s"),
-                "ms": (0.0, 2.0**32, "ms")},
+        f_imu,
+        ("ax_g", "ay_g", "az_g", "gx_dps", "gy_dps", "gz_dps", "ms"),
+        ranges={
+            "ax_g": (-lim_g, lim_g, "g"),
+            "ay_g": (-lim_g, lim_g, "g"),
+            "az_g": (-lim_g, lim_g, "g"),
+            "gx_dps": (-lim_w, lim_w, "deg/s"),
+            "gy_dps": (-lim_w, lim_w, "deg/s"),
+            "gz_dps": (-lim_w, lim_w, "deg/s"),
+            "ms": (0.0, 2.0**32, "ms"),
+        },
     )
     _check_increasing(f_imu, raw[:, 6], "the millisecond counter (column 7)")
     if raw.shape[0] < 100:
@@ -334,34 +377,48 @@ def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
     t_imu_abs = t_start + (ms - ms[0]) / 1000.0 * scale + RTKX_IMU_TIME_OFFSET_S
     pos = read_rtklib_pos(d / "gnss_1934_sf.pos")
     t0 = float(pos.t_gpst_s.iloc[0])
-    imu = pd.DataFrame(
-        np.column_stack([raw[:, 0:3] * G0_MPS2, np.radians(raw[:, 3:6])]), columns=IMU_COLS
-    )
+    imu = pd.DataFrame(np.column_stack([raw[:, 0:3] * G0_MPS2, np.radians(raw[:, 3:6])]), columns=IMU_COLS)
     imu.insert(0, "t_s", t_imu_abs - t0)
     imu["repeated"] = np.r_[False, np.all(raw[1:, :6] == raw[:-1, :6], axis=1)]
-    gnss = pd.DataFrame({
-        "t_s": pos.t_gpst_s - t0, "lat_deg": pos.lat_deg, "lon_deg": pos.lon_deg, "h_m": pos.h_m,
-        "q": pos.q.astype(int), "sigma_n_m": pos.sdn_m, "sigma_e_m": pos.sde_m,
-        "sigma_u_m": pos.sdu_m, "vn_mps": pos.vn_mps, "ve_mps": pos.ve_mps, "vu_mps": pos.vu_mps,
-    })
+    gnss = pd.DataFrame(
+        {
+            "t_s": pos.t_gpst_s - t0,
+            "lat_deg": pos.lat_deg,
+            "lon_deg": pos.lon_deg,
+            "h_m": pos.h_m,
+            "q": pos.q.astype(int),
+            "sigma_n_m": pos.sdn_m,
+            "sigma_e_m": pos.sde_m,
+            "sigma_u_m": pos.sdu_m,
+            "vn_mps": pos.vn_mps,
+            "ve_mps": pos.ve_mps,
+            "vu_mps": pos.vu_mps,
+        }
+    )
     truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m"]].reset_index(drop=True)
     if len(truth) < 2:
         raise NavlabError(f"{d / 'gnss_1934_sf.pos'}: fewer than 2 RTK-fixed (Q=1) epochs")
     return DriveRecording(
-        name=RTKX_DIR, imu=imu, gnss=gnss, truth=truth,
-        C_bv=body_to_vehicle(nominal=RTKX_NOMINAL_C_BV), t0_gpst_s=t0, source=RTKX_SOURCE,
+        name=RTKX_DIR,
+        imu=imu,
+        gnss=gnss,
+        truth=truth,
+        C_bv=body_to_vehicle(nominal=RTKX_NOMINAL_C_BV),
+        t0_gpst_s=t0,
+        source=RTKX_SOURCE,
     )
 
 
 # ---------------------------------------------------------------------------- generic CSV
-def _read_header_csv(path: Path, required: tuple[str, ...], optional: tuple[str, ...],
-                     ranges: dict[str, Range]) -> pd.DataFrame:
+def _read_header_csv(
+    path: Path, required: tuple[str, ...], optional: tuple[str, ...], ranges: dict[str, Range]
+) -> pd.DataFrame:
     lines = _read_text(path).splitlines()
-    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")),
-                 None)
+    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
     if hdr_i is None:
-        raise NavlabError(f"{path}: no header line; the first line must name the columns "
-                          f"({', '.join(required)})")
+        raise NavlabError(
+            f"{path}: no header line; the first line must name the columns ({', '.join(required)})"
+        )
     header = [h.strip() for h in lines[hdr_i].split(",")]
     missing = [c for c in required if c not in header]
     if missing:
@@ -374,8 +431,14 @@ def _read_header_csv(path: Path, required: tuple[str, ...], optional: tuple[str,
         raise NavlabError(f"{path}: line {hdr_i + 1} is numbers, not a header; add a header line")
     except ValueError:
         pass
-    arr = _parse_rows(path, tuple(header), lines=lines[hdr_i + 1:], first_line=hdr_i + 2,
-                      ranges=ranges, skip=lambda s: s.startswith("#"))
+    arr = _parse_rows(
+        path,
+        tuple(header),
+        lines=lines[hdr_i + 1 :],
+        first_line=hdr_i + 2,
+        ranges=ranges,
+        skip=lambda s: s.startswith("#"),
+    )
     df = pd.DataFrame(arr, columns=header)
     keep = [c for c in (*required, *optional) if c in df.columns]
     df = df[keep].copy()
@@ -384,19 +447,29 @@ def _read_header_csv(path: Path, required: tuple[str, ...], optional: tuple[str,
 
 
 _POS_RANGES: dict[str, Range] = {
-    "lat_deg": (-90.0, 90.0, "deg"), "lon_deg": (-180.0, 360.0, "deg"),
-    "h_m": (-1000.0, 1e5, "m"), "sigma_n_m": (0.0, 1e4, "m"), "sigma_e_m": (0.0, 1e4, "m"),
-    "sigma_u_m": (0.0, 1e4, "m"), "vn_mps": (-500.0, 500.0, "m/s"),
-    "ve_mps": (-500.0, 500.0, "m/s"), "vu_mps": (-500.0, 500.0, "m/s"),
+    "lat_deg": (-90.0, 90.0, "deg"),
+    "lon_deg": (-180.0, 360.0, "deg"),
+    "h_m": (-1000.0, 1e5, "m"),
+    "sigma_n_m": (0.0, 1e4, "m"),
+    "sigma_e_m": (0.0, 1e4, "m"),
+    "sigma_u_m": (0.0, 1e4, "m"),
+    "vn_mps": (-500.0, 500.0, "m/s"),
+    "ve_mps": (-500.0, 500.0, "m/s"),
+    "vu_mps": (-500.0, 500.0, "m/s"),
 }
 
 
-def load_generic(imu_csv: str | os.PathLike, gnss_csv: str | os.PathLike,
-                 truth_csv: str | os.PathLike | None = None, name: str = "user upload") -> DriveRecording:
+def load_generic(
+    imu_csv: str | os.PathLike,
+    gnss_csv: str | os.PathLike,
+    truth_csv: str | os.PathLike | None = None,
+    name: str = "user upload",
+) -> DriveRecording:
     """Load the generic CSV format (see the module docstring for the columns and units)."""
     imu_ranges = {c: (-160.0, 160.0, "m/s²") for c in IMU_COLS[:3]}
-    imu_ranges.update({c: (-35.0, 35.0, "rad/s (a value this large usually means deg/s)")
-                       for c in IMU_COLS[3:]})
+    imu_ranges.update(
+        {c: (-35.0, 35.0, "rad/s (a value this large usually means deg/s)") for c in IMU_COLS[3:]}
+    )
     imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges)
     if len(imu) < 100:
         raise NavlabError(f"{imu_csv}: only {len(imu)} IMU rows; give at least 100 samples")
@@ -422,8 +495,13 @@ def load_generic(imu_csv: str | os.PathLike, gnss_csv: str | os.PathLike,
     if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
         raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
     return DriveRecording(
-        name=name, imu=imu, gnss=gnss.reset_index(drop=True), truth=truth, C_bv=np.eye(3),
-        t0_gpst_s=float("nan"), source=f"{name}: user-provided files (generic navlab CSV format)",
+        name=name,
+        imu=imu,
+        gnss=gnss.reset_index(drop=True),
+        truth=truth,
+        C_bv=np.eye(3),
+        t0_gpst_s=float("nan"),
+        source=f"{name}: user-provided files (generic navlab CSV format)",
     )
 
 
@@ -433,8 +511,7 @@ def load_drive(data_dir: str | os.PathLike | None = None) -> DriveRecording:
         d = Path(data_dir).expanduser()
         if (d / "imu.csv").exists() or (d / "gnss.csv").exists():
             truth = d / "truth.csv"
-            return load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None,
-                                name=d.name)
+            return load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None, name=d.name)
     return rtkx_drive_0708(data_dir)
 
 
@@ -463,8 +540,18 @@ class PseudorangeRecording:
         return np.unique(self.pr.t_s.to_numpy())
 
 
-PR_NAMES = ("t_s", "pseudorange_m", "var_m2", "sat_x_m", "sat_y_m", "sat_z_m", "sat_id", "system",
-            "elevation_deg", "cn0_dbhz")
+PR_NAMES = (
+    "t_s",
+    "pseudorange_m",
+    "var_m2",
+    "sat_x_m",
+    "sat_y_m",
+    "sat_z_m",
+    "sat_id",
+    "system",
+    "elevation_deg",
+    "cn0_dbhz",
+)
 
 
 def smartloc_berlin_pp(path: str | os.PathLike | None = None) -> PseudorangeRecording:
@@ -474,26 +561,46 @@ def smartloc_berlin_pp(path: str | os.PathLike | None = None) -> PseudorangeReco
     f_gt = d / "Berlin_Potsdamer_Platz_GT.txt"
     lines = _read_text(f_in).splitlines()
     pr_ranges = {
-        "t_s": (-1e6, 1e7, "s"), "pseudorange_m": (1.0e7, 6.0e7, "m"),
-        "var_m2": (1e-6, 1e10, "m²"), "sat_x_m": (-5e7, 5e7, "m"), "sat_y_m": (-5e7, 5e7, "m"),
-        "sat_z_m": (-5e7, 5e7, "m"), "system": (1, 32, ""), "elevation_deg": (-10.0, 90.0, "deg"),
+        "t_s": (-1e6, 1e7, "s"),
+        "pseudorange_m": (1.0e7, 6.0e7, "m"),
+        "var_m2": (1e-6, 1e10, "m²"),
+        "sat_x_m": (-5e7, 5e7, "m"),
+        "sat_y_m": (-5e7, 5e7, "m"),
+        "sat_z_m": (-5e7, 5e7, "m"),
+        "system": (1, 32, ""),
+        "elevation_deg": (-10.0, 90.0, "deg"),
         "cn0_dbhz": (0.0, 80.0, "dBHz"),
     }
     pr = _parse_rows(f_in, PR_NAMES, sep=None, keyword="pseudorange3", lines=lines, ranges=pr_ranges)
-    od = _parse_rows(f_in, ("t_s", "vx", "vy", "vz", "wx", "wy", "wz"), sep=None, keyword="odom3",
-                     lines=lines, ranges={"vx": (-100.0, 100.0, "m/s"), "wz": (-10.0, 10.0, "rad/s")})
-    gt = _parse_rows(f_gt, ("t_s", "x_m", "y_m", "z_m"), sep=None, keyword="point3",
-                     ranges={"x_m": (-7e6, 7e6, "m"), "y_m": (-7e6, 7e6, "m"), "z_m": (-7e6, 7e6, "m")})
+    od = _parse_rows(
+        f_in,
+        ("t_s", "vx", "vy", "vz", "wx", "wy", "wz"),
+        sep=None,
+        keyword="odom3",
+        lines=lines,
+        ranges={"vx": (-100.0, 100.0, "m/s"), "wz": (-10.0, 10.0, "rad/s")},
+    )
+    gt = _parse_rows(
+        f_gt,
+        ("t_s", "x_m", "y_m", "z_m"),
+        sep=None,
+        keyword="point3",
+        ranges={"x_m": (-7e6, 7e6, "m"), "y_m": (-7e6, 7e6, "m"), "z_m": (-7e6, 7e6, "m")},
+    )
     r = np.linalg.norm(pr[:, 3:6], axis=1)
     bad = np.flatnonzero((r < 1.9e7) | (r > 3.0e7))
     if bad.size:
-        raise NavlabError(f"{f_in}: pseudorange row {bad[0] + 1} has a satellite {r[bad[0]]:.4g} m from "
-                          "the Earth's centre (expected 2.0e7–2.6e7); columns 5-7 must be ECEF metres")
+        raise NavlabError(
+            f"{f_in}: pseudorange row {bad[0] + 1} has a satellite {r[bad[0]]:.4g} m from "
+            "the Earth's centre (expected 2.0e7–2.6e7); columns 5-7 must be ECEF metres"
+        )
     rg = np.linalg.norm(gt[:, 1:4], axis=1)
     bad = np.flatnonzero(np.abs(rg - 6.37e6) > 5e4)
     if bad.size:
-        raise NavlabError(f"{f_gt}: point3 row {bad[0] + 1} is {rg[bad[0]]:.4g} m from the Earth's "
-                          "centre, not on the ground; columns 3-5 must be ECEF metres")
+        raise NavlabError(
+            f"{f_gt}: point3 row {bad[0] + 1} is {rg[bad[0]]:.4g} m from the Earth's "
+            "centre, not on the ground; columns 3-5 must be ECEF metres"
+        )
     _check_increasing(f_in, pr[:, 0], "pseudorange time")
     _check_increasing(f_in, od[:, 0], "odometry time")
     _check_increasing(f_gt, gt[:, 0])

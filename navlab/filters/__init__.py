@@ -17,8 +17,16 @@ from navlab.filters.base import (
 )
 
 __all__ = [
-    "Filter", "KFState", "LinearModel", "Model", "SideInfo", "StepOut", "get_filter_class",
-    "make_filter", "register", "registry",
+    "Filter",
+    "KFState",
+    "LinearModel",
+    "Model",
+    "SideInfo",
+    "StepOut",
+    "get_filter_class",
+    "make_filter",
+    "register",
+    "registry",
 ]
 
 # every module of this package registers its filters with @register on import

@@ -126,11 +126,22 @@ class KFState(NamedTuple):
 
 # Per-channel flag codes (ALGORITHMS.md §0.3)
 ACCEPTED, DOWNWEIGHTED, REJECTED, REJECTED_AUX, REPLACED, EPOCH_ANOMALY, NUMERICAL_FIX = (
-    0, 1, 2, 3, 4, 5, 9,
+    0,
+    1,
+    2,
+    3,
+    4,
+    5,
+    9,
 )
 FLAG_NAMES = {
-    0: "accepted", 1: "down-weighted", 2: "rejected", 3: "rejected (aux. detector)",
-    4: "replaced by prediction", 5: "epoch anomaly", 9: "numerical fix",
+    0: "accepted",
+    1: "down-weighted",
+    2: "rejected",
+    3: "rejected (aux. detector)",
+    4: "replaced by prediction",
+    5: "epoch anomaly",
+    9: "numerical fix",
 }
 
 
@@ -180,9 +191,7 @@ class Filter:
 
         return state._replace(x=model.f(state.x, k), P=predict_cov(model.F(k), state.P, model.Q(k)))
 
-    def update(
-        self, model: Model, state: Any, k: int, z: Array, side: SideInfo
-    ) -> tuple[Any, StepOut]:
+    def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> tuple[Any, StepOut]:
         """Measurement update with z_k (B, m) (NaN = channel unavailable)."""
         raise NotImplementedError
 

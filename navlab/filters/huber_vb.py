@@ -201,7 +201,9 @@ class HuberParams:
         help="normalise the innovation by R (paper, S0 eq. 16 form) or by S = HP⁻Hᵀ + R",
     )
     irls_iters: int = param(
-        1, lo=1, hi=50,
+        1,
+        lo=1,
+        hi=50,
         help="passes; >1 recomputes the residual from the posterior z − Hx⁺ (IRLS reading)",
     )
 
@@ -252,7 +254,13 @@ class HuberKF(Filter):
             if p.irls_iters > 1:
                 r = np.where(ok, z - model.h(x, k), 0.0)
         out = StepOut(
-            x=x, P=P, innov=nu_m, S=S, R_used=Rt_m, weights=w, flags=_flags(w < 1.0, fixed),
+            x=x,
+            P=P,
+            innov=nu_m,
+            S=S,
+            R_used=Rt_m,
+            weights=w,
+            flags=_flags(w < 1.0, fixed),
             stats={"huber_passes": np.full(z.shape[0], float(p.irls_iters))},
         )
         return KFState(x, P), out
@@ -276,17 +284,23 @@ class VBParams:
     """Variational-Bayes adaptive KF options (ALGORITHMS.md §3.1)."""
 
     rho: float = param(
-        _RHO_DEFAULT, lo=1e-3, hi=1.0,
+        _RHO_DEFAULT,
+        lo=1e-3,
+        hi=1.0,
         help="forgetting factor ρ of α, β (1 = stationary R; 1 − e⁻⁴ ≈ 0.982: memory ≈ 55 epochs)",
     )
     iters: int = param(10, lo=1, hi=100, help="VB iterations N per epoch")
     alpha0: float = param(
-        1.0, lo=1e-3, hi=1e15,
+        1.0,
+        lo=1e-3,
+        hi=1e15,
         help="prior shape α₀ (β₀ = α₀·R0_ii); larger = stronger prior on the nominal R",
     )
     adapt: bool = param(True, help="estimate R; off = R̂ fixed at the nominal R0 (then a plain KF)")
     tol: float = param(
-        1e-6, lo=0.0, hi=1.0,
+        1e-6,
+        lo=0.0,
+        hi=1.0,
         help="stop before N iterations once max |Δβ/β| < tol in every run (0: always exactly N)",
     )
 
@@ -394,8 +408,15 @@ class _VBBase(Filter):
             "alpha": alpha.copy(),
         }
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=R_used, R_hat=R_hat, weights=w,
-            flags=_flags(w < 1.0, any_fixed), stats=stats,
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=R_used,
+            R_hat=R_hat,
+            weights=w,
+            flags=_flags(w < 1.0, any_fixed),
+            stats=stats,
         )
         return VBState(x, P, alpha, beta), out
 
@@ -462,9 +483,7 @@ class HAKF(_VBBase):
 class StudentTParams:
     """Student-t VB KF options (ALGORITHMS.md §1.6)."""
 
-    dof: float = param(
-        5.0, lo=0.1, hi=1e15, help="degrees of freedom ν_t of the noise (∞: the Gaussian KF)"
-    )
+    dof: float = param(5.0, lo=0.1, hi=1e15, help="degrees of freedom ν_t of the noise (∞: the Gaussian KF)")
     iters: int = param(5, lo=1, hi=100, help="VB iterations N_t per epoch")
     flag_below: float = param(
         0.5, lo=0.0, hi=1.0, help="flag the epoch as down-weighted when λ̄ is below this"
@@ -518,7 +537,13 @@ class StudentTKF(Filter):
         w = np.where(ok, lam[:, None], 1.0) * np.ones((B, m))
         down = (lam < p.flag_below)[:, None] & ok
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=bcast(Reff, (B, m, m)), weights=w,
-            flags=_flags(down, any_fixed), stats={"lambda": lam},
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=bcast(Reff, (B, m, m)),
+            weights=w,
+            flags=_flags(down, any_fixed),
+            stats={"lambda": lam},
         )
         return KFState(x, P), out

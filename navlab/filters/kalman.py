@@ -173,7 +173,5 @@ class Chi2KF(Filter):
             weights = np.where(reject[:, None], 0.0, 1.0) * np.ones(z.shape)
         if np.any(fixed):
             flags[np.broadcast_to(fixed, z.shape[:1])] = NUMERICAL_FIX
-        out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=R, weights=weights, flags=flags, stats={"nis": nis}
-        )
+        out = StepOut(x=x, P=P, innov=nu, S=S, R_used=R, weights=weights, flags=flags, stats={"nis": nis})
         return KFState(x, P), out

@@ -76,7 +76,8 @@ class NNMFUKFParams(MFUKFParams):
 
     use_network: bool = param(True, help="off: the filter is exactly the MFUKF")
     mode: str = param(
-        "frozen", choices=("frozen", "online"),
+        "frozen",
+        choices=("frozen", "online"),
         help="frozen: train once at the end of the window (S2 experiment); online: also refit on a "
         "sliding window of admissible pairs (S2 §2.4 step 3)",
     )
@@ -88,7 +89,8 @@ class NNMFUKFParams(MFUKFParams):
     j_max: int = param(100, lo=1, hi=1000, help="most RBF centres")
     ridge: float = param(1e-6, lo=0.0, hi=1e3, help="ridge λ of the output weights (standardised units)")
     linear_tail: str = param(
-        "off", choices=("off", "on", "auto"),
+        "off",
+        choices=("off", "on", "auto"),
         help="navlab option: add a linear term to the RBF output (auto: per output, chosen on the "
         "hold-out); S2's network has none",
     )
@@ -100,13 +102,16 @@ class NNMFUKFParams(MFUKFParams):
     )
     min_pairs: int = param(20, lo=2, hi=100000, help="train only with at least this many admissible pairs")
     replace: str = param(
-        "all", choices=("all", "flagged"),
+        "all",
+        choices=("all", "flagged"),
         help="all: replace the whole observation (S2); flagged: only channels with "
         "|V_i|/√Pyy_ii > c_replace (navlab option)",
     )
     c_replace: float = param(3.0, lo=0.5, hi=100.0, help="per-channel replacement gate (flagged mode)")
     max_run: int = param(
-        0, lo=0, hi=100000,
+        0,
+        lo=0,
+        hi=100000,
         help="0: no limit (S2); n: after n consecutive replaced epochs use the raw observation once",
     )
     retest_after_replace: bool = param(
@@ -149,8 +154,17 @@ class NNMFUKF(_FadingBase):
         B = x0.shape[0]
         m = np.asarray(model.R0).shape[-1]
         return NNState(
-            x=x0, P=P0, chi_f=None, neg=None, x_prev=x0, g_prev=np.full((B, m), np.nan),
-            pass_prev=np.zeros(B, dtype=bool), buf_u=None, buf_y=None, buf_ok=None, net=None,
+            x=x0,
+            P=P0,
+            chi_f=None,
+            neg=None,
+            x_prev=x0,
+            g_prev=np.full((B, m), np.nan),
+            pass_prev=np.zeros(B, dtype=bool),
+            buf_u=None,
+            buf_y=None,
+            buf_ok=None,
+            net=None,
             run_len=np.zeros(B, dtype=int),
         )
 
@@ -193,10 +207,17 @@ class NNMFUKF(_FadingBase):
         old = st.net if (refit and st.net is not None) else None
         linear = {"off": False, "on": True, "auto": "auto"}[p.linear_tail]
         net = train(
-            np.stack(st.buf_u, axis=1), np.stack(st.buf_y, axis=1), np.stack(st.buf_ok, axis=1),
-            j_min=p.j_min, j_max=p.j_max, lam=p.ridge,
-            min_samples=p.min_pairs, s_w=None if old is None else old.s_w, linear=linear,
-            per_output=p.width_per_output, lin_on=None if old is None else old.lin_on,
+            np.stack(st.buf_u, axis=1),
+            np.stack(st.buf_y, axis=1),
+            np.stack(st.buf_ok, axis=1),
+            j_min=p.j_min,
+            j_max=p.j_max,
+            lam=p.ridge,
+            min_samples=p.min_pairs,
+            s_w=None if old is None else old.s_w,
+            linear=linear,
+            per_output=p.width_per_output,
+            lin_on=None if old is None else old.lin_on,
             clip=p.clip_inputs,
         )
         if refit and st.net is not None:
@@ -232,13 +253,11 @@ class NNMFUKF(_FadingBase):
                 u = self._features(model, state.x_prev, k)
             if collecting:
                 y = g_raw - state.g_prev
-                adm = (~reject & state.pass_prev & np.all(np.isfinite(y), -1)
-                       & np.all(np.isfinite(u), -1))
+                adm = ~reject & state.pass_prev & np.all(np.isfinite(y), -1) & np.all(np.isfinite(u), -1)
                 st = self._store(st, u, y, adm)
                 if k == p.train_end:
                     st = self._train(st, refit=False)
-                elif (p.mode == "online" and k > p.train_end
-                      and (k - p.train_end) % p.retrain_every == 0):
+                elif p.mode == "online" and k > p.train_end and (k - p.train_end) % p.retrain_every == 0:
                     st = self._train(st, refit=True)
             use = reject & st.net.trained if st.net is not None else reject & False
             if p.max_run > 0:
@@ -262,8 +281,7 @@ class NNMFUKF(_FadingBase):
                     Pyy0 = sym(A + R)
                     # runs not replaced keep V, R, Pyy0 bit for bit: re-solve the replaced ones only
                     i = np.flatnonzero(replaced)
-                    _, _, rej2, g2 = self._test(V[i], _batched(Pyy0, B)[i], ok[i],
-                                                _batched(Pxy, B)[i])
+                    _, _, rej2, g2 = self._test(V[i], _batched(Pyy0, B)[i], ok[i], _batched(Pxy, B)[i])
                     Kt, fx = gain[0].copy(), gain[1].copy()
                     Kt[i], fx[i] = g2
                     gain = (Kt, fx)
@@ -280,15 +298,24 @@ class NNMFUKF(_FadingBase):
         trained = st.net.trained if st.net is not None else np.zeros(B, dtype=bool)
         run_len = np.where(replaced, state.run_len + 1, 0)
         stats = {
-            "gamma": gamma, "gamma_threshold": thr, "fading": sig,
-            "rejected": reject.astype(float), "replaced": replaced.astype(float),
-            "run_len": run_len.astype(float), "nn_trained": trained.astype(float),
+            "gamma": gamma,
+            "gamma_threshold": thr,
+            "fading": sig,
+            "rejected": reject.astype(float),
+            "replaced": replaced.astype(float),
+            "run_len": run_len.astype(float),
+            "nn_trained": trained.astype(float),
         }
         out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
         new = st._replace(
-            x=x, P=P, chi_f=None, neg=None,
+            x=x,
+            P=P,
+            chi_f=None,
+            neg=None,
             g_prev=g_raw if g_raw is not None else state.g_prev,
-            pass_prev=~reject, run_len=run_len, psd=False,
+            pass_prev=~reject,
+            run_len=run_len,
+            psd=False,
         )
         return new, out
 
@@ -298,18 +325,21 @@ class NNMFUKFGuardedParams(NNMFUKFParams):
     """NNMFUKF with navlab's guards on (same options, other defaults)."""
 
     linear_tail: str = param(
-        "auto", choices=("off", "on", "auto"),
+        "auto",
+        choices=("off", "on", "auto"),
         help="add a linear term to the RBF output (auto: per output, chosen on the hold-out)",
     )
     width_per_output: bool = param(True, help="search the kernel width separately for each output")
     clip_inputs: bool = param(True, help="clip the network's inputs to their training range")
     replace: str = param(
-        "flagged", choices=("all", "flagged"),
-        help="all: replace the whole observation (S2); flagged: only channels with "
-        "|V_i|/√Pyy_ii > c_replace",
+        "flagged",
+        choices=("all", "flagged"),
+        help="all: replace the whole observation (S2); flagged: only channels with |V_i|/√Pyy_ii > c_replace",
     )
     max_run: int = param(
-        3, lo=0, hi=100000,
+        3,
+        lo=0,
+        hi=100000,
         help="after this many consecutive replaced epochs use the raw observation once (0: never)",
     )
 

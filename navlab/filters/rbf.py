@@ -67,8 +67,14 @@ class RBFNet:
             Ys = mm(design(Us, self.C, self.cmask, self.s_w[:, 0], self.linear, d2=d2), self.W)
         else:
             Ys = np.concatenate(
-                [mm(design(Us, self.C, self.cmask, self.s_w[:, j], self.linear, d2=d2),
-                    self.W[..., j : j + 1]) for j in range(p)], axis=-1,
+                [
+                    mm(
+                        design(Us, self.C, self.cmask, self.s_w[:, j], self.linear, d2=d2),
+                        self.W[..., j : j + 1],
+                    )
+                    for j in range(p)
+                ],
+                axis=-1,
             )
         Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
         Y = np.where(self.trained[:, None, None], Y, np.nan)
@@ -109,7 +115,12 @@ def sq_dist(U: Array, C: Array) -> Array:
 
 
 def design(
-    Us: Array, C: Array, cmask: Array, s_w: Array, linear: bool = False, lin_on: Array | None = None,
+    Us: Array,
+    C: Array,
+    cmask: Array,
+    s_w: Array,
+    linear: bool = False,
+    lin_on: Array | None = None,
     d2: Array | None = None,
 ) -> Array:
     """Φ (B, N, J+1[+d]): Gaussian kernels exp(−‖u − C_j‖²/(2 s_w²)) (S2 eq. 14), the inputs
@@ -227,8 +238,17 @@ def _gather_rows(Us: Array, Ys: Array, rows: Array) -> tuple[Array, Array, Array
 
 
 def width_search(
-    Us: Array, Ys: Array, fit: Array, val: Array, C: Array, cm: Array, r: Array,
-    grid: tuple[float, ...], lin_opts: tuple[bool, ...], tail: bool, lam: float,
+    Us: Array,
+    Ys: Array,
+    fit: Array,
+    val: Array,
+    C: Array,
+    cm: Array,
+    r: Array,
+    grid: tuple[float, ...],
+    lin_opts: tuple[bool, ...],
+    tail: bool,
+    lam: float,
 ) -> tuple[list[Array], list[Array]]:
     """Hold-out score of every (linear tail, width) candidate of §6.2 step 2, in the order
     ``for lo in lin_opts for g in grid``: RMSE (B, p) on the ``val`` rows of the ridge fit on the
@@ -254,10 +274,10 @@ def width_search(
     res: dict[tuple[bool, float], tuple[Array, Array]] = {}
     # design matrices allocated once: the tail and bias columns do not depend on the width
     Phf = np.empty((*d2f.shape[:2], n_col))
-    Phf[..., J:J + nt] = Uf[..., :nt] if tail else 0.0
+    Phf[..., J : J + nt] = Uf[..., :nt] if tail else 0.0
     Phf[..., -1] = okf
     Phv = np.empty((*d2v.shape[:2], n_col))
-    Phv[..., J:J + nt] = Uv[..., :nt] if tail else 0.0
+    Phv[..., J : J + nt] = Uv[..., :nt] if tail else 0.0
     Phv[..., -1] = 1.0
     nd2f, nd2v = -d2f, -d2v
     Kf, Kv = Phf[..., :J], Phv[..., :J]
@@ -271,9 +291,9 @@ def width_search(
         for lo in lin_opts:
             if tail and not lo:
                 G0, rhs0 = G.copy(), rhs.copy()
-                G0[:, J:J + nt] = 0.0
-                G0[:, :, J:J + nt] = 0.0
-                rhs0[:, J:J + nt] = 0.0
+                G0[:, J : J + nt] = 0.0
+                G0[:, :, J : J + nt] = 0.0
+                rhs0[:, J : J + nt] = 0.0
                 W = np.linalg.solve(G0 + eye, rhs0)  # tail weights exactly 0
             else:
                 W = np.linalg.solve(G + eye, rhs)
@@ -301,8 +321,16 @@ def trim_centres(C: Array, cmask: Array) -> tuple[Array, Array]:
 
 
 def _fit_outputs(
-    Us: Array, Ys: Array, C: Array, cm: Array, s_w: Array, lin: Array, rows: Array, lam: float,
-    linear: bool, d2: Array | None = None,
+    Us: Array,
+    Ys: Array,
+    C: Array,
+    cm: Array,
+    s_w: Array,
+    lin: Array,
+    rows: Array,
+    lam: float,
+    linear: bool,
+    d2: Array | None = None,
 ) -> tuple[Array, Array]:
     """Ridge weights (B, J+1[+d], p) with a width s_w (B, p) and tail flag lin (B, p) per output;
     residuals on every sample.
@@ -323,10 +351,21 @@ def _fit_outputs(
 
 
 def train(
-    U: Array, Y: Array, mask: Array, *, j_min: int = 10, j_max: int = 100, r0: float | None = None,
-    lam: float = 1e-6, holdout: float = 0.2, min_samples: int = 20,
-    width_grid: tuple[float, ...] = WIDTH_GRID, s_w: Array | None = None,
-    linear: bool | str = False, per_output: bool = False, lin_on: Array | None = None,
+    U: Array,
+    Y: Array,
+    mask: Array,
+    *,
+    j_min: int = 10,
+    j_max: int = 100,
+    r0: float | None = None,
+    lam: float = 1e-6,
+    holdout: float = 0.2,
+    min_samples: int = 20,
+    width_grid: tuple[float, ...] = WIDTH_GRID,
+    s_w: Array | None = None,
+    linear: bool | str = False,
+    per_output: bool = False,
+    lin_on: Array | None = None,
     clip: bool = True,
 ) -> RBFNet:
     """Train B networks on samples U (B, N, d) → Y (B, N, p) where ``mask`` (B, N) is True.
@@ -400,9 +439,20 @@ def train(
     train_rmse = _masked_rmse(E, mask) * sd_y
     sigma_nn = np.where(np.isfinite(sigma_nn), sigma_nn, train_rmse)
     return RBFNet(
-        C=C, cmask=cm, s_w=s_w, W=W, mu_u=mu_u, sd_u=sd_u, mu_y=mu_y, sd_y=sd_y,
-        sigma_nn=sigma_nn, train_rmse=train_rmse, trained=trained, n_centres=cm.sum(axis=1),
-        linear=tail, lin_on=lin_on,
+        C=C,
+        cmask=cm,
+        s_w=s_w,
+        W=W,
+        mu_u=mu_u,
+        sd_u=sd_u,
+        mu_y=mu_y,
+        sd_y=sd_y,
+        sigma_nn=sigma_nn,
+        train_rmse=train_rmse,
+        trained=trained,
+        n_centres=cm.sum(axis=1),
+        linear=tail,
+        lin_on=lin_on,
         u_lo=np.min(np.where(m, Us, np.inf), axis=1) if clip else None,
         u_hi=np.max(np.where(m, Us, -np.inf), axis=1) if clip else None,
     )

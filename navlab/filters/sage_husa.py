@@ -161,9 +161,7 @@ def igg3_weights(nu_tilde: Array, k0: float, k1: float) -> tuple[Array, Array]:
     return w, zone
 
 
-def rae_estimate(
-    eta: Array, eta_ok: Array, H: Array, P_ref: Array, R0: Array, full: bool
-) -> Array:
+def rae_estimate(eta: Array, eta_ok: Array, H: Array, P_ref: Array, R0: Array, full: bool) -> Array:
     """Residual-based windowed R estimate (S1 eqs. 3/4, §4.2–4.3), batched.
 
     R̂ = (1/M) Σ_j η_j η_jᵀ + H P_ref Hᵀ over the window, where P_ref = P⁺_{k−1} (eq. 3) or P⁻_k
@@ -335,7 +333,13 @@ class _Window(NamedTuple):
 
 
 def _sage_husa_R(
-    R_prev: Array, nu: Array, HPHt: Array, ok: Array, d: float, lo: float, hi: float,
+    R_prev: Array,
+    nu: Array,
+    HPHt: Array,
+    ok: Array,
+    d: float,
+    lo: float,
+    hi: float,
     diagonal: bool = False,
 ) -> tuple[Array, Array]:
     """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), eigenvalues clamped into [lo, hi] (§4.1).
@@ -379,13 +383,13 @@ class SageHusaParams:
     """Classic Sage–Husa options (ALGORITHMS.md §4.1)."""
 
     b: float = param(
-        0.98, lo=0.5, hi=1.0,
+        0.98,
+        lo=0.5,
+        hi=1.0,
         help="forgetting factor b (memory ≈ 1/(1−b) epochs; 1 = running average)",
     )
     adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")
-    full: bool = param(
-        False, help="full Sage–Husa: also estimate r̂, q̂ and Q̂ (ill-posed, may diverge)"
-    )
+    full: bool = param(False, help="full Sage–Husa: also estimate r̂, q̂ and Q̂ (ill-posed, may diverge)")
 
 
 class SHState(NamedTuple):
@@ -465,14 +469,18 @@ class SageHusa(Filter):
             r = np.where(ok, (1 - d) * state.r + d * (z - model.h(x_m, k)), state.r)
             Knu = mv(K, nu_m)
             F = model.F(k)
-            Qn = (1 - d) * state.Q + d * (
-                Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F)
-            )
+            Qn = (1 - d) * state.Q + d * (Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F))
             qmax = max(float(np.max(np.diag(np.asarray(model.Q(k), dtype=float)))), 1e-300)
             Q, _ = _clamp(Qn, 1e-6 * qmax, 1e6 * qmax)  # same PD guard as R̂
             q = (1 - d) * state.q + d * (x - model.f(state.x_prev, k))
         out = StepOut(
-            x=x, P=P, innov=nu_m, S=S, R_used=Rm, R_hat=R, flags=flags,
+            x=x,
+            P=P,
+            innov=nu_m,
+            S=S,
+            R_used=Rm,
+            R_hat=R,
+            flags=flags,
             stats={"d_k": np.full(B, d)},
         )
         return state._replace(x=x, P=P, R=R, k=kk, r=r, q=q, Q=Q), out
@@ -486,7 +494,9 @@ class IRAKFParams:
     """IRAKF options (ALGORITHMS.md §4.2–4.6, S1 = Ge, Zhang, Tang 2020)."""
 
     window: int = param(
-        10, lo=1, hi=5000,
+        10,
+        lo=1,
+        hi=5000,
         help="RAE window M (epochs of residuals averaged; S1 gives none; R̂ = R0 until full)",
     )
     k0: float = param(1.5, lo=0.1, hi=1e6, help="down-weighting threshold k0 in σ (S1: 0.8–1.5)")
@@ -496,15 +506,18 @@ class IRAKFParams:
     )
     dual_detection: bool = param(True, help="run the parallel standard KF detector (Fig. 1)")
     improved_rae: str = param(
-        "conditional", choices=("conditional", "always", "never"),
+        "conditional",
+        choices=("conditional", "always", "never"),
         help="use P⁻ (eq. 4) instead of P⁺ₖ₋₁ (eq. 3) in R̂: on SKF detections / always / never",
     )
     middle_segment: str = param(
-        "huber", choices=("huber", "literal"),
+        "huber",
+        choices=("huber", "literal"),
         help="middle-zone weight: Huber ν·k0/|ν̃| (default) or the seed's literal ν/c1",
     )
     middle_zone: str = param(
-        "innovation", choices=("innovation", "variance"),
+        "innovation",
+        choices=("innovation", "variance"),
         help="apply the middle-zone weight to ν only, P updated as if unweighted (S1, default), "
         "or as an inflated variance R̂ᵢᵢ/w so P agrees (avoids a lock-out when P0 ≫ R)",
     )
@@ -657,7 +670,14 @@ class IRAKF(Filter):
         _flag_fix(flags, fixed)
         weights = np.where(reject, 0.0, np.where(down, w, 1.0))
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=R_used, R_hat=R_hat, weights=weights, flags=flags,
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=R_used,
+            R_hat=R_hat,
+            weights=weights,
+            flags=flags,
             stats={
                 "nu_tilde": nt,
                 "skf_nu_tilde": nt_s,
@@ -678,11 +698,14 @@ class RRAEParams:
     window: int = param(10, lo=1, hi=5000, help="RAE window M (R̂ = R0 until full)")
     k0: float = param(1.5, lo=0.1, hi=1e6, help="IGG-III down-weighting threshold k0 in σ")
     k1: float = param(
-        5.0, lo=0.1, hi=1e6,
+        5.0,
+        lo=0.1,
+        hi=1e6,
         help="IGG-III rejection threshold k1 in σ (5 = top of S1's range; 3 locks out, §4.7)",
     )
     form: str = param(
-        "equivalent_variance", choices=("equivalent_variance", "literal_scaling"),
+        "equivalent_variance",
+        choices=("equivalent_variance", "literal_scaling"),
         help="middle zone as an inflated variance R̂ᵢᵢ/wᵢ (default) or ν scaled by w "
         "(literal; locks out on clean data, spec uses k1 = 3 for it)",
     )
@@ -775,7 +798,14 @@ class RRAE(Filter):
         flags[zone == 2] = REJECTED
         _flag_fix(flags, fixed)
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=R_bar, R_hat=R_hat, weights=w, flags=flags,
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=R_bar,
+            R_hat=R_hat,
+            weights=w,
+            flags=flags,
             stats={"nu_tilde": nt},
         )
         return RAEState(x, P, P, win), out
@@ -791,11 +821,15 @@ class RAKFParams:
     b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
     adapt: bool = param(True, help="estimate R by Sage–Husa (off: R̂ stays R0)")
     gamma_s: float = param(
-        3.0, lo=0.1, hi=1e12,
+        3.0,
+        lo=0.1,
+        hi=1e12,
         help="reserve coefficient γ_s of the divergence test νᵀν > γ_s·tr(S) (large = off)",
     )
     c: float = param(
-        2.0, lo=0.1, hi=1e12,
+        2.0,
+        lo=0.1,
+        hi=1e12,
         help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
     )
 
@@ -884,7 +918,14 @@ class RAKF(Filter):
         _flag_fix(flags, fixed)
         weights = np.where(clip, p.c / np.where(clip, ae, 1.0), 1.0)
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=Rm, R_hat=R, weights=weights, flags=flags,
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=Rm,
+            R_hat=R,
+            weights=weights,
+            flags=flags,
             stats={"lambda": lam},
         )
         return RAKFState(x, P, R, kk), out
@@ -971,7 +1012,14 @@ class RSSHAKF(Filter):
         _flag_fix(flags, fixed)
         weights = np.where(out_ch, 1.0 / infl, 1.0)
         out = StepOut(
-            x=x, P=P, innov=nu, S=S, R_used=R_used, R_hat=R, weights=weights, flags=flags,
+            x=x,
+            P=P,
+            innov=nu,
+            S=S,
+            R_used=R_used,
+            R_hat=R,
+            weights=weights,
+            flags=flags,
             stats={"nu_tilde": nt},
         )
         return RAKFState(x, P, R, kk), out

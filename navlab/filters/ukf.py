@@ -67,8 +67,7 @@ def ut_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0
         from navlab.errors import NavlabError
 
         raise NavlabError(
-            f"unscented transform: n + λ = α²(n+κ) = {n + lam:g} must be > 0; "
-            "raise alpha_ut or kappa"
+            f"unscented transform: n + λ = α²(n+κ) = {n + lam:g} must be > 0; raise alpha_ut or kappa"
         )
     Wm = np.full(2 * n + 1, 0.5 / (n + lam))
     Wc = Wm.copy()
@@ -229,8 +228,14 @@ def _shared_linear(model: Model, P: Array, matrix) -> bool:
 
 
 def ukf_time_update(
-    model: Model, x: Array, P: Array, k: int, w: UTWeights, keep_sigma: bool = False,
-    method: str = "svd", symmetric: bool = False,
+    model: Model,
+    x: Array,
+    P: Array,
+    k: int,
+    w: UTWeights,
+    keep_sigma: bool = False,
+    method: str = "svd",
+    symmetric: bool = False,
 ) -> UKFState:
     """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
 
@@ -262,8 +267,13 @@ def ukf_time_update(
 
 
 def ukf_measurement_prediction(
-    model: Model, state: UKFState, k: int, w: UTWeights, resample: str = "redraw",
-    method: str = "svd", symmetric: bool = False,
+    model: Model,
+    state: UKFState,
+    k: int,
+    w: UTWeights,
+    resample: str = "redraw",
+    method: str = "svd",
+    symmetric: bool = False,
 ) -> MeasPred:
     """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy."""
     B, n = state.x.shape
@@ -330,7 +340,14 @@ def mask_channels(z: Array, V: Array, A: Array, Pxy: Array, R: Array):
 
 
 def fading_update(
-    x: Array, P: Array, V: Array, A: Array, Pxy: Array, R: Array, s: Array, sig: Array,
+    x: Array,
+    P: Array,
+    V: Array,
+    A: Array,
+    Pxy: Array,
+    R: Array,
+    s: Array,
+    sig: Array,
     form: str = "symmetric",
 ) -> tuple[Array, Array, Array, Array]:
     """Measurement update with state scale s (B, n) and channel factors σ (B, m) (§5 step 4).
@@ -424,8 +441,14 @@ _MAP_CACHE: dict[tuple[int, ...], tuple[Array, Array, bool]] = {}  # last shared
 
 
 def fading_factors(
-    V: Array, A: Array, R: Array, ok: Array, reject: Array, sigma_max: float,
-    gate: float = 0.0, Pyy: Array | None = None,
+    V: Array,
+    A: Array,
+    R: Array,
+    ok: Array,
+    reject: Array,
+    sigma_max: float,
+    gate: float = 0.0,
+    Pyy: Array | None = None,
 ) -> Array:
     """σ_i = min(σ_max, max(1, (V_i² − R_ii)/A_ii)) on rejected epochs, 1 elsewhere (§5 step 4).
 
@@ -469,11 +492,13 @@ class UKFParams:
     beta_ut: float = param(2.0, lo=0.0, hi=10.0, help="prior-knowledge parameter β (2: Gaussian)")
     kappa: float = param(0.0, lo=-100.0, hi=100.0, help="secondary scaling κ (S2: 0 or 3 − n)")
     resample: str = param(
-        "redraw", choices=("redraw", "reuse"),
+        "redraw",
+        choices=("redraw", "reuse"),
         help="measurement sigma points: redraw from (x⁻, P⁻) (spec default) or reuse f(χ) (FilterPy)",
     )
     sqrt_method: str = param(
-        "svd", choices=("svd", "cholesky"),
+        "svd",
+        choices=("svd", "cholesky"),
         help="matrix square root of the sigma points: SVD (S2) or Cholesky (≈ 2× faster step; the "
         "same results for linear models; SVD fallback where P is not positive definite)",
     )
@@ -500,14 +525,23 @@ class _UKFBase(Filter):
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         w = self._weights(state.x.shape[1])
-        ts = ukf_time_update(model, state.x, state.P, k, w, self.params.resample == "reuse",
-                             self.params.sqrt_method, symmetric=True)
+        ts = ukf_time_update(
+            model,
+            state.x,
+            state.P,
+            k,
+            w,
+            self.params.resample == "reuse",
+            self.params.sqrt_method,
+            symmetric=True,
+        )
         return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg, psd=ts.psd)
 
     def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
         w = self._weights(state.x.shape[1])
-        return ukf_measurement_prediction(model, state, k, w, self.params.resample,
-                                          self.params.sqrt_method, symmetric=True)
+        return ukf_measurement_prediction(
+            model, state, k, w, self.params.resample, self.params.sqrt_method, symmetric=True
+        )
 
 
 @register
@@ -552,11 +586,14 @@ class MFUKFParams(UKFParams):
     xi: float = param(1.0, lo=1e-3, hi=1e12, help="scale ξ of the test threshold ξ·χ²_{1−α}(m)")
     sigma_max: float = param(1e6, lo=1.0, hi=1e12, help="cap on each fading factor (navlab guard)")
     form: str = param(
-        "symmetric", choices=("symmetric", "literal"),
+        "symmetric",
+        choices=("symmetric", "literal"),
         help="eq. 13 reading: symmetric √σ scaling (default) or S2-style σ·P (non-symmetric)",
     )
     per_channel_gate: float = param(
-        0.0, lo=0.0, hi=100.0,
+        0.0,
+        lo=0.0,
+        hi=100.0,
         help="0: paper rule (every channel with V_i² > A_ii + R_ii fades); c > 0: only |V_i|/√Pyy_ii > c",
     )
     recompute_sigma: bool = param(
@@ -593,8 +630,18 @@ class _FadingBase(_UKFBase):
         return gamma, thr, reject, gain
 
     def _fade(
-        self, model: Model, state: Any, k: int, V: Array, A: Array, Pxy: Array, R: Array,
-        ok: Array, reject: Array, Pyy0: Array, gain: tuple[Array, Array] | None = None,
+        self,
+        model: Model,
+        state: Any,
+        k: int,
+        V: Array,
+        A: Array,
+        Pxy: Array,
+        R: Array,
+        ok: Array,
+        reject: Array,
+        Pyy0: Array,
+        gain: tuple[Array, Array] | None = None,
     ) -> tuple[Array, Array, Array, Array, Array]:
         """σ, s and the update of §5 step 4 (σ = 1 on accepted epochs). Returns x, P, Pyy', fixed, σ.
 
@@ -617,8 +664,7 @@ class _FadingBase(_UKFBase):
             dx = np.sqrt(s)
             P1 = dx[:, :, None] * state.P * dx[:, None, :]
             w = self._weights(state.x.shape[1])
-            mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw",
-                                            p.sqrt_method)
+            mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw", p.sqrt_method)
             z_fake = np.where(ok, 0.0, np.nan)
             _, _, A1, Pxy1, _ = mask_channels(z_fake, V, mp.A, mp.Pxy, R)
             one_n, one_m = np.ones_like(s), np.ones_like(sig)
@@ -635,8 +681,15 @@ class _FadingBase(_UKFBase):
         if fade.any():
             i = np.flatnonzero(fade)
             xf, Pf, Pyyf, fixf = fading_update(
-                state.x[i], _batched(state.P, B)[i], V[i], _batched(A, B)[i],
-                _batched(Pxy, B)[i], _batched(R, B)[i], s[i], sig[i], p.form,
+                state.x[i],
+                _batched(state.P, B)[i],
+                V[i],
+                _batched(A, B)[i],
+                _batched(Pxy, B)[i],
+                _batched(R, B)[i],
+                s[i],
+                sig[i],
+                p.form,
             )
             x[i], P[i], Pyy[i], fixed[i] = xf, Pf, Pyyf, fixf
         return x, P, Pyy, fixed, sig
@@ -673,7 +726,6 @@ class MFUKF(_FadingBase):
         flags = np.zeros(z.shape, dtype=np.int8)
         flags[reject[:, None] & ok] = EPOCH_ANOMALY
         flags[fixed | mp.neg] = NUMERICAL_FIX
-        stats = {"gamma": gamma, "gamma_threshold": thr, "fading": sig,
-                 "rejected": reject.astype(float)}
+        stats = {"gamma": gamma, "gamma_threshold": thr, "fading": sig, "rejected": reject.astype(float)}
         out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
         return UKFState(x, P), out

@@ -74,22 +74,30 @@ class VBEKFParams:
     """VB-EKF hyper-parameters (ALGORITHMS.md §7, §10 #35–#36)."""
 
     tau_P: float = param(
-        10.0, lo=1e-3, hi=1e12,
+        10.0,
+        lo=1e-3,
+        hi=1e12,
         help="prior weight τ_P of the P_{k|k−1} inverse-Wishart (navlab default 10; Huang: 3; "
         "large = trust the nominal Q)",
     )
     tau_R: float = param(
-        3.0, lo=1e-3, hi=1e12,
+        3.0,
+        lo=1e-3,
+        hi=1e12,
         help="prior weight τ_R of the initial R inverse-Wishart (Huang: 3; large = trust R0)",
     )
     rho: float = param(
-        1.0 - math.exp(-4.0), lo=0.01, hi=1.0,
+        1.0 - math.exp(-4.0),
+        lo=0.01,
+        hi=1.0,
         help="forgetting factor ρ of the R-distribution (1 − e⁻⁴ ≈ 0.982: memory ≈ 55 epochs; "
         "1 = constant R)",
     )
     iterations: int = param(10, lo=1, hi=100, help="VB fixed-point iterations N per epoch")
     tol: float = param(
-        0.0, lo=0.0, hi=1.0,
+        0.0,
+        lo=0.0,
+        hi=1.0,
         help="stop a run's iterations when its state change is below tol × its correction "
         "(0 = always N, as in the paper)",
     )
@@ -202,7 +210,13 @@ class VBEKF(Filter):
         R_hat = sym(U / (u - m - 1))  # = the R̂ of each run's last iteration
         trP = np.trace(P_hat_out, axis1=-2, axis2=-1) / np.trace(P_pr, axis1=-2, axis2=-1)
         out = StepOut(
-            x=x_it, P=P_it, innov=nu, S=S_out, R_used=R_out, R_hat=R_hat, flags=flags,
+            x=x_it,
+            P=P_it,
+            innov=nu,
+            S=S_out,
+            R_used=R_out,
+            R_hat=R_hat,
+            flags=flags,
             stats={"vb_iters": iters, "P_scale": trP},
         )
         return VBState(x_it, P_it, u, U), out

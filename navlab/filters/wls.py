@@ -36,10 +36,14 @@ from navlab.params import param
 class WlsParams:
     iterations: int = param(5, lo=1, hi=50, help="Gauss–Newton iterations per epoch")
     sigma_prior: float = param(
-        1e4, lo=1.0, hi=1e9, help="vague prior σ on every state (keeps unobserved states)")
+        1e4, lo=1.0, hi=1e9, help="vague prior σ on every state (keeps unobserved states)"
+    )
     huber_k: float = param(
-        0.0, lo=0.0, hi=100.0,
-        help="Huber threshold on |residual|/σ for iteratively reweighted LS (0: plain WLS)")
+        0.0,
+        lo=0.0,
+        hi=100.0,
+        help="Huber threshold on |residual|/σ for iteratively reweighted LS (0: plain WLS)",
+    )
 
 
 @register
@@ -86,6 +90,5 @@ class WLS(Filter):
         P = sym(np.linalg.inv(N))
         S = sym(H @ P @ mT(H) + R)
         flags = np.where((weights < 1.0) & ok, DOWNWEIGHTED, ACCEPTED).astype(np.int8)
-        out = StepOut(x=x, P=P, innov=nu, S=S, R_used=R, weights=np.where(ok, weights, 1.0),
-                      flags=flags)
+        out = StepOut(x=x, P=P, innov=nu, S=S, R_used=R, weights=np.where(ok, weights, 1.0), flags=flags)
         return KFState(x, P), out

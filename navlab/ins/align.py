@@ -39,8 +39,12 @@ __all__ = [
 RTKX_NOMINAL_C_BV = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
-def body_to_vehicle(pitch_mis_deg: float = -6.8, yaw_mis_deg: float = 5.4, roll_mis_deg: float = 0.0,
-                    nominal=RTKX_NOMINAL_C_BV):
+def body_to_vehicle(
+    pitch_mis_deg: float = -6.8,
+    yaw_mis_deg: float = 5.4,
+    roll_mis_deg: float = 0.0,
+    nominal=RTKX_NOMINAL_C_BV,
+):
     """IMU-body to vehicle (RFU) rotation ``C_b^v``.
 
     ``C_b^v = euler_to_dcm(pitch_mis, roll_mis, yaw_mis) @ nominal``: the misalignment is
@@ -116,8 +120,11 @@ def triad_attitude(f_b_mean, heading_rad: float, forward_b=(0.0, 1.0, 0.0)):
     fw_h /= np.linalg.norm(fw_h)
     Bm = np.column_stack([np.cross(fw_h, up_b), fw_h, up_b])  # right, forward, up in body
     Nm = np.column_stack(
-        [[np.cos(heading_rad), -np.sin(heading_rad), 0.0],
-         [np.sin(heading_rad), np.cos(heading_rad), 0.0], [0, 0, 1.0]]
+        [
+            [np.cos(heading_rad), -np.sin(heading_rad), 0.0],
+            [np.sin(heading_rad), np.cos(heading_rad), 0.0],
+            [0, 0, 1.0],
+        ]
     )
     return Nm @ Bm.T
 

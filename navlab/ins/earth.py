@@ -85,9 +85,7 @@ def normal_gravity(lat_rad, h_m=0.0):
     m = OMEGA_IE_RADPS**2 * WGS84_A_M**2 * WGS84_B_M / WGS84_GM_M3PS2
     h = np.asarray(h_m, dtype=float)
     return g0 * (
-        1.0
-        - 2.0 / WGS84_A_M * (1.0 + WGS84_F + m - 2.0 * WGS84_F * s2) * h
-        + 3.0 / WGS84_A_M**2 * h * h
+        1.0 - 2.0 / WGS84_A_M * (1.0 + WGS84_F + m - 2.0 * WGS84_F * s2) * h + 3.0 / WGS84_A_M**2 * h * h
     )
 
 
@@ -105,9 +103,7 @@ def earth_rate_enu(lat_rad):
         Shape ``(..., 3)`` [rad/s].
     """
     lat = np.asarray(lat_rad, dtype=float)
-    return np.stack(
-        [np.zeros_like(lat), OMEGA_IE_RADPS * np.cos(lat), OMEGA_IE_RADPS * np.sin(lat)], axis=-1
-    )
+    return np.stack([np.zeros_like(lat), OMEGA_IE_RADPS * np.cos(lat), OMEGA_IE_RADPS * np.sin(lat)], axis=-1)
 
 
 def transport_rate_enu(lat_rad, h_m, v_enu_mps):
@@ -127,9 +123,7 @@ def transport_rate_enu(lat_rad, h_m, v_enu_mps):
     """
     v = np.asarray(v_enu_mps, dtype=float)
     R_Mh, R_Nh = radii(lat_rad, h_m)
-    return np.stack(
-        [-v[..., 1] / R_Mh, v[..., 0] / R_Nh, v[..., 0] * np.tan(lat_rad) / R_Nh], axis=-1
-    )
+    return np.stack([-v[..., 1] / R_Mh, v[..., 0] / R_Nh, v[..., 0] * np.tan(lat_rad) / R_Nh], axis=-1)
 
 
 def geodetic_to_ecef(lat_rad, lon_rad, h_m):
@@ -174,9 +168,7 @@ def ecef_to_geodetic(xyz_m):
     p = np.hypot(x, y)
     ep2 = WGS84_E2 / (1.0 - WGS84_E2)
     theta = np.arctan2(z * WGS84_A_M, p * WGS84_B_M)
-    lat = np.arctan2(
-        z + ep2 * WGS84_B_M * np.sin(theta) ** 3, p - WGS84_E2 * WGS84_A_M * np.cos(theta) ** 3
-    )
+    lat = np.arctan2(z + ep2 * WGS84_B_M * np.sin(theta) ** 3, p - WGS84_E2 * WGS84_A_M * np.cos(theta) ** 3)
     for _ in range(3):
         s = np.sin(lat)
         R_N = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * s * s)

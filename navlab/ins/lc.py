@@ -48,8 +48,23 @@ from navlab.ins.strapdown import (
 
 #: Sign flip between the §8.0 error state (ε = b − b̂) and the total state's bias estimates.
 SIGN = np.diag(np.r_[np.ones(9), -np.ones(6)])
-STATE_NAMES = ("a_E", "a_N", "a_U", "v_E", "v_N", "v_U", "p_N", "p_E", "p_U",
-               "bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
+STATE_NAMES = (
+    "a_E",
+    "a_N",
+    "a_U",
+    "v_E",
+    "v_N",
+    "v_U",
+    "p_N",
+    "p_E",
+    "p_U",
+    "bg_x",
+    "bg_y",
+    "bg_z",
+    "ba_x",
+    "ba_y",
+    "ba_z",
+)
 
 
 @dataclass(frozen=True)
@@ -80,8 +95,14 @@ class ImuNoise:
     def Qc(self, vib_g: float = 0.0) -> Array:
         """Continuous PSDs; ``vib_g`` = the block's gyro vibration (raw std × √dt) [rad/√s]."""
         arw = np.hypot(self.arw_rad_rts, self.vib_gyro_factor * float(vib_g))
-        return np.diag(np.r_[[arw**2] * 3, [self.vrw_mps_rts**2] * 3,
-                             [self.gyro_bias_rw**2] * 3, [self.accel_bias_rw**2] * 3])
+        return np.diag(
+            np.r_[
+                [arw**2] * 3,
+                [self.vrw_mps_rts**2] * 3,
+                [self.gyro_bias_rw**2] * 3,
+                [self.accel_bias_rw**2] * 3,
+            ]
+        )
 
 
 def static_noise_densities(t_s: Array, f_b: Array, w_b: Array, tau_s: float = 1.0):
@@ -143,14 +164,22 @@ class DriveSetup:
 
     def to_local(self, lat_rad, lon_rad, h_m) -> Array:
         R_Mh, R_Nh = radii(self.lat0_rad, self.h0_m)
-        return np.stack([(np.asarray(lat_rad) - self.lat0_rad) * R_Mh,
-                         (np.asarray(lon_rad) - self.lon0_rad) * R_Nh * np.cos(self.lat0_rad),
-                         np.asarray(h_m) - self.h0_m], axis=-1)
+        return np.stack(
+            [
+                (np.asarray(lat_rad) - self.lat0_rad) * R_Mh,
+                (np.asarray(lon_rad) - self.lon0_rad) * R_Nh * np.cos(self.lat0_rad),
+                np.asarray(h_m) - self.h0_m,
+            ],
+            axis=-1,
+        )
 
     def from_local(self, p: Array):
         R_Mh, R_Nh = radii(self.lat0_rad, self.h0_m)
-        return (self.lat0_rad + p[..., 0] / R_Mh,
-                self.lon0_rad + p[..., 1] / (R_Nh * np.cos(self.lat0_rad)), self.h0_m + p[..., 2])
+        return (
+            self.lat0_rad + p[..., 0] / R_Mh,
+            self.lon0_rad + p[..., 1] / (R_Nh * np.cos(self.lat0_rad)),
+            self.h0_m + p[..., 2],
+        )
 
     def imu_slice(self, k: int) -> slice:
         """IMU samples with t_{k−1} ≤ t < t_k."""
@@ -204,14 +233,20 @@ def velocity_lag_s(t_s: Array, p_neu: Array, v_enu: Array, max_lag_s: float = 0.
         return 0.0
     t, vd, v = t[ok], vd[ok], v[ok]
     lags = np.arange(0.0, max_lag_s + 1e-9, 0.01)
-    cost = [np.mean((v - np.stack([np.interp(t - lag, t, vd[:, i]) for i in range(2)], -1)) ** 2)
-            for lag in lags]
+    cost = [
+        np.mean((v - np.stack([np.interp(t - lag, t, vd[:, i]) for i in range(2)], -1)) ** 2) for lag in lags
+    ]
     return float(lags[int(np.argmin(cost))])
 
 
-def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
-                  static_margin_s: float = 2.0, heading_deg: float | None = None,
-                  imu_rate_hz: float = 20.0) -> DriveSetup:
+def prepare_drive(
+    rec: DriveRecording,
+    rate_hz: float = 1.0,
+    epochs: int = 0,
+    static_margin_s: float = 2.0,
+    heading_deg: float | None = None,
+    imu_rate_hz: float = 20.0,
+) -> DriveSetup:
     """Cut a drive into aiding epochs and align the INS on the static start.
 
     Epoch 0 is ``static_margin_s`` before the vehicle starts moving (on the GNSS time grid);
@@ -228,8 +263,14 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
         src = rec.truth if rec.truth is not None else g
         ts = src.t_s.to_numpy()
         R_Mh, R_Nh = radii(lat0, h0)
-        pos = np.stack([np.radians(src.lon_deg.to_numpy()) * R_Nh * np.cos(lat0),
-                        np.radians(src.lat_deg.to_numpy()) * R_Mh, src.h_m.to_numpy()], -1)
+        pos = np.stack(
+            [
+                np.radians(src.lon_deg.to_numpy()) * R_Nh * np.cos(lat0),
+                np.radians(src.lat_deg.to_numpy()) * R_Mh,
+                src.h_m.to_numpy(),
+            ],
+            -1,
+        )
         win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
         i1 = np.searchsorted(ts, ts + win / 2).clip(max=len(ts) - 1)
         i0 = np.searchsorted(ts, ts - win / 2)
@@ -250,9 +291,14 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     R_Mh, R_Nh = radii(lat0, h0)
 
     def local(df):
-        return np.stack([(np.radians(df.lat_deg.to_numpy()) - lat0) * R_Mh,
-                         (np.radians(df.lon_deg.to_numpy()) - lon0) * R_Nh * np.cos(lat0),
-                         df.h_m.to_numpy() - h0], -1)
+        return np.stack(
+            [
+                (np.radians(df.lat_deg.to_numpy()) - lat0) * R_Mh,
+                (np.radians(df.lon_deg.to_numpy()) - lon0) * R_Nh * np.cos(lat0),
+                df.h_m.to_numpy() - h0,
+            ],
+            -1,
+        )
 
     def interp(tt, x):
         return np.stack([np.interp(t, tt, x[:, i], left=np.nan, right=np.nan) for i in range(x.shape[1])], -1)
@@ -264,8 +310,7 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
         # truth is read at t + lag so that rmse_vel and NEES measure the filters, not the lag
         lag = velocity_lag_s(tg, local(g), v_enu) if vel_measured else 0.0
         t_v = np.minimum(t + lag, tg[-1])
-        v_true = np.stack([np.interp(t_v, tg, v_enu[:, i], left=np.nan, right=np.nan)
-                           for i in range(3)], -1)
+        v_true = np.stack([np.interp(t_v, tg, v_enu[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
     else:
         p_true = np.full((K + 1, 3), np.nan)
         v_true = np.full((K + 1, 3), np.nan)
@@ -288,7 +333,7 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     edges = np.searchsorted(t_imu, t)
     vib_g = np.zeros(K + 1)
     for k in range(1, K + 1):
-        wk = w_b[edges[k - 1]:edges[k]]
+        wk = w_b[edges[k - 1] : edges[k]]
         if len(wk) > 2:
             vib_g[k] = np.sqrt(np.mean(wk.var(axis=0)) * dt_raw)
     if imu_rate_hz:
@@ -298,11 +343,31 @@ def prepare_drive(rec: DriveRecording, rate_hz: float = 1.0, epochs: int = 0,
     ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
     x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
     sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
-    P0 = np.diag(np.r_[np.radians([0.5, 0.5, sig_head]) ** 2, [0.1**2] * 3, [1.0**2] * 3,
-                       [np.radians(0.05) ** 2] * 3, [0.1**2] * 3])
-    return DriveSetup(t=t, **setup_origin, p_true=p_true, v_true=v_true, gnss_pos=gnss_pos,
-                      t_imu=t_imu, f_b=f_b, w_b=w_b, align=al, x0=x0, P0=P0, C0=al.C_bn,
-                      C_bv=np.asarray(rec.C_bv, float), vib_g=vib_g)
+    P0 = np.diag(
+        np.r_[
+            np.radians([0.5, 0.5, sig_head]) ** 2,
+            [0.1**2] * 3,
+            [1.0**2] * 3,
+            [np.radians(0.05) ** 2] * 3,
+            [0.1**2] * 3,
+        ]
+    )
+    return DriveSetup(
+        t=t,
+        **setup_origin,
+        p_true=p_true,
+        v_true=v_true,
+        gnss_pos=gnss_pos,
+        t_imu=t_imu,
+        f_b=f_b,
+        w_b=w_b,
+        align=al,
+        x0=x0,
+        P0=P0,
+        C0=al.C_bn,
+        C_bv=np.asarray(rec.C_bv, float),
+        vib_g=vib_g,
+    )
 
 
 def _state_from_total(setup: DriveSetup, x: Array, C_ref: Array, t_s: float) -> InsState:
@@ -330,8 +395,9 @@ class ClosedLoopResult:
     P_diag: Array  # (B, K+1, 15)
 
 
-def run_closed_loop(setup: DriveSetup, z: Array | None, sigma_m: float | Array,
-                    noise: ImuNoise = ImuNoise()) -> ClosedLoopResult:
+def run_closed_loop(
+    setup: DriveSetup, z: Array | None, sigma_m: float | Array, noise: ImuNoise = ImuNoise()
+) -> ClosedLoopResult:
     """Closed-loop 15-state error-state EKF with position aiding (z=None: free INS).
 
     Parameters
@@ -343,17 +409,32 @@ def run_closed_loop(setup: DriveSetup, z: Array | None, sigma_m: float | Array,
     """
     K = setup.K
     B = 1 if z is None else z.shape[0]
-    s = init_state(*setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))), np.zeros(3),
-                   np.broadcast_to(setup.C0, (B, 3, 3)), B=B, bias_g_radps=setup.x0[9:12],
-                   bias_a_mps2=setup.x0[12:15], t_s=setup.t[0])
+    s = init_state(
+        *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
+        np.zeros(3),
+        np.broadcast_to(setup.C0, (B, 3, 3)),
+        B=B,
+        bias_g_radps=setup.x0[9:12],
+        bias_a_mps2=setup.x0[12:15],
+        t_s=setup.t[0],
+    )
     P = np.broadcast_to(setup.P0, (B, 15, 15)).copy()
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, float) ** 2, (3,)))
     H = np.zeros((3, 15))
     H[:, 6:9] = np.eye(3)
     vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
-    out = {k: np.full((B, K + 1, *shape), np.nan) for k, shape in
-           (("p", (3,)), ("v", (3,)), ("C", (3, 3)), ("bg", (3,)), ("ba", (3,)), ("fn", (3,)),
-            ("Pd", (15,)))}
+    out = {
+        k: np.full((B, K + 1, *shape), np.nan)
+        for k, shape in (
+            ("p", (3,)),
+            ("v", (3,)),
+            ("C", (3, 3)),
+            ("bg", (3,)),
+            ("ba", (3,)),
+            ("fn", (3,)),
+            ("Pd", (15,)),
+        )
+    }
 
     def record(k, s, P):
         out["p"][:, k] = setup.to_local(s.lat_rad, s.lon_rad, s.h_m)
@@ -402,8 +483,14 @@ class InsGnssModel:
     n = 15
     linear = False
 
-    def __init__(self, setup: DriveSetup, ref: ClosedLoopResult, sigma_m: Array,
-                 noise: ImuNoise = ImuNoise(), nhc_sigma_mps: float = 0.0) -> None:
+    def __init__(
+        self,
+        setup: DriveSetup,
+        ref: ClosedLoopResult,
+        sigma_m: Array,
+        noise: ImuNoise = ImuNoise(),
+        nhc_sigma_mps: float = 0.0,
+    ) -> None:
         self.setup = setup
         self.C_ref = ref.C_bn[0]  # (K+1, 3, 3)
         self.nhc = nhc_sigma_mps > 0
@@ -419,8 +506,9 @@ class InsGnssModel:
         self.Phi[0], self.Qd[0] = np.eye(15), np.zeros((15, 15))
         vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
         for k in range(1, K + 1):
-            F, G = error_model_FG(lat[k - 1], h[k - 1], ref.v[0, k - 1], ref.f_n_mean[0, k],
-                                  self.C_ref[k - 1])
+            F, G = error_model_FG(
+                lat[k - 1], h[k - 1], ref.v[0, k - 1], ref.f_n_mean[0, k], self.C_ref[k - 1]
+            )
             T = float(setup.t[k] - setup.t[k - 1])
             _, Qd = discretise(F, G, noise.Qc(vib[k]), T)
             self.Phi[k] = SIGN @ expm_batched(F[0] * T) @ SIGN
@@ -465,8 +553,9 @@ class InsGnssModel:
 
 #: Process noise of the reference solution: looser than the filters' (it is aided at 5 cm and must
 #: follow every real attitude change of the vibrating mount rather than smooth over it).
-REFERENCE_NOISE = ImuNoise(arw_rad_rts=0.005, vrw_mps_rts=0.03, gyro_bias_rw=2e-5, accel_bias_rw=2e-3,
-                           vib_gyro_factor=0.0)
+REFERENCE_NOISE = ImuNoise(
+    arw_rad_rts=0.005, vrw_mps_rts=0.03, gyro_bias_rw=2e-5, accel_bias_rw=2e-3, vib_gyro_factor=0.0
+)
 
 
 def reference_solution(setup: DriveSetup, noise: ImuNoise = REFERENCE_NOISE) -> ClosedLoopResult:
@@ -480,7 +569,14 @@ def reference_solution(setup: DriveSetup, noise: ImuNoise = REFERENCE_NOISE) -> 
 
 
 __all__ = [
-    "STATE_NAMES", "ClosedLoopResult", "DriveSetup", "ImuNoise", "InsGnssModel", "prepare_drive",
-    "reference_solution", "run_closed_loop", "static_noise_densities", "velocity_lag_s",
+    "STATE_NAMES",
+    "ClosedLoopResult",
+    "DriveSetup",
+    "ImuNoise",
+    "InsGnssModel",
+    "prepare_drive",
+    "reference_solution",
+    "run_closed_loop",
+    "static_noise_densities",
+    "velocity_lag_s",
 ]
-

@@ -228,8 +228,11 @@ def _step(lat, lon, h, v, C, f, w, dt):
     # attitude: C(k+1) = exp(-[w_in dt x]) C exp([w_ib dt x]); |w_in dt| < 1e-5 rad -> first order
     C_new = (C - ((w_in * dt) @ _LEVI).reshape(-1, 3, 3) @ C) @ _expm_so3(w * dt)
     f_n = ((C + C_new) @ f[:, :, None])[:, :, 0] * 0.5
-    g = _GE * (1.0 + _GK * s2L) / sw * (
-        1.0 - 2.0 / _A * (1.0 + _F + _GM_ - 2.0 * _F * s2L) * h + 3.0 / _A**2 * h * h
+    g = (
+        _GE
+        * (1.0 + _GK * s2L)
+        / sw
+        * (1.0 - 2.0 / _A * (1.0 + _F + _GM_ - 2.0 * _F * s2L) * h + 3.0 / _A**2 * h * h)
     )
     a = f_n - ((w_cor @ _LEVI).reshape(-1, 3, 3) @ v[:, :, None])[:, :, 0]
     a[:, 2] -= g
@@ -277,8 +280,9 @@ def mechanise_step(state: InsState, f_b_mps2, w_b_radps, dt_s: float, return_fn:
     return (new, f_n) if return_fn else new
 
 
-def propagate_block(state: InsState, t_imu_s, f_b_mps2, w_b_radps, t_end_s: float | None = None,
-                    reorthonormalise: bool = True):
+def propagate_block(
+    state: InsState, t_imu_s, f_b_mps2, w_b_radps, t_end_s: float | None = None, reorthonormalise: bool = True
+):
     """Propagate B solutions through a block of IMU samples, e.g. between two GNSS epochs.
 
     The sample at ``t_imu_s[k]`` is held over ``[t_imu_s[k], t_imu_s[k+1])``; sample 0 is
@@ -372,13 +376,20 @@ def apply_correction(state: InsState, dx, bias_feedback: bool = True) -> InsStat
         bg = bg + dx[:, 9:12]
         ba = ba + dx[:, 12:15]
     return replace(
-        state, C_bn=C, v_enu_mps=state.v_enu_mps - dx[:, 3:6], lat_rad=lat, lon_rad=lon,
-        h_m=state.h_m - dx[:, 8], bias_g_radps=bg, bias_a_mps2=ba,
+        state,
+        C_bn=C,
+        v_enu_mps=state.v_enu_mps - dx[:, 3:6],
+        lat_rad=lat,
+        lon_rad=lon,
+        h_m=state.h_m - dx[:, 8],
+        bias_g_radps=bg,
+        bias_a_mps2=ba,
     )
 
 
-def error_model_FG(lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn, gravity_gradient: bool = False,
-                   tau_g_s=None, tau_a_s=None):
+def error_model_FG(
+    lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn, gravity_gradient: bool = False, tau_g_s=None, tau_a_s=None
+):
     """Continuous-time 15-state error model ``x_dot = F x + G w`` of ALGORITHMS.md §8.0.
 
     Position-error states are METRES (N, E, U). Noise vector

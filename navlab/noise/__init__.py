@@ -4,6 +4,11 @@ from navlab.noise.outliers import OUTLIERS, NoiseDraw, OutlierModel, make_outlie
 from navlab.noise.schedules import SCHEDULES, Schedule, make_schedule
 
 __all__ = [
-    "OUTLIERS", "SCHEDULES", "NoiseDraw", "OutlierModel", "Schedule", "make_outliers",
+    "OUTLIERS",
+    "SCHEDULES",
+    "NoiseDraw",
+    "OutlierModel",
+    "Schedule",
+    "make_outliers",
     "make_schedule",
 ]

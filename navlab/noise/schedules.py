@@ -129,9 +129,7 @@ class Sinusoid(Schedule):
 
 @dataclass(frozen=True)
 class HakfTanhParams:
-    length: int = param(
-        0, lo=0, hi=100000, help="the paper's len (epochs); 0 = this run's number of epochs"
-    )
+    length: int = param(0, lo=0, hi=100000, help="the paper's len (epochs); 0 = this run's number of epochs")
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
@@ -197,15 +195,11 @@ class Burst(Schedule):
         return 1.0 + (p.factor - 1.0) * b
 
 
-SCHEDULES: dict[str, type[Schedule]] = {
-    c.key: c for c in (Constant, Step, Ramp, Sinusoid, HakfTanh, Burst)
-}
+SCHEDULES: dict[str, type[Schedule]] = {c.key: c for c in (Constant, Step, Ramp, Sinusoid, HakfTanh, Burst)}
 
 
 def make_schedule(key: str, params: dict[str, Any] | None = None) -> Schedule:
     """Instantiate a noise schedule by key, validating its parameters."""
     if key not in SCHEDULES:
-        raise NavlabError(
-            f"unknown noise schedule '{key}'; known: {', '.join(SCHEDULES)}"
-        )
+        raise NavlabError(f"unknown noise schedule '{key}'; known: {', '.join(SCHEDULES)}")
     return SCHEDULES[key](params or {})

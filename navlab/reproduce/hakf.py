@@ -71,14 +71,31 @@ def _case_metrics(res, case: int, outdir: Path | None) -> tuple[list[dict], dict
         vals["anees"] = (float(np.mean(nees)) if nees.size else float("nan"), "")
         vals["diverged_runs"] = (float((~ok).sum()), "runs")
         att[key] = vals["rmse_att"][0]
-        note = FIG_NOTE + ("; accuracy floor (knows the true R), not in the paper"
-                           if key == "oracle-kf" else "")
+        note = FIG_NOTE + (
+            "; accuracy floor (knows the true R), not in the paper" if key == "oracle-kf" else ""
+        )
         for metric, (value, unit) in vals.items():
-            rows.append(dict(experiment=f"case{case}", filter=PAPER_NAMES[key], metric=metric,
-                             value=value, paper=None, rel_diff=None, unit=unit, note=note))
+            rows.append(
+                dict(
+                    experiment=f"case{case}",
+                    filter=PAPER_NAMES[key],
+                    metric=metric,
+                    value=value,
+                    paper=None,
+                    rel_diff=None,
+                    unit=unit,
+                    note=note,
+                )
+            )
     if outdir is not None:  # wide: <filter key>_rmse_<quantity>_<unit> per epoch
-        units = {"att": "arcmin", "pitch": "arcmin", "roll": "arcmin", "heading": "arcmin",
-                 "vel": "mps", "pos": "m"}
+        units = {
+            "att": "arcmin",
+            "pitch": "arcmin",
+            "roll": "arcmin",
+            "heading": "arcmin",
+            "vel": "mps",
+            "pos": "m",
+        }
         cols = {"k": np.arange(data.K + 1)}  # epoch (t = k·T, T = 1 s by default)
         for key, g, curve in curves:
             cols[f"{key}_rmse_{g}_{units[g]}"] = curve
@@ -91,9 +108,13 @@ def _rank(values: dict[str, float]) -> dict[str, int]:
     return {k: i + 1 for i, k in enumerate(order)}
 
 
-def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
-        epochs: int | None = None,
-        on_progress: Callable[[int, int], None] | None = None) -> pd.DataFrame:
+def run(
+    runs: int | None = None,
+    seed: int = 1,
+    outdir: Path | None = None,
+    epochs: int | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> pd.DataFrame:
     """Run the paper's four cases with KF, HKF, AKF, HAKF (+ Oracle) and return tidy rows.
 
     Parameters
@@ -113,17 +134,24 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
     total = len(CASES) * runs
     for i, case in enumerate(CASES):
         spec = ExperimentSpec(
-            scenario="sins-gps", filters=(*FILTERS, "oracle-kf"), runs=runs, seed=seed,
-            epochs=epochs, outliers="mixture", contamination=0.1, outlier_scale=10.0,
+            scenario="sins-gps",
+            filters=(*FILTERS, "oracle-kf"),
+            runs=runs,
+            seed=seed,
+            epochs=epochs,
+            outliers="mixture",
+            contamination=0.1,
+            outlier_scale=10.0,
             scenario_params={"case": case},
         )
         prog = None
         if on_progress is not None:
+
             def prog(done: int, _n: int, off: int = i * runs) -> None:
                 on_progress(off + done, total)
+
         # chunking never changes the numbers (run r has its own seed); it only feeds progress
-        res = run_experiment(spec, on_progress=prog,
-                             chunk_runs=max(1, runs // 5) if on_progress else None)
+        res = run_experiment(spec, on_progress=prog, chunk_runs=max(1, runs // 5) if on_progress else None)
         r, att = _case_metrics(res, case, outdir)
         rows += r
         att_by_case[case] = att
@@ -136,22 +164,40 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
             if case == 4:
                 note = "paper (text under Figs. 6–7): HAKF best, AKF close, HKF and KF clearly worse"
                 if any(ranks[k] != PAPER_RANK_CASE4[k] for k in FILTERS):
-                    order = ", ".join(f"{PAPER_NAMES[k]} {att[k]:.2f}′"
-                                      for k in sorted(FILTERS, key=ranks.get))
+                    order = ", ".join(
+                        f"{PAPER_NAMES[k]} {att[k]:.2f}′" for k in sorted(FILTERS, key=ranks.get)
+                    )
                     note += f"; navlab's order differs: {order}"
             elif case == 1:
                 note = "paper (Figs. 4–5): all four close, no order stated"
             else:
                 note = "the paper compares the four filters only in cases 1 and 4"
-            rows.append(dict(experiment=f"case{case}", filter=PAPER_NAMES[key], metric="rank_att",
-                             value=float(ranks[key]), paper=paper, rel_diff=rel_diff(ranks[key], paper),
-                             unit="rank", note=note))
+            rows.append(
+                dict(
+                    experiment=f"case{case}",
+                    filter=PAPER_NAMES[key],
+                    metric="rank_att",
+                    value=float(ranks[key]),
+                    paper=paper,
+                    rel_diff=rel_diff(ranks[key], paper),
+                    unit="rank",
+                    note=note,
+                )
+            )
         vals = [att[k] for k in FILTERS]
-        rows.append(dict(experiment=f"case{case}", filter="all", metric="spread_att_pct",
-                         value=100.0 * (max(vals) - min(vals)) / min(vals), paper=None,
-                         rel_diff=None, unit="%",
-                         note="(worst − best)/best attitude RMSE of KF, HKF, AKF, HAKF; "
-                              + ("paper: 'close'" if case == 1 else FIG_NOTE)))
+        rows.append(
+            dict(
+                experiment=f"case{case}",
+                filter="all",
+                metric="spread_att_pct",
+                value=100.0 * (max(vals) - min(vals)) / min(vals),
+                paper=None,
+                rel_diff=None,
+                unit="%",
+                note="(worst − best)/best attitude RMSE of KF, HKF, AKF, HAKF; "
+                + ("paper: 'close'" if case == 1 else FIG_NOTE),
+            )
+        )
     kf_rank = _rank({c: att_by_case[c]["kf"] for c in att_by_case})
     agree = all(kf_rank[c] == PAPER_KF_CASE_RANK[c] for c in CASES)
     note = "paper (Figs. 1–3): KF best in case 1, then 3, then 2, worst in 4"
@@ -164,20 +210,41 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None,
         )
     for case in CASES:
         paper = PAPER_KF_CASE_RANK[case]
-        rows.append(dict(experiment="kf-across-cases", filter="KF", metric=f"rank_att_case{case}",
-                         value=float(kf_rank[case]), paper=paper,
-                         rel_diff=rel_diff(kf_rank[case], paper), unit="rank", note=note))
-    hakf_best = float(min(att_by_case[4], key=lambda k: att_by_case[4][k] if k in FILTERS
-                          else np.inf) == "hakf")
-    rows.append(dict(experiment="case4", filter="HAKF", metric="is_best_att", value=hakf_best,
-                     paper=1.0, rel_diff=rel_diff(hakf_best, 1.0), unit="bool",
-                     note="the paper's headline claim: HAKF has the best attitude accuracy in case 4"))
+        rows.append(
+            dict(
+                experiment="kf-across-cases",
+                filter="KF",
+                metric=f"rank_att_case{case}",
+                value=float(kf_rank[case]),
+                paper=paper,
+                rel_diff=rel_diff(kf_rank[case], paper),
+                unit="rank",
+                note=note,
+            )
+        )
+    hakf_best = float(
+        min(att_by_case[4], key=lambda k: att_by_case[4][k] if k in FILTERS else np.inf) == "hakf"
+    )
+    rows.append(
+        dict(
+            experiment="case4",
+            filter="HAKF",
+            metric="is_best_att",
+            value=hakf_best,
+            paper=1.0,
+            rel_diff=rel_diff(hakf_best, 1.0),
+            unit="bool",
+            note="the paper's headline claim: HAKF has the best attitude accuracy in case 4",
+        )
+    )
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
-register(Reproduction(
-    key="hakf",
-    title="HAKF (Zuo et al. 2017): KF, HKF, AKF, HAKF on SINS/GPS, 4 noise cases, attitude RMSE",
-    paper=PAPER,
-    run=run,
-))
+register(
+    Reproduction(
+        key="hakf",
+        title="HAKF (Zuo et al. 2017): KF, HKF, AKF, HAKF on SINS/GPS, 4 noise cases, attitude RMSE",
+        paper=PAPER,
+        run=run,
+    )
+)

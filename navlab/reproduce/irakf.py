@@ -44,8 +44,14 @@ PAPER = (
 )
 DEFAULT_RUNS = 100  # the paper's Monte Carlo size
 FILTERS = ("kf", "rrae", "rakf", "rsshakf", "irakf", "oracle-kf")
-NAMES = {"kf": "SKF", "rrae": "RRAE", "rakf": "RAKF", "rsshakf": "RSSHAKF", "irakf": "IRAKF",
-         "oracle-kf": "oracle KF"}
+NAMES = {
+    "kf": "SKF",
+    "rrae": "RRAE",
+    "rakf": "RAKF",
+    "rsshakf": "RSSHAKF",
+    "irakf": "IRAKF",
+    "oracle-kf": "oracle KF",
+}
 EXPERIMENTS = {"isolated": (20, 70), "continuous": (50, 70)}  # outlier window (inclusive)
 PAPER_VALUES = {
     ("isolated", "irakf", "pos"): 1.5942,
@@ -112,10 +118,18 @@ def _experiment(res: Results, experiment: str) -> list[dict]:
 
     def add(key: str, metric: str, value: float, unit: str, paper=None, note: str = "") -> None:
         values[(key, metric)] = value
-        rows.append(dict(
-            experiment=experiment, filter=key, metric=metric, value=float(value), paper=paper,
-            rel_diff=rel_diff(float(value), paper), unit=unit, note=note,
-        ))
+        rows.append(
+            dict(
+                experiment=experiment,
+                filter=key,
+                metric=metric,
+                value=float(value),
+                paper=paper,
+                rel_diff=rel_diff(float(value), paper),
+                unit=unit,
+                note=note,
+            )
+        )
 
     for key in res.runs:
         e, ok = _errors(res, key)
@@ -139,42 +153,69 @@ def _experiment(res: Results, experiment: str) -> list[dict]:
                         if experiment == "continuous" and key == "irakf" and q == "pos":
                             why += WHY_CONT_POS
                         notes.append(f"differs by {100 * rd:+.0f} %: {why}{runs_note}")
-                add(key, metric, value, UNITS[q], paper if paper is not None else None,
-                    "; ".join(notes))
+                add(key, metric, value, UNITS[q], paper if paper is not None else None, "; ".join(notes))
         # maximum x-position error in the outlier window: the per-epoch RMSE curve's peak
         # (what Fig. 3 plots if it shows RMSE) and the mean over runs of each run's peak |e_x|
         # (what it shows if it is one run); the paper: > 10 m for SKF, RAKF, RSSHAKF
         ex = np.abs(e[:, :, 0])
         max_rmse = float(np.sqrt((ex**2).mean(axis=0))[window].max())
         run_max = float(ex[:, window].max(axis=1).mean())
-        paper_says = (experiment == "continuous" and key in ("kf", "rakf", "rsshakf"))
+        paper_says = experiment == "continuous" and key in ("kf", "rakf", "rsshakf")
         note = f"paper: > {PAPER_MAX_ABOVE:g} m (Fig. 3)" if paper_says else ""
         add(key, "max_rmse_x_pos_window", max_rmse, "m", None, note)
         add(key, "mean_run_max_abs_x_pos_window", run_max, "m", None, note)
         r_y = float(np.sqrt((e[:, 1:, 2] ** 2).mean()))
-        add(key, "rmse_y_pos", r_y, "m", None,
-            "clean channel; paper Fig. 2(c): all but RRAE comparable" if key == "irakf" else "")
+        add(
+            key,
+            "rmse_y_pos",
+            r_y,
+            "m",
+            None,
+            "clean channel; paper Fig. 2(c): all but RRAE comparable" if key == "irakf" else "",
+        )
         if key != "oracle-kf":
             W1 = np.arange(d.K + 1) >= 1
             mask = d.outlier_mask[ok][:, W1]
             rejected = np.isin(fr.flags[ok][:, W1], (2, 3))
             anyflag = fr.flags[ok][:, W1] != 0
-            add(key, "rejected_outliers_pct", 100 * rejected[mask].mean(), "%", None,
-                "channels rejected (flags 2/3) among injected outliers")
-            add(key, "flagged_outliers_pct", 100 * anyflag[mask].mean(), "%", None,
-                "any flag (incl. down-weighted) among injected outliers")
-            add(key, "rejected_clean_pct", 100 * rejected[~mask].mean(), "%", None,
-                "false rejections among clean channel-epochs")
+            add(
+                key,
+                "rejected_outliers_pct",
+                100 * rejected[mask].mean(),
+                "%",
+                None,
+                "channels rejected (flags 2/3) among injected outliers",
+            )
+            add(
+                key,
+                "flagged_outliers_pct",
+                100 * anyflag[mask].mean(),
+                "%",
+                None,
+                "any flag (incl. down-weighted) among injected outliers",
+            )
+            add(
+                key,
+                "rejected_clean_pct",
+                100 * rejected[~mask].mean(),
+                "%",
+                None,
+                "false rejections among clean channel-epochs",
+            )
         add(key, "diverged", int(fr.diverged.sum()), "runs")
     # the paper's relative improvement of IRAKF over RRAE (experiment 1)
     if experiment == "isolated" and ("irakf", "rmse_x_pos") in values:
-        imp = 100 * (values[("rrae", "rmse_x_pos")] - values[("irakf", "rmse_x_pos")]) / values[
-            ("rrae", "rmse_x_pos")
-        ]
+        imp = (
+            100
+            * (values[("rrae", "rmse_x_pos")] - values[("irakf", "rmse_x_pos")])
+            / values[("rrae", "rmse_x_pos")]
+        )
         note = "(RRAE − IRAKF)/RRAE on the default reading"
         if abs(imp - PAPER_IMPROVEMENT_PCT) > 10:
-            note += ("; ALGORITHMS.md §4.7: the reconstructed RRAE lands inside the IRAKF band, "
-                     "so the paper's 27 % margin is not expected to reproduce")
+            note += (
+                "; ALGORITHMS.md §4.7: the reconstructed RRAE lands inside the IRAKF band, "
+                "so the paper's 27 % margin is not expected to reproduce"
+            )
         add("irakf", "improvement_over_rrae_pct", imp, "%", PAPER_IMPROVEMENT_PCT, note)
     _ordering_notes(rows, values, experiment)
     _floor_notes(rows, values)
@@ -188,8 +229,10 @@ def _floor_notes(rows: list[dict], values: dict) -> None:
             continue
         floor = values.get(("oracle-kf", r["metric"]))
         if floor is not None and r["paper"] < floor:
-            msg = (f"the paper's {r['paper']:g} lies below the oracle KF's {floor:.3f} on this "
-                   "reading (the MMSE floor of navlab's setup), so no filter can reach it here")
+            msg = (
+                f"the paper's {r['paper']:g} lies below the oracle KF's {floor:.3f} on this "
+                "reading (the MMSE floor of navlab's setup), so no filter can reach it here"
+            )
             r["note"] = f"{r['note']}; {msg}" if r["note"] else msg
 
 
@@ -198,15 +241,21 @@ def _ordering_notes(rows: list[dict], values: dict, experiment: str) -> None:
     msgs = []
     ir = values.get(("irakf", "rmse_x_pos"))
     if ir is not None:
-        better = [(k, v) for (k, m), v in values.items()
-                  if m == "rmse_x_pos" and k not in ("irakf", "oracle-kf") and v <= ir]
+        better = [
+            (k, v)
+            for (k, m), v in values.items()
+            if m == "rmse_x_pos" and k not in ("irakf", "oracle-kf") and v <= ir
+        ]
         if better:
             txt = ", ".join(f"{NAMES[k]} {v:.3f} m" for k, v in better)
             msgs.append(("rmse_x_pos", f"paper: IRAKF best; here IRAKF {ir:.3f} m vs {txt}"))
     irv = values.get(("irakf", "rmse_x_vel"))
     if experiment == "continuous" and irv is not None:
-        better = [(k, v) for (k, m), v in values.items()
-                  if m == "rmse_x_vel" and k not in ("irakf", "oracle-kf") and v <= irv]
+        better = [
+            (k, v)
+            for (k, m), v in values.items()
+            if m == "rmse_x_vel" and k not in ("irakf", "oracle-kf") and v <= irv
+        ]
         if better:
             txt = ", ".join(f"{NAMES[k]} {v:.3f} m/s" for k, v in better)
             msgs.append(("rmse_x_vel", f"paper: IRAKF best; here IRAKF {irv:.3f} m/s vs {txt}"))
@@ -215,17 +264,22 @@ def _ordering_notes(rows: list[dict], values: dict, experiment: str) -> None:
             irm = values.get(("irakf", metric))
             if irm is None:
                 continue
-            worse = [(k, values[(k, metric)]) for k in ("kf", "rakf", "rsshakf")
-                     if (k, metric) in values and values[(k, metric)] <= irm]
-            above = [k for k in ("kf", "rakf", "rsshakf")
-                     if values.get((k, metric), np.inf) <= PAPER_MAX_ABOVE]
+            worse = [
+                (k, values[(k, metric)])
+                for k in ("kf", "rakf", "rsshakf")
+                if (k, metric) in values and values[(k, metric)] <= irm
+            ]
+            above = [
+                k for k in ("kf", "rakf", "rsshakf") if values.get((k, metric), np.inf) <= PAPER_MAX_ABOVE
+            ]
             parts = []
             if worse:
-                parts.append("paper: IRAKF's peak error below SKF, RAKF, RSSHAKF; here IRAKF "
-                             f"{irm:.2f} m vs " + ", ".join(f"{NAMES[k]} {v:.2f} m" for k, v in worse))
+                parts.append(
+                    "paper: IRAKF's peak error below SKF, RAKF, RSSHAKF; here IRAKF "
+                    f"{irm:.2f} m vs " + ", ".join(f"{NAMES[k]} {v:.2f} m" for k, v in worse)
+                )
             if above:
-                parts.append("paper: > 10 m for " + ", ".join(NAMES[k] for k in above)
-                             + "; here ≤ 10 m")
+                parts.append("paper: > 10 m for " + ", ".join(NAMES[k] for k in above) + "; here ≤ 10 m")
             if parts:
                 msgs.append((metric, "; ".join(parts)))
     for metric, msg in msgs:
@@ -263,7 +317,9 @@ def curves(res: Results) -> dict[str, pd.DataFrame]:
 
 
 def run(
-    runs: int | None = None, seed: int = 1, outdir: Path | str | None = None,
+    runs: int | None = None,
+    seed: int = 1,
+    outdir: Path | str | None = None,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> pd.DataFrame:
     """Run both experiments with SKF, RRAE, RAKF, RSSHAKF, IRAKF (+ the oracle) -> tidy rows.
@@ -277,12 +333,13 @@ def run(
     tables: dict[str, pd.DataFrame] = {}
     total = 2 * runs if isinstance(runs, int) else 0
     for i, experiment in enumerate(EXPERIMENTS):
-        spec = ExperimentSpec(scenario="cv2d", filters=FILTERS, runs=runs, seed=seed,
-                              outliers=experiment)
+        spec = ExperimentSpec(scenario="cv2d", filters=FILTERS, runs=runs, seed=seed, outliers=experiment)
         prog = None
         if on_progress is not None:
+
             def prog(done: int, _total: int, off: int = i * runs) -> None:
                 on_progress(off + done, total)
+
         res = run_experiment(spec, on_progress=prog, chunk_runs=max(1, runs // 5))
         rows += _experiment(res, experiment)
         for name, tab in curves(res).items():
@@ -297,10 +354,12 @@ def run(
     return df[COLUMNS]
 
 
-register(Reproduction(
-    key="irakf",
-    title="IRAKF vs SKF, RRAE, RAKF, RSSHAKF on 2-D tracking with isolated / continuous outliers "
-    "(Ge, Zhang, Tang 2020, §3)",
-    paper=PAPER,
-    run=run,
-))
+register(
+    Reproduction(
+        key="irakf",
+        title="IRAKF vs SKF, RRAE, RAKF, RSSHAKF on 2-D tracking with isolated / continuous outliers "
+        "(Ge, Zhang, Tang 2020, §3)",
+        paper=PAPER,
+        run=run,
+    )
+)

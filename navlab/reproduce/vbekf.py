@@ -81,10 +81,18 @@ def _rows(res: Results, experiment: str, label_suffix: str = "") -> list[dict]:
                 note = "not in the paper: KF that knows the true R(t), the accuracy floor"
             elif label_suffix and metric in ("deviation_pos", "rmse_pos"):
                 note = "not in the paper: Huang's τ_P = 3 (ALGORITHMS.md §7 pitfall)"
-            rows.append(dict(
-                experiment=experiment, filter=name, metric=metric, value=float(value), paper=paper,
-                rel_diff=rel_diff(float(value), paper), unit=unit, note=note,
-            ))
+            rows.append(
+                dict(
+                    experiment=experiment,
+                    filter=name,
+                    metric=metric,
+                    value=float(value),
+                    paper=paper,
+                    rel_diff=rel_diff(float(value), paper),
+                    unit=unit,
+                    note=note,
+                )
+            )
     return rows
 
 
@@ -92,8 +100,12 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None) -> p
     """Run the §8.4 experiment (ekf, vb-ekf, oracle-kf; and vb-ekf with τ_P = 3) -> tidy rows."""
     runs = DEFAULT_RUNS if runs is None else runs
     spec = ExperimentSpec(
-        scenario="gps-ins-pseudorange", filters=("ekf", "vb-ekf", "oracle-kf"), runs=runs,
-        seed=seed, noise_schedule="constant", outliers="none",
+        scenario="gps-ins-pseudorange",
+        filters=("ekf", "vb-ekf", "oracle-kf"),
+        runs=runs,
+        seed=seed,
+        noise_schedule="constant",
+        outliers="none",
     )
     res = run_experiment(spec)
     rows = _rows(res, EXPERIMENT)
@@ -105,16 +117,26 @@ def run(runs: int | None = None, seed: int = 1, outdir: Path | None = None) -> p
     ):
         ratio = val[("ekf", metric)] / val[("vb-ekf", metric)]
         paper = p_ekf / p_vb
-        rows.append(dict(
-            experiment=EXPERIMENT, filter="ekf/vb-ekf", metric=f"ratio_{metric}", value=ratio,
-            paper=paper, rel_diff=rel_diff(ratio, paper), unit="",
-            note="EKF error / VB-EKF error (> 1: VB-EKF better)",
-        ))
+        rows.append(
+            dict(
+                experiment=EXPERIMENT,
+                filter="ekf/vb-ekf",
+                metric=f"ratio_{metric}",
+                value=ratio,
+                paper=paper,
+                rel_diff=rel_diff(ratio, paper),
+                unit="",
+                note="EKF error / VB-EKF error (> 1: VB-EKF better)",
+            )
+        )
     # Huang's τ_P = 3: same data (same seed), only the VB-EKF's P-prior weight differs
     spec3 = spec.replace(filters=("vb-ekf",), filter_params={"vb-ekf": {"tau_P": 3.0}})
     res3 = run_experiment(spec3)
-    rows += [r for r in _rows(res3, EXPERIMENT, label_suffix=" (τ_P=3)")
-             if r["metric"] in ("deviation_pos", "rmse_pos", "rmse_vel")]
+    rows += [
+        r
+        for r in _rows(res3, EXPERIMENT, label_suffix=" (τ_P=3)")
+        if r["metric"] in ("deviation_pos", "rmse_pos", "rmse_vel")
+    ]
     df = pd.DataFrame(rows)
     df["paper"] = df["paper"].astype(object).where(df["paper"].notna(), None)
     df["rel_diff"] = df["rel_diff"].astype(object).where(df["rel_diff"].notna(), None)
@@ -141,9 +163,11 @@ def _write_curves(res: Results, res3: Results, outdir: Path) -> None:
     pd.DataFrame(tab).to_csv(outdir / "vbekf_sigma_hat.csv", index=False)
 
 
-register(Reproduction(
-    key="vbekf",
-    title="VB-EKF vs EKF on GPS/INS pseudoranges with interference (Hou et al. 2024, Table 1)",
-    paper=PAPER,
-    run=run,
-))
+register(
+    Reproduction(
+        key="vbekf",
+        title="VB-EKF vs EKF on GPS/INS pseudoranges with interference (Hou et al. 2024, Table 1)",
+        paper=PAPER,
+        run=run,
+    )
+)

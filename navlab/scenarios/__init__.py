@@ -17,8 +17,13 @@ from navlab.scenarios.base import (
 )
 
 __all__ = [
-    "MetricGroup", "Scenario", "ScenarioData", "get_scenario_class", "make_scenario",
-    "register_scenario", "scenario_registry",
+    "MetricGroup",
+    "Scenario",
+    "ScenarioData",
+    "get_scenario_class",
+    "make_scenario",
+    "register_scenario",
+    "scenario_registry",
 ]
 
 # every module of this package registers its scenarios on import

@@ -86,8 +86,9 @@ def _fingerprint(data_dir: str) -> tuple:
     if d.is_dir() and not (d / "imu.csv").exists() and (d / RTKX_DIR).is_dir():
         d = d / RTKX_DIR
     try:
-        return tuple(sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns)
-                            for p in d.iterdir() if p.is_file()))
+        return tuple(
+            sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in d.iterdir() if p.is_file())
+        )
     except OSError:
         return ()
 
@@ -109,37 +110,54 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
 @dataclass(frozen=True)
 class Drive0708Params:
     epochs: int = param(
-        0, lo=0, hi=100000, help="1 Hz epochs after the static start (0: the whole drive, ≈513)")
+        0, lo=0, hi=100000, help="1 Hz epochs after the static start (0: the whole drive, ≈513)"
+    )
     sigma_m: float = param(
-        3.0, lo=0.01, hi=1000.0,
-        help="nominal GNSS position σ per axis (m): R0 and the noise schedule's base")
+        3.0, lo=0.01, hi=1000.0, help="nominal GNSS position σ per axis (m): R0 and the noise schedule's base"
+    )
     outage_start_s: float = param(
-        0.0, lo=0.0, hi=1e5, help="GNSS outage start, s after epoch 0 (0: no outage)")
+        0.0, lo=0.0, hi=1e5, help="GNSS outage start, s after epoch 0 (0: no outage)"
+    )
     outage_len_s: float = param(0.0, lo=0.0, hi=1e5, help="GNSS outage length (s)")
     imu_rate_hz: float = param(
-        10.0, lo=0.0, hi=1000.0, help="mechanisation rate: IMU averaged into bins (0: raw 100 Hz)")
+        10.0, lo=0.0, hi=1000.0, help="mechanisation rate: IMU averaged into bins (0: raw 100 Hz)"
+    )
     add_noise: bool = param(True, help="add the schedule's noise and outliers to the aiding positions")
     nhc_sigma_mps: float = param(
-        0.1, lo=0.0, hi=100.0,
+        0.1,
+        lo=0.0,
+        hi=100.0,
         help="σ of the car's non-holonomic constraints (zero lateral/vertical velocity) as two "
-             "extra channels (0: off)")
+        "extra channels (0: off)",
+    )
     arw_rad_rts: float = param(
-        0.001, lo=1e-6, hi=1.0,
-        help="gyro angle random walk at rest (rad/√s): static-start Allan deviation at 1 s")
+        0.001,
+        lo=1e-6,
+        hi=1.0,
+        help="gyro angle random walk at rest (rad/√s): static-start Allan deviation at 1 s",
+    )
     vib_gyro_factor: float = param(
-        0.5, lo=0.0, hi=10.0,
+        0.5,
+        lo=0.0,
+        hi=10.0,
         help="share of each second's measured gyro vibration (raw std × √dt) added to the angle "
-             "random walk (0: constant Q)")
+        "random walk (0: constant Q)",
+    )
     vrw_mps_rts: float = param(
-        0.015, lo=1e-6, hi=10.0,
-        help="accelerometer velocity random walk (m/s/√s): static-start Allan deviation at 1 s")
+        0.015,
+        lo=1e-6,
+        hi=10.0,
+        help="accelerometer velocity random walk (m/s/√s): static-start Allan deviation at 1 s",
+    )
     gyro_bias_rw: float = param(
-        2e-5, lo=0.0, hi=1e-1, help="gyro-bias random walk (rad/s/√s), consumer MEMS class")
+        2e-5, lo=0.0, hi=1e-1, help="gyro-bias random walk (rad/s/√s), consumer MEMS class"
+    )
     accel_bias_rw: float = param(
-        1e-3, lo=0.0, hi=1.0, help="accelerometer-bias random walk (m/s²/√s), consumer MEMS class")
+        1e-3, lo=0.0, hi=1.0, help="accelerometer-bias random walk (m/s²/√s), consumer MEMS class"
+    )
     data_dir: str = param(
-        "", help="data directory (default ../shared/data or $NAVLAB_DATA), or a generic-CSV folder",
-        ui=False)
+        "", help="data directory (default ../shared/data or $NAVLAB_DATA), or a generic-CSV folder", ui=False
+    )
 
 
 @register_scenario
@@ -171,16 +189,24 @@ class Drive0708(Scenario):
         rec, setup, ref = drive_setup(p.data_dir, int(p.epochs), float(p.imu_rate_hz))
         K = setup.K
         sigma = np.full(3, p.sigma_m)
-        noise = ImuNoise(float(p.arw_rad_rts), float(p.vrw_mps_rts), float(p.gyro_bias_rw),
-                         float(p.accel_bias_rw), float(p.vib_gyro_factor))
+        noise = ImuNoise(
+            float(p.arw_rad_rts),
+            float(p.vrw_mps_rts),
+            float(p.gyro_bias_rw),
+            float(p.accel_bias_rw),
+            float(p.vib_gyro_factor),
+        )
         model = InsGnssModel(setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps)
         streams = [run_streams(seed, r) for r in runs]
         B = len(streams)
         std = schedule.std(sigma, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
         has_truth = bool(np.isfinite(setup.p_true).all())
-        base = setup.p_true if has_truth and rec.truth is not None and rec.name.startswith("rtkx") \
+        base = (
+            setup.p_true
+            if has_truth and rec.truth is not None and rec.name.startswith("rtkx")
             else setup.gnss_pos
+        )
         z = base[None] + (noise if p.add_noise else 0.0)
         z[:, 0] = np.nan
         if p.outage_len_s > 0 and p.outage_start_s > 0:
@@ -229,8 +255,11 @@ class Drive0708(Scenario):
                 "metrics": REAL_METRICS,
                 "source": rec.source,
                 "recording": rec.name,
-                "origin_deg": (float(np.degrees(setup.lat0_rad)),
-                               float(np.degrees(setup.lon0_rad)), setup.h0_m),
+                "origin_deg": (
+                    float(np.degrees(setup.lat0_rad)),
+                    float(np.degrees(setup.lon0_rad)),
+                    setup.h0_m,
+                ),
                 "xy_idx": (7, 6),  # east, north columns of the state for plots
                 "gnss_track": setup.gnss_pos,
                 "t_abs_s": setup.t,

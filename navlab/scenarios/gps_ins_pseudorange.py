@@ -60,11 +60,13 @@ def lla_to_ecef(lat_deg: float, lon_deg: float, h: float) -> Array:
     """WGS-84 geodetic → ECEF (m)."""
     lat, lon = np.radians(lat_deg), np.radians(lon_deg)
     N = WGS84_A / np.sqrt(1 - WGS84_E2 * np.sin(lat) ** 2)
-    return np.array([
-        (N + h) * np.cos(lat) * np.cos(lon),
-        (N + h) * np.cos(lat) * np.sin(lon),
-        (N * (1 - WGS84_E2) + h) * np.sin(lat),
-    ])
+    return np.array(
+        [
+            (N + h) * np.cos(lat) * np.cos(lon),
+            (N + h) * np.cos(lat) * np.sin(lon),
+            (N * (1 - WGS84_E2) + h) * np.sin(lat),
+        ]
+    )
 
 
 def enu_to_ecef_matrix(lat_deg: float, lon_deg: float) -> Array:
@@ -157,13 +159,12 @@ class PseudorangeModel:
         return H
 
 
-def interference_factor(t: Array, m: int, sats: Sequence[int], factor: float,
-                        start: float, stop: float, edge: float) -> Array:
+def interference_factor(
+    t: Array, m: int, sats: Sequence[int], factor: float, start: float, stop: float, edge: float
+) -> Array:
     """σ multiplier (len(t), m): 1 + (factor − 1) b(t) on ``sats``, 1 elsewhere (§8.4)."""
     if stop <= start:
-        raise NavlabError(
-            "scenario 'gps-ins-pseudorange': burst_stop must be later than burst_start"
-        )
+        raise NavlabError("scenario 'gps-ins-pseudorange': burst_stop must be later than burst_start")
     if edge > 0:
         b = 0.5 * (np.tanh((t - start) / edge) - np.tanh((t - stop) / edge))
     else:
@@ -199,7 +200,8 @@ class PseudorangeParams:
     burst_stop: float = param(150.0, lo=0.0, hi=1e6, help="burst centre-of-fall (s)")
     burst_edge: float = param(5.0, lo=0.0, hi=1e5, help="tanh edge width (s); 0 = sharp")
     interfered: tuple = param(
-        (1, 3, 6), help="interfered satellite indices (0-based; default = satellites 2, 4, 7)",
+        (1, 3, 6),
+        help="interfered satellite indices (0-based; default = satellites 2, 4, 7)",
         ui=False,
     )
     p0_pos: float = param(10.0, lo=1e-3, hi=1e5, help="initial position σ per axis (m)")
@@ -234,8 +236,7 @@ class GpsInsPseudorange(Scenario):
         bad = [s for s in p.interfered if not 0 <= int(s) < m or int(s) != s]
         if bad:
             raise NavlabError(
-                f"scenario '{self.key}': interfered satellite(s) {bad} do not exist; "
-                f"use 0 … {m - 1}"
+                f"scenario '{self.key}': interfered satellite(s) {bad} do not exist; use 0 … {m - 1}"
             )
         F, Q = pseudorange_matrices(p.dt, p.q_a, p.S_b, p.S_d)
         los, ranges, sat_ecef = satellite_geometry(SAT_AZ_EL_DEG)
@@ -259,16 +260,19 @@ class GpsInsPseudorange(Scenario):
 
         t = np.arange(K + 1) * p.dt
         g = interference_factor(
-            t, m, [int(s) for s in p.interfered], p.interference, p.burst_start, p.burst_stop,
+            t,
+            m,
+            [int(s) for s in p.interfered],
+            p.interference,
+            p.burst_start,
+            p.burst_stop,
             p.burst_edge,
         )
         std = p.sigma0 * g * schedule.std(np.ones(m), K)  # the foundation's schedule on top
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
         z = model.h(x.reshape(-1, 8), 0).reshape(B, K + 1, m) + noise
         z[:, 0] = np.nan
-        names = tuple(
-            f"sat {j + 1} (az {a:.0f}°, el {e:.0f}°)" for j, (a, e) in enumerate(SAT_AZ_EL_DEG)
-        )
+        names = tuple(f"sat {j + 1} (az {a:.0f}°, el {e:.0f}°)" for j, (a, e) in enumerate(SAT_AZ_EL_DEG))
         return ScenarioData(
             scenario=self.key,
             t=t,

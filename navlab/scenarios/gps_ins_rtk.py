@@ -58,18 +58,49 @@ L0_DEG, LON0_DEG, H0_M = 34.22, 117.14, 40.0
 
 # (t0, t1, forward acceleration m/s², yaw rate °/s) of §8.3 (constant after the last segment)
 PROFILE = (
-    (0, 60, 0.0, 0.0), (60, 80, 0.5, 0.0), (80, 140, 0.0, 0.0), (140, 150, 0.0, 9.0),
-    (150, 200, 0.0, 0.0), (200, 220, 0.2, 0.0), (220, 260, 0.0, 0.0), (260, 275, 0.0, -6.0),
-    (275, 330, 0.0, 0.0), (330, 350, -0.2, 0.0), (350, 380, 0.0, 3.0), (380, 440, 0.0, 0.0),
-    (440, 460, 0.0, 4.5), (460, 520, 0.0, 0.0), (520, 540, 0.2, 0.0), (540, 560, 0.0, -4.5),
-    (560, 600, 0.0, 0.0), (600, 615, 0.0, 6.0), (615, 660, 0.0, 0.0), (660, 680, -0.2, 0.0),
-    (680, 700, 0.0, -4.5), (700, 740, 0.0, 0.0), (740, 760, 0.2, 0.0), (760, 775, 0.0, 6.0),
+    (0, 60, 0.0, 0.0),
+    (60, 80, 0.5, 0.0),
+    (80, 140, 0.0, 0.0),
+    (140, 150, 0.0, 9.0),
+    (150, 200, 0.0, 0.0),
+    (200, 220, 0.2, 0.0),
+    (220, 260, 0.0, 0.0),
+    (260, 275, 0.0, -6.0),
+    (275, 330, 0.0, 0.0),
+    (330, 350, -0.2, 0.0),
+    (350, 380, 0.0, 3.0),
+    (380, 440, 0.0, 0.0),
+    (440, 460, 0.0, 4.5),
+    (460, 520, 0.0, 0.0),
+    (520, 540, 0.2, 0.0),
+    (540, 560, 0.0, -4.5),
+    (560, 600, 0.0, 0.0),
+    (600, 615, 0.0, 6.0),
+    (615, 660, 0.0, 0.0),
+    (660, 680, -0.2, 0.0),
+    (680, 700, 0.0, -4.5),
+    (700, 740, 0.0, 0.0),
+    (740, 760, 0.2, 0.0),
+    (760, 775, 0.0, 6.0),
     (775, 800, 0.0, 0.0),
 )
 
 STATE_NAMES = (
-    "δp_N", "δp_E", "δp_D", "δv_N", "δv_E", "δv_D", "φ_N", "φ_E", "φ_D",
-    "ε_F", "ε_R", "ε_D", "∇_F", "∇_R", "∇_D",
+    "δp_N",
+    "δp_E",
+    "δp_D",
+    "δv_N",
+    "δv_E",
+    "δv_D",
+    "φ_N",
+    "φ_E",
+    "φ_D",
+    "ε_F",
+    "ε_R",
+    "ε_D",
+    "∇_F",
+    "∇_R",
+    "∇_D",
 )
 CHANNELS = ("p_N", "p_E", "p_D", "v_N", "v_E", "v_D")
 R_STD = np.array([0.1, 0.1, 0.3, 0.04, 0.04, 0.08])
@@ -84,8 +115,24 @@ def _signed_perm(pairs: Sequence[tuple[int, int]], n: int) -> Array:
 
 # §8.3: §8.0 order [φ ENU, δv ENU, δp NEU, ε RFU, ∇ RFU] -> S2 order [δp NED, δv NED, φ NED, ε FRD, ∇ FRD]
 PI_STATE = _signed_perm(
-    [(6, 1), (7, 1), (8, -1), (4, 1), (3, 1), (5, -1), (1, 1), (0, 1), (2, -1),
-     (10, 1), (9, 1), (11, -1), (13, 1), (12, 1), (14, -1)], 15,
+    [
+        (6, 1),
+        (7, 1),
+        (8, -1),
+        (4, 1),
+        (3, 1),
+        (5, -1),
+        (1, 1),
+        (0, 1),
+        (2, -1),
+        (10, 1),
+        (9, 1),
+        (11, -1),
+        (13, 1),
+        (12, 1),
+        (14, -1),
+    ],
+    15,
 )
 # noise vector [gyro white, accel white, gyro-bias driving, accel-bias driving], body RFU -> FRD
 _PB = [(1, 1), (0, 1), (2, -1)]
@@ -117,8 +164,9 @@ class Trajectory(NamedTuple):
 
 
 @functools.lru_cache(maxsize=4)
-def trajectory(epochs: int, arw: float, vrw: float, sig_g: float, sig_a: float,
-               tau_g: float, tau_a: float) -> Trajectory:
+def trajectory(
+    epochs: int, arw: float, vrw: float, sig_g: float, sig_a: float, tau_g: float, tau_a: float
+) -> Trajectory:
     """Simulate the §8.3 drive and the per-epoch error model (cached: identical for every run).
 
     arw (rad/√s), vrw (m/s/√s), sig_g (rad/s), sig_a (m/s²) are the white-noise and Gauss–Markov
@@ -145,8 +193,14 @@ def trajectory(epochs: int, arw: float, vrw: float, sig_g: float, sig_a: float,
     # specific force and angular rate (FRD) at the sample mid-times, §8.3
     R_Mh, R_Nh = radii(lat_m, H0_M)
     v = np.stack([vN_m, vE_m, np.zeros(n_s)], -1)
-    vdot = np.stack([acc * np.cos(p_m) - s_m * rate * np.sin(p_m),
-                     acc * np.sin(p_m) + s_m * rate * np.cos(p_m), np.zeros(n_s)], -1)
+    vdot = np.stack(
+        [
+            acc * np.cos(p_m) - s_m * rate * np.sin(p_m),
+            acc * np.sin(p_m) + s_m * rate * np.cos(p_m),
+            np.zeros(n_s),
+        ],
+        -1,
+    )
     w_ie = OMEGA_IE_RADPS * np.stack([np.cos(lat_m), np.zeros(n_s), -np.sin(lat_m)], -1)
     w_en = np.stack([vE_m / R_Nh, -vN_m / R_Mh, -vE_m * np.tan(lat_m) / R_Nh], -1)
     g = normal_gravity(lat_m, H0_M)
@@ -170,8 +224,9 @@ def trajectory(epochs: int, arw: float, vrw: float, sig_g: float, sig_a: float,
     v_mid = np.stack([sb[mid] * np.sin(psi_mid), sb[mid] * np.cos(psi_mid), np.zeros(K)], -1)  # ENU
     f_mean = f_n.reshape(K, IMU_RATE, 3).mean(1) @ SWAP.T  # NED -> ENU
     C_bn = SWAP @ rz(psi_mid) @ SWAP  # RFU -> ENU
-    F, G = error_model_FG(lat0 + Nb[mid] / R_Mh0, np.full(K, H0_M), v_mid, f_mean, C_bn,
-                          tau_g_s=tau_g, tau_a_s=tau_a)
+    F, G = error_model_FG(
+        lat0 + Nb[mid] / R_Mh0, np.full(K, H0_M), v_mid, f_mean, C_bn, tau_g_s=tau_g, tau_a_s=tau_a
+    )
     F = PI_STATE @ F @ PI_STATE.T
     G = PI_STATE @ G @ PI_NOISE.T
     q_g, q_a = 2.0 * sig_g**2 / tau_g, 2.0 * sig_a**2 / tau_a
@@ -214,8 +269,16 @@ class GpsInsModel(LinearModel):
         phb1 = -s * e[:, 6] + c * e[:, 7]
         yaw = psi - e[:, 8]
         return np.concatenate(
-            [v, -phb0[:, None], -phb1[:, None], np.sin(yaw)[:, None], np.cos(yaw)[:, None],
-             self.imu_dv[:, k], self.imu_dth[:, k]], axis=1,
+            [
+                v,
+                -phb0[:, None],
+                -phb1[:, None],
+                np.sin(yaw)[:, None],
+                np.cos(yaw)[:, None],
+                self.imu_dv[:, k],
+                self.imu_dth[:, k],
+            ],
+            axis=1,
         )
 
     def nn_reference(self, k: int) -> Array:
@@ -242,7 +305,9 @@ class GpsInsRtkParams:
     anomaly_start: int = param(600, lo=0, hi=10**6, help="state anomaly from (s)")
     anomaly_stop: int = param(800, lo=0, hi=10**6, help="state anomaly until (s)")
     anomaly_var: float = param(
-        2.0, lo=0.0, hi=1000.0,
+        2.0,
+        lo=0.0,
+        hi=1000.0,
         help="variance of the 200 Hz specific-force noise ((m/s²)²; S2's N(0,2); 4 = the std reading)",
     )
     window_start: int = param(600, lo=0, hi=10**6, help="analysis window start (s)")
@@ -295,8 +360,9 @@ class GpsInsRtk(Scenario):
         sig_g = p.gyro_bias_dph * DEG / 3600.0
         sig_a = p.accel_bias_ug * 1e-6 * G0
         tr = trajectory(K, arw, vrw, sig_g, sig_a, p.tau_g_s, p.tau_a_s)
-        p0_std = np.array([1.0, 1.0, 2.0] + [0.5] * 3 + [1 * DEG, 1 * DEG, 3 * DEG]
-                          + [sig_g] * 3 + [sig_a] * 3)
+        p0_std = np.array(
+            [1.0, 1.0, 2.0] + [0.5] * 3 + [1 * DEG, 1 * DEG, 3 * DEG] + [sig_g] * 3 + [sig_a] * 3
+        )
         P0 = np.diag(p0_std**2)
         H = np.hstack([np.eye(6), np.zeros((6, 9))])
         R0 = np.diag(R_STD**2)
@@ -332,8 +398,9 @@ class GpsInsRtk(Scenario):
 
         # IMU increments with the truth's sensor errors, white noise and the anomaly (NN inputs)
         imu_n = np.stack([g.standard_normal((K + 1, 6)) for g in extra])
-        imu_dth = tr.dtheta + np.concatenate(
-            [np.zeros((B, 1, 3)), x[:, :-1, 9:12]], axis=1) + arw * imu_n[..., :3]
+        imu_dth = (
+            tr.dtheta + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 9:12]], axis=1) + arw * imu_n[..., :3]
+        )
         imu_dv = tr.dvel + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 12:15]], axis=1)
         imu_dv = imu_dv + vrw * imu_n[..., 3:]
         imu_dv[:, :, 2] += dv_an
@@ -352,8 +419,10 @@ class GpsInsRtk(Scenario):
             ep_ve = ep_lat + p.gross_vel_offset
             ep_ve = ep_ve[ep_ve <= K]
             gn = np.stack([g.standard_normal((2, K + 1)) for g in extra])
-            for ch, eps, mu, sd, row in ((0, ep_lat, p.gross_lat_m, p.gross_lat_std_m, 0),
-                                         (4, ep_ve, p.gross_ve_mps, p.gross_ve_std_mps, 1)):
+            for ch, eps, mu, sd, row in (
+                (0, ep_lat, p.gross_lat_m, p.gross_lat_std_m, 0),
+                (4, ep_ve, p.gross_ve_mps, p.gross_ve_std_mps, 1),
+            ):
                 gross[:, eps, ch] = mu + sd * gn[:, row, eps]
                 gvar[:, eps, ch] = sd**2
                 gmean[:, eps, ch] = mu
@@ -365,8 +434,16 @@ class GpsInsRtk(Scenario):
         if not window.any():
             window = t > 0
         model = GpsInsModel(
-            tr.Phi, tr.Qd, H, R0, pos_ned=tr.pos_ned, vel_ned=tr.vel_ned, yaw=tr.yaw, x_err=x,
-            imu_dv=imu_dv, imu_dth=imu_dth,
+            tr.Phi,
+            tr.Qd,
+            H,
+            R0,
+            pos_ned=tr.pos_ned,
+            vel_ned=tr.vel_ned,
+            yaw=tr.yaw,
+            x_err=x,
+            imu_dv=imu_dv,
+            imu_dth=imu_dth,
         )
         return ScenarioData(
             scenario=self.key,

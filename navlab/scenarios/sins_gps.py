@@ -55,8 +55,21 @@ DPH = DEG / 3600.0  # °/h -> rad/s
 UG = 1e-6 * G0  # µg -> m/s²
 
 STATE_NAMES = (
-    "phi_E", "phi_N", "phi_U", "dv_E", "dv_N", "dv_U", "dp_N", "dp_E", "dp_U",
-    "eps_x", "eps_y", "eps_z", "nabla_x", "nabla_y", "nabla_z",
+    "phi_E",
+    "phi_N",
+    "phi_U",
+    "dv_E",
+    "dv_N",
+    "dv_U",
+    "dp_N",
+    "dp_E",
+    "dp_U",
+    "eps_x",
+    "eps_y",
+    "eps_z",
+    "nabla_x",
+    "nabla_y",
+    "nabla_z",
 )
 
 CASES = {
@@ -71,12 +84,15 @@ CASES = {
 class SinsGpsParams:
     epochs: int = param(850, lo=2, hi=200000, help="number of GPS epochs (paper: len = 850)")
     case: int = param(
-        0, lo=0, hi=4,
+        0,
+        lo=0,
+        hi=4,
         help="paper noise case: 1 Gaussian, 2 time-varying R (eqs. 29–31), 3 mixture outliers "
         "(eq. 32), 4 both; 0 = use the experiment's noise schedule and outlier model",
     )
     trajectory: str = param(
-        "turning", choices=("turning", "static"),
+        "turning",
+        choices=("turning", "static"),
         help="turning: level 10 m/s circle (yaw observable); static: at rest (yaw unobservable)",
     )
     dt: float = param(1.0, lo=0.01, hi=10.0, help="GPS interval T (s)")
@@ -85,14 +101,14 @@ class SinsGpsParams:
     speed_mps: float = param(10.0, lo=0.0, hi=300.0, help="turning: speed V (m/s)")
     turn_rate_radps: float = param(0.02, lo=0.0, hi=1.0, help="turning: turn rate Ω (rad/s)")
     sigma_pos_m: float = param(
-        10.0, lo=0.01, hi=1000.0,
+        10.0,
+        lo=0.01,
+        hi=1000.0,
         help="nominal GPS σ on N, E, U (m); the paper's 10/Re rad read as 10 m on every axis",
     )
     arw_deg_rth: float = param(0.01, lo=0.0, hi=10.0, help="gyro angle random walk (°/√h)")
     vrw_ug_rhz: float = param(10.0, lo=0.0, hi=1e5, help="accelerometer velocity random walk (µg/√Hz)")
-    gyro_rw_dph_rs: float = param(
-        0.001, lo=0.0, hi=10.0, help="gyro-bias random walk ((°/h)/√s)"
-    )
+    gyro_rw_dph_rs: float = param(0.001, lo=0.0, hi=10.0, help="gyro-bias random walk ((°/h)/√s)")
     accel_rw_ug_rs: float = param(1.0, lo=0.0, hi=1e4, help="accelerometer-bias random walk (µg/√s)")
     p0_tilt_deg: float = param(0.1, lo=1e-6, hi=10.0, help="initial σ of φ_E, φ_N (°)")
     p0_yaw_deg: float = param(0.5, lo=1e-6, hi=30.0, help="initial σ of φ_U (°)")
@@ -102,7 +118,9 @@ class SinsGpsParams:
     p0_accel_ug: float = param(100.0, lo=1e-3, hi=1e5, help="initial accelerometer-bias σ (µg)")
     gravity_gradient: bool = param(False, help="add δv̇_U += 2g/R·δh (omitted in the paper)")
     window_start: int = param(
-        100, lo=0, hi=200000,
+        100,
+        lo=0,
+        hi=200000,
         help="metrics use epochs k ≥ this (paper plots settle by ≈100); runs shorter use all",
     )
 
@@ -136,21 +154,32 @@ def sins_gps_model(p: SinsGpsParams) -> tuple[Array, Array, Array, Array, Array]
     v, f, C = _trajectory(p, t)
     lat = np.full(K + 1, p.lat_deg * DEG)
     F, G = error_model_FG(lat, np.full(K + 1, p.h_m), v, f, C, gravity_gradient=p.gravity_gradient)
-    Qc = np.diag(np.repeat([
-        (p.arw_deg_rth * DEG / 60.0) ** 2,
-        (p.vrw_ug_rhz * UG) ** 2,
-        (p.gyro_rw_dph_rs * DPH) ** 2,
-        (p.accel_rw_ug_rs * UG) ** 2,
-    ], 3))
+    Qc = np.diag(
+        np.repeat(
+            [
+                (p.arw_deg_rth * DEG / 60.0) ** 2,
+                (p.vrw_ug_rhz * UG) ** 2,
+                (p.gyro_rw_dph_rs * DPH) ** 2,
+                (p.accel_rw_ug_rs * UG) ** 2,
+            ],
+            3,
+        )
+    )
     Phi, Qd = discretise(F[:-1], G[:-1], Qc, p.dt)
     Phi = np.concatenate([np.eye(15)[None], Phi])
     Qd = np.concatenate([np.zeros((1, 15, 15)), Qd])
     H = np.zeros((3, 15))
     H[:, 6:9] = np.eye(3)
-    sd = np.array([
-        *(p.p0_tilt_deg * DEG,) * 2, p.p0_yaw_deg * DEG, *(p.p0_vel_mps,) * 3,
-        *(p.p0_pos_m,) * 3, *(p.p0_gyro_dph * DPH,) * 3, *(p.p0_accel_ug * UG,) * 3,
-    ])
+    sd = np.array(
+        [
+            *(p.p0_tilt_deg * DEG,) * 2,
+            p.p0_yaw_deg * DEG,
+            *(p.p0_vel_mps,) * 3,
+            *(p.p0_pos_m,) * 3,
+            *(p.p0_gyro_dph * DPH,) * 3,
+            *(p.p0_accel_ug * UG,) * 3,
+        ]
+    )
     return Phi, Qd, H, np.diag(sd**2), C
 
 
@@ -192,16 +221,12 @@ class SinsGps(Scenario):
         "Gaussian, time-varying R, mixture outliers, both. Attitude errors in arcmin."
     )
     Params = SinsGpsParams
-    outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {
-        "mixture": {"contamination": 0.1, "scale": 10.0}
-    }
+    outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {"mixture": {"contamination": 0.1, "scale": 10.0}}
     default_filters = ("kf", "huber-kf", "vb-akf", "hakf")
     default_runs = 50
     headline = ("att", "vel", "pos")
 
-    def noise_models(
-        self, schedule: Schedule, outliers: OutlierModel
-    ) -> tuple[Schedule, OutlierModel]:
+    def noise_models(self, schedule: Schedule, outliers: OutlierModel) -> tuple[Schedule, OutlierModel]:
         """The schedule and outlier model actually used (``case`` 1–4 overrides the given ones)."""
         case = self.params.case
         if case == 0:

@@ -113,6 +113,8 @@ C_LIGHT = 299792458.0
 STATE_NAMES = ("E", "N", "U", "d_E", "d_N", "cb_GPS", "cb_GLO", "cd")
 SYSTEM_NAMES = {1: "G", 2: "S", 4: "R", 8: "E", 16: "J", 32: "C"}
 _EPS_NORM = 1e-12  # keeps ‖d‖ and its Jacobian finite at d = 0
+
+
 @dataclass(frozen=True, eq=False)
 class PrEpochs:
     """Pseudoranges arranged on (K+1, m_sat) grids; NaN where a satellite is not tracked."""
@@ -164,8 +166,9 @@ def _load_epochs(data_dir: str, fingerprint: tuple) -> PrEpochs:
     el[ti, cj] = pr.elevation_deg
     cn0[ti, cj] = pr.cn0_dbhz
     sys_idx = np.array([0 if s == 1 else 1 for s, _ in keys])
-    names = tuple(f"{SYSTEM_NAMES.get(s, '?')}{i:02d}" if s == 1 else f"{SYSTEM_NAMES.get(s, '?')}{i}"
-                  for s, i in keys)
+    names = tuple(
+        f"{SYSTEM_NAMES.get(s, '?')}{i:02d}" if s == 1 else f"{SYSTEM_NAMES.get(s, '?')}{i}" for s, i in keys
+    )
     od = rec.odom
     speed = np.interp(t, od.t_s, od.speed_mps)
     yaw = np.interp(t, od.t_s, od.yaw_rate_radps)
@@ -185,9 +188,17 @@ def geometric_range(sat: Array, r: Array) -> tuple[Array, Array]:
     return rng + sagnac, d / rng[..., None]
 
 
-def robust_ls_fix(rho: Array, sat: Array, sigma: Array, sys_idx: Array, r0: Array | None = None,
-                  huber_k: float = 1.5, iters: int = 15, height: float | None = None,
-                  sigma_height: float = 1.0) -> tuple[Array, Array]:
+def robust_ls_fix(
+    rho: Array,
+    sat: Array,
+    sigma: Array,
+    sys_idx: Array,
+    r0: Array | None = None,
+    huber_k: float = 1.5,
+    iters: int = 15,
+    height: float | None = None,
+    sigma_height: float = 1.0,
+) -> tuple[Array, Array]:
     """Huber-reweighted weighted least squares fix of one epoch: (r ECEF (3,), clocks (2,)).
 
     With ``height`` the ellipsoidal height is pseudo-measured too (σ ``sigma_height``, never
@@ -247,10 +258,23 @@ class PseudorangeModel:
 
     linear = False
 
-    def __init__(self, ep: PrEpochs, sigma: Array, r0: Array, *, sigma_speed: float,
-                 q_heading: float, q_pos: float, q_height: float, q_clock: float, q_drift: float,
-                 q_isb: float, sigma_norm: float, sigma_height: float | None,
-                 height_prior: tuple[float, float, float] | None = None) -> None:
+    def __init__(
+        self,
+        ep: PrEpochs,
+        sigma: Array,
+        r0: Array,
+        *,
+        sigma_speed: float,
+        q_heading: float,
+        q_pos: float,
+        q_height: float,
+        q_clock: float,
+        q_drift: float,
+        q_isb: float,
+        sigma_norm: float,
+        sigma_height: float | None,
+        height_prior: tuple[float, float, float] | None = None,
+    ) -> None:
         self.ep = ep
         self.sigma = np.where(np.isfinite(sigma), sigma, 1.0)
         self.r0 = r0
@@ -333,40 +357,56 @@ class PseudorangeModel:
 @dataclass(frozen=True)
 class SmartlocParams:
     epochs: int = param(0, lo=0, hi=100000, help="epochs to use (0: all 1371)")
-    variance_model: str = param("cn0-elevation", choices=("cn0-elevation", "cn0", "file"),
-                                help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), or the file's column")
+    variance_model: str = param(
+        "cn0-elevation",
+        choices=("cn0-elevation", "cn0", "file"),
+        help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), or the file's column",
+    )
     cn0_a: float = param(2.0e5, lo=1.0, hi=1e9, help="a of the C/N0 model (m²): σ = 2.5 m at 45 dBHz, zenith")
     height_aiding: str = param(
-        "map-prior", choices=("map-prior", "map", "off"),
+        "map-prior",
+        choices=("map-prior", "map", "off"),
         help="'map-prior': the height deviates from height_m as a Gauss–Markov process in the "
-        "motion model; 'map': a pseudo-measurement height = height_m; 'off': no height knowledge")
+        "motion model; 'map': a pseudo-measurement height = height_m; 'off': no height knowledge",
+    )
     height_m: float = param(
-        75.0, lo=-500.0, hi=9000.0,
+        75.0,
+        lo=-500.0,
+        hi=9000.0,
         help="terrain height from a map, WGS 84 ellipsoidal, antenna (m): Potsdamer Platz ≈ 34 m "
-        "above sea level + geoid 39.5 m + antenna 1.5 m")
+        "above sea level + geoid 39.5 m + antenna 1.5 m",
+    )
     sigma_height_m: float = param(
-        3.0, lo=0.01, hi=1000.0,
-        help="σ of the antenna height about height_m (m): map error + slopes")
+        3.0, lo=0.01, hi=1000.0, help="σ of the antenna height about height_m (m): map error + slopes"
+    )
     tau_height_s: float = param(
-        30.0, lo=0.1, hi=1e6, help="'map-prior': correlation time of the height deviation (s)")
-    sigma_speed: float = param(0.05, lo=1e-3, hi=100.0,
-                               help="odometry speed σ (m/s; the file's covariance column: 0.05)")
+        30.0, lo=0.1, hi=1e6, help="'map-prior': correlation time of the height deviation (s)"
+    )
+    sigma_speed: float = param(
+        0.05, lo=1e-3, hi=100.0, help="odometry speed σ (m/s; the file's covariance column: 0.05)"
+    )
     q_heading: float = param(
-        1e-4, lo=0.0, hi=10.0,
-        help="heading random-walk PSD (rad²/s): the file's yaw-rate σ (2e-3 rad/s) held ≈ 25 s")
-    q_pos: float = param(0.01, lo=0.0, hi=100.0,
-                         help="horizontal position random-walk PSD (m²/s): slip, speed scale")
+        1e-4,
+        lo=0.0,
+        hi=10.0,
+        help="heading random-walk PSD (rad²/s): the file's yaw-rate σ (2e-3 rad/s) held ≈ 25 s",
+    )
+    q_pos: float = param(
+        0.01, lo=0.0, hi=100.0, help="horizontal position random-walk PSD (m²/s): slip, speed scale"
+    )
     q_height: float = param(
-        0.05, lo=0.0, hi=100.0, help="height random-walk PSD (m²/s; not with the map prior)")
+        0.05, lo=0.0, hi=100.0, help="height random-walk PSD (m²/s; not with the map prior)"
+    )
     q_clock: float = param(0.1, lo=0.0, hi=1e6, help="clock white-frequency PSD (m²/s)")
     q_drift: float = param(0.1, lo=0.0, hi=1e6, help="clock random-walk-frequency PSD (m²/s³)")
     q_isb: float = param(1e-3, lo=0.0, hi=1e6, help="GPS–GLONASS inter-system bias random-walk PSD (m²/s)")
     sigma_heading_norm: float = param(
-        0.02, lo=1e-4, hi=10.0, help="σ of the pseudo-measurement ‖d‖ = 1 (unit heading vector)")
+        0.02, lo=1e-4, hi=10.0, help="σ of the pseudo-measurement ‖d‖ = 1 (unit heading vector)"
+    )
     heading_init_s: float = param(
-        3.0, lo=0.0, hi=100.0, help="seconds before ‖d‖ = 1 is applied (the heading forms first)")
-    elevation_mask_deg: float = param(
-        0.0, lo=0.0, hi=80.0, help="drop satellites below this elevation (deg)")
+        3.0, lo=0.0, hi=100.0, help="seconds before ‖d‖ = 1 is applied (the heading forms first)"
+    )
+    elevation_mask_deg: float = param(0.0, lo=0.0, hi=80.0, help="drop satellites below this elevation (deg)")
     cn0_mask_dbhz: float = param(0.0, lo=0.0, hi=60.0, help="drop pseudoranges below this C/N0 (dBHz)")
     data_dir: str = param("", help="data directory (default ../shared/data or $NAVLAB_DATA)", ui=False)
 
@@ -430,24 +470,49 @@ class SmartlocBerlin(Scenario):
         K = K_all if not p.epochs else min(int(p.epochs), K_all)
         var = variance_model(ep, p.variance_model, p.cn0_a)[: K + 1]
         sig = np.sqrt(var)
-        ep = PrEpochs(ep.t[: K + 1], ep.rho[: K + 1], ep.sat[: K + 1], ep.var_file[: K + 1],
-                      ep.el_deg[: K + 1], ep.cn0[: K + 1], ep.sys_idx, ep.names,
-                      ep.speed[: K + 1], ep.yaw_rate[: K + 1], ep.truth_ecef[: K + 1])
+        ep = PrEpochs(
+            ep.t[: K + 1],
+            ep.rho[: K + 1],
+            ep.sat[: K + 1],
+            ep.var_file[: K + 1],
+            ep.el_deg[: K + 1],
+            ep.cn0[: K + 1],
+            ep.sys_idx,
+            ep.names,
+            ep.speed[: K + 1],
+            ep.yaw_rate[: K + 1],
+            ep.truth_ecef[: K + 1],
+        )
         used = np.isfinite(ep.rho)
         with np.errstate(invalid="ignore"):
             used &= (ep.el_deg >= p.elevation_mask_deg) & (ep.cn0 >= p.cn0_mask_dbhz)
         aid_h = p.height_aiding == "map"
         rho0 = np.where(used[0], ep.rho[0], np.nan)
-        r_fix, clk = robust_ls_fix(rho0, ep.sat[0], np.where(np.isfinite(sig[0]), sig[0], 1.0),
-                                   ep.sys_idx,
-                                   height=None if p.height_aiding == "off" else p.height_m,
-                                   sigma_height=p.sigma_height_m)
+        r_fix, clk = robust_ls_fix(
+            rho0,
+            ep.sat[0],
+            np.where(np.isfinite(sig[0]), sig[0], 1.0),
+            ep.sys_idx,
+            height=None if p.height_aiding == "off" else p.height_m,
+            sigma_height=p.sigma_height_m,
+        )
         model = PseudorangeModel(
-            ep, sig, r_fix, sigma_speed=p.sigma_speed, q_heading=p.q_heading, q_pos=p.q_pos,
-            q_height=p.q_height, q_clock=p.q_clock, q_drift=p.q_drift, q_isb=p.q_isb,
-            sigma_norm=p.sigma_heading_norm, sigma_height=p.sigma_height_m if aid_h else None,
-            height_prior=None if p.height_aiding != "map-prior" else (
-                p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s))
+            ep,
+            sig,
+            r_fix,
+            sigma_speed=p.sigma_speed,
+            q_heading=p.q_heading,
+            q_pos=p.q_pos,
+            q_height=p.q_height,
+            q_clock=p.q_clock,
+            q_drift=p.q_drift,
+            q_isb=p.q_isb,
+            sigma_norm=p.sigma_heading_norm,
+            sigma_height=p.sigma_height_m if aid_h else None,
+            height_prior=None
+            if p.height_aiding != "map-prior"
+            else (p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s),
+        )
         m = model.m
         streams = [run_streams(seed, r) for r in runs]
         B = len(streams)

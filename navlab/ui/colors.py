@@ -5,9 +5,26 @@ from __future__ import annotations
 # 20 well-separated colours (Tableau 10 + a darker/lighter complement). The first eight match
 # .streamlit/config.toml's chartCategoricalColors.
 PALETTE: tuple[str, ...] = (
-    "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf",
-    "#bcbd22", "#7f7f7f", "#393b79", "#ad494a", "#637939", "#7b4173", "#e7969c", "#6b6ecf",
-    "#8ca252", "#d6616b", "#3182bd", "#e6550d",
+    "#1f77b4",
+    "#d62728",
+    "#2ca02c",
+    "#9467bd",
+    "#ff7f0e",
+    "#8c564b",
+    "#e377c2",
+    "#17becf",
+    "#bcbd22",
+    "#7f7f7f",
+    "#393b79",
+    "#ad494a",
+    "#637939",
+    "#7b4173",
+    "#e7969c",
+    "#6b6ecf",
+    "#8ca252",
+    "#d6616b",
+    "#3182bd",
+    "#e6550d",
 )
 TRUTH_COLOR = "#111111"  # the true R(t), χ² bands and other references
 

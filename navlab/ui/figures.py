@@ -102,8 +102,14 @@ def _diverged_stub(traces: list, fr: FilterRun, color: str, **axes) -> None:
     """A legend entry with no data for a filter that diverged in every run."""
     traces.append(
         go.Scatter(
-            x=np.zeros(0, F32), y=np.zeros(0, F32), mode="lines", name=_legend_name(fr),
-            line={"color": color, "dash": "dot"}, legendgroup=fr.key, hoverinfo="skip", **axes,
+            x=np.zeros(0, F32),
+            y=np.zeros(0, F32),
+            mode="lines",
+            name=_legend_name(fr),
+            line={"color": color, "dash": "dot"},
+            legendgroup=fr.key,
+            hoverinfo="skip",
+            **axes,
         )
     )
 
@@ -126,11 +132,25 @@ def add_band(
     """
     sl = decimation(x.shape[0])
     cls = _scatter(x[sl].shape[0])
-    common = {"mode": "lines", "line": {"width": 0, "color": color}, "legendgroup": group,
-              "hoverinfo": "skip", **axes}
+    common = {
+        "mode": "lines",
+        "line": {"width": 0, "color": color},
+        "legendgroup": group,
+        "hoverinfo": "skip",
+        **axes,
+    }
     traces.append(cls(x=_f32(x[sl]), y=_f32(hi[sl]), showlegend=False, **common))
-    traces.append(cls(x=_f32(x[sl]), y=_f32(lo[sl]), fill="tonexty", fillcolor=rgba(color, alpha),
-                      name=name, showlegend=showlegend, **common))
+    traces.append(
+        cls(
+            x=_f32(x[sl]),
+            y=_f32(lo[sl]),
+            fill="tonexty",
+            fillcolor=rgba(color, alpha),
+            name=name,
+            showlegend=showlegend,
+            **common,
+        )
+    )
 
 
 def add_line(
@@ -149,8 +169,16 @@ def add_line(
     sl = decimation(x.shape[0])
     cls = _scatter(x[sl].shape[0])
     traces.append(
-        cls(x=_f32(x[sl]), y=_f32(y[sl]), mode="lines", name=name, legendgroup=group or name,
-            line={"color": color, "dash": dash, "width": width}, showlegend=showlegend, **axes)
+        cls(
+            x=_f32(x[sl]),
+            y=_f32(y[sl]),
+            mode="lines",
+            name=name,
+            legendgroup=group or name,
+            line={"color": color, "dash": dash, "width": width},
+            showlegend=showlegend,
+            **axes,
+        )
     )
 
 
@@ -160,13 +188,13 @@ def _base_layout(title: str, height: int) -> dict:
         "height": height,
         "margin": {"l": 60, "r": 20, "t": 60, "b": 45},
         "hovermode": "x unified",
-        "legend": {"orientation": "h", "yanchor": "bottom", "y": 1.02, "xanchor": "right",
-                   "x": 1},
+        "legend": {"orientation": "h", "yanchor": "bottom", "y": 1.02, "xanchor": "right", "x": 1},
     }
 
 
-def _figure(traces: list, title: str, x_title: str, y_title: str, log_y: bool = False,
-            height: int = 380) -> go.Figure:
+def _figure(
+    traces: list, title: str, x_title: str, y_title: str, log_y: bool = False, height: int = 380
+) -> go.Figure:
     """One figure from all traces at once (much cheaper than trace-by-trace ``add_trace``)."""
     layout = _base_layout(title, height)
     layout["xaxis"] = {"title": {"text": x_title}}
@@ -240,8 +268,9 @@ def r_vs_rhat(
     tf = lambda v: np.sqrt(np.maximum(v, 0.0)) if as_std else v  # noqa: E731
     traces: list = []
     sym = "σ" if as_std else "R"
-    add_line(traces, t, tf(data.R_schedule[:, channel]), f"true {sym}(t) (schedule)",
-             TRUTH_COLOR, "truth", width=3)
+    add_line(
+        traces, t, tf(data.R_schedule[:, channel]), f"true {sym}(t) (schedule)", TRUTH_COLOR, "truth", width=3
+    )
     for key, fr in res.runs.items():
         ok = ok_runs(fr)
         c = colors[key]
@@ -257,8 +286,16 @@ def r_vs_rhat(
             add_band(traces, t[1:], q[0], q[2], c, key)
             add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym}̂ (median)", c, key)
         else:
-            add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym} used (no {sym}̂)", c, key,
-                     dash="dash", width=1.5)
+            add_line(
+                traces,
+                t[1:],
+                q[1],
+                f"{_legend_name(fr)} {sym} used (no {sym}̂)",
+                c,
+                key,
+                dash="dash",
+                width=1.5,
+            )
     name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
     units = _r_units(data, channel, as_std)
     y_title = f"{sym} ({units})" if units else sym
@@ -268,15 +305,22 @@ def r_vs_rhat(
         return _figure(traces, title, "time (s)", y_title, log_y, height)
     frac = data.outlier_mask[:, :, channel].mean(axis=0)
     idx, fmax = bucket_max(frac)
-    traces.append(go.Bar(x=_f32(t[idx]), y=_f32(fmax), name="share of runs with an outlier",
-                         marker={"color": "#d62728", "line": {"width": 0}},
-                         legendgroup="outliers", xaxis="x", yaxis="y2"))
+    traces.append(
+        go.Bar(
+            x=_f32(t[idx]),
+            y=_f32(fmax),
+            name="share of runs with an outlier",
+            marker={"color": "#d62728", "line": {"width": 0}},
+            legendgroup="outliers",
+            xaxis="x",
+            yaxis="y2",
+        )
+    )
     layout = _base_layout(title, height + 90)
     layout.update(
         bargap=0,
         xaxis={"title": {"text": "time (s)"}, "anchor": "y2"},
-        yaxis={"title": {"text": y_title}, "type": "log" if log_y else "linear",
-               "domain": [0.27, 1.0]},
+        yaxis={"title": {"text": y_title}, "type": "log" if log_y else "linear", "domain": [0.27, 1.0]},
         yaxis2={"title": {"text": "outliers"}, "range": [0, 1], "domain": [0.0, 0.2]},
     )
     return go.Figure(data=traces, layout=layout)
@@ -307,13 +351,21 @@ def nis_vs_chi2(res: Results, *, log_y: bool = True, level: float = 0.95) -> go.
     if N:
         lo, hi = chi2_band(m, N, level)
         x = np.array([t[1], t[-1]]) if t.shape[0] > 1 else t
-        add_band(traces, x, np.full(x.shape, lo), np.full(x.shape, hi), TRUTH_COLOR, "chi2",
-                 name=f"χ² {int(level * 100)} % band (dof {m}, {N} runs)", alpha=0.12,
-                 showlegend=True)
-        add_line(traces, x, np.full(x.shape, float(m)), f"E[NIS] = {m}", TRUTH_COLOR, "chi2",
-                 dash="dot", width=1)
-    return _figure(traces, "Consistency: average NIS over runs vs its χ² band", "time (s)",
-                   "ANIS", log_y)
+        add_band(
+            traces,
+            x,
+            np.full(x.shape, lo),
+            np.full(x.shape, hi),
+            TRUTH_COLOR,
+            "chi2",
+            name=f"χ² {int(level * 100)} % band (dof {m}, {N} runs)",
+            alpha=0.12,
+            showlegend=True,
+        )
+        add_line(
+            traces, x, np.full(x.shape, float(m)), f"E[NIS] = {m}", TRUTH_COLOR, "chi2", dash="dot", width=1
+        )
+    return _figure(traces, "Consistency: average NIS over runs vs its χ² band", "time (s)", "ANIS", log_y)
 
 
 # --------------------------------------------------------------------------- tables
@@ -323,21 +375,30 @@ def metric_label(metric: str, res: Results) -> str:
     """Readable column name with unit for a metric key of :func:`navlab.metrics.summarize`."""
     groups = res.data.groups
     for prefix, word in (("mean_rmse_", "mean RMSE"), ("rmse_", "RMSE")):
-        if metric.startswith(prefix) and metric[len(prefix):] in groups:
-            g = groups[metric[len(prefix):]]
+        if metric.startswith(prefix) and metric[len(prefix) :] in groups:
+            g = groups[metric[len(prefix) :]]
             return f"{word} {g.label} ({g.unit})"
     return {
-        "anees": "ANEES", "anis": "ANIS", "rhat_err_pct": "R̂ error (%)",
-        "detected_pct": "outliers flagged (%)", "false_alarm_pct": "false alarms (%)",
-        "diverged": "diverged runs", "us_per_run_step": "µs per run·step",
+        "anees": "ANEES",
+        "anis": "ANIS",
+        "rhat_err_pct": "R̂ error (%)",
+        "detected_pct": "outliers flagged (%)",
+        "false_alarm_pct": "false alarms (%)",
+        "diverged": "diverged runs",
+        "us_per_run_step": "µs per run·step",
     }.get(metric, metric)
 
 
 def metric_title(metric: str, unit: str = "") -> str:
     """Readable name of a tidy-table metric without the results at hand (e.g. for sweeps)."""
-    names = {"anees": "ANEES", "anis": "ANIS", "rhat_err_pct": "R̂ error",
-             "detected_pct": "outliers flagged", "false_alarm_pct": "false alarms",
-             "diverged": "diverged runs"}
+    names = {
+        "anees": "ANEES",
+        "anis": "ANIS",
+        "rhat_err_pct": "R̂ error",
+        "detected_pct": "outliers flagged",
+        "false_alarm_pct": "false alarms",
+        "diverged": "diverged runs",
+    }
     if metric.startswith("mean_rmse_"):
         name = f"mean RMSE {metric[10:].replace('_', ' ')}"
     elif metric.startswith("rmse_"):
@@ -366,11 +427,19 @@ def rmse_curves(res: Results) -> pd.DataFrame:
         ok = ok_runs(fr)
         for gname, g in data.groups.items():
             sq = sq_error(fr.x, data.x_true, g)
-            frames.append(pd.DataFrame({
-                "filter": key, "group": gname, "unit": g.unit, "epoch": np.arange(data.K + 1),
-                "t_s": data.t, "rmse": rmse_per_epoch(sq, ok) if ok.any() else np.nan,
-                "runs_used": int(ok.sum()),
-            }))
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "filter": key,
+                        "group": gname,
+                        "unit": g.unit,
+                        "epoch": np.arange(data.K + 1),
+                        "t_s": data.t,
+                        "rmse": rmse_per_epoch(sq, ok) if ok.any() else np.nan,
+                        "runs_used": int(ok.sum()),
+                    }
+                )
+            )
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -388,11 +457,16 @@ def sweep_lines(
     traces: list = []
     for key, d in df.groupby("filter", sort=False):
         d = d.sort_values("value")
-        traces.append(go.Scatter(
-            x=d["value"].to_numpy(dtype=float), y=_f32(d["metric_value"].to_numpy(dtype=float)),
-            mode="lines+markers", name=str(d["label"].iloc[0]), legendgroup=str(key),
-            line={"color": colors[str(key)], "width": 2},
-        ))
+        traces.append(
+            go.Scatter(
+                x=d["value"].to_numpy(dtype=float),
+                y=_f32(d["metric_value"].to_numpy(dtype=float)),
+                mode="lines+markers",
+                name=str(d["label"].iloc[0]),
+                legendgroup=str(key),
+                line={"color": colors[str(key)], "width": 2},
+            )
+        )
     fig = _figure(traces, f"{y_label} against {x_label}", x_label, y_label, log_y)
     fig.update_layout(hovermode="closest", xaxis_type="log" if log_x else "linear")
     return fig
@@ -404,13 +478,22 @@ def sweep_heatmap(df: pd.DataFrame, x_label: str, y_label: str) -> go.Figure:
     z = piv.to_numpy(dtype=float)
     xs = [f"{v:.4g}" for v in piv.columns]
     text = np.where(np.isfinite(z), np.char.mod("%.3g", np.nan_to_num(z)), "diverged")
-    fig = go.Figure(go.Heatmap(
-        z=z, x=xs, y=list(piv.index), text=text, texttemplate="%{text}", colorscale="Viridis",
-        colorbar={"title": {"text": y_label}}, hovertemplate="%{y}<br>%{x}: %{z:.4g}<extra></extra>",
-    ))
+    fig = go.Figure(
+        go.Heatmap(
+            z=z,
+            x=xs,
+            y=list(piv.index),
+            text=text,
+            texttemplate="%{text}",
+            colorscale="Viridis",
+            colorbar={"title": {"text": y_label}},
+            hovertemplate="%{y}<br>%{x}: %{z:.4g}<extra></extra>",
+        )
+    )
     fig.update_layout(
         title={"text": f"{y_label}: filters × {x_label}", "x": 0, "font": {"size": 15}},
-        height=140 + 40 * len(piv.index), margin={"l": 120, "r": 20, "t": 50, "b": 45},
+        height=140 + 40 * len(piv.index),
+        margin={"l": 120, "r": 20, "t": 50, "b": 45},
     )
     fig.update_xaxes(title_text=x_label, type="category")
     return fig
@@ -429,8 +512,13 @@ def schedule_preview(spec, height: int = 220) -> go.Figure:
     k = np.arange(K + 1, dtype=float)
     traces: list = []
     add_line(traces, k, f, "σ(t) / σ nominal", TRUTH_COLOR, "truth", width=2)
-    fig = _figure(traces, f"Noise schedule '{spec.noise_schedule}': true σ(t) relative to the "
-                  "σ the filters assume", "epoch", "σ / σ nominal", height=height)
+    fig = _figure(
+        traces,
+        f"Noise schedule '{spec.noise_schedule}': true σ(t) relative to the σ the filters assume",
+        "epoch",
+        "σ / σ nominal",
+        height=height,
+    )
     fig.update_layout(showlegend=False, hovermode="closest")
     return fig
 
@@ -471,12 +559,27 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
             continue
         finite = v[np.isfinite(v)]
         binary = finite.size > 0 and np.isin(finite, (0.0, 1.0)).all()
-        y = (average_over_runs(v) if binary else nan_quantiles(v, (0.5,))[0])
+        y = average_over_runs(v) if binary else nan_quantiles(v, (0.5,))[0]
         add_line(traces, data.t, y, _legend_name(fr), colors[key], key)
         thr = fr.stats.get(f"{stat}_threshold")
         if thr is not None:
             t_y = nan_quantiles(_per_epoch(np.asarray(thr, dtype=float), channel, m)[ok], (0.5,))[0]
-            add_line(traces, data.t, t_y, f"{key}: threshold", colors[key], key, dash="dash",
-                     width=1.0, showlegend=False)
-    return _figure(traces, f"{stat} per epoch: median over runs (0/1 indicators: share of runs); "
-                   "dashed: the filter's threshold", "time (s)", stat, log_y, height=320)
+            add_line(
+                traces,
+                data.t,
+                t_y,
+                f"{key}: threshold",
+                colors[key],
+                key,
+                dash="dash",
+                width=1.0,
+                showlegend=False,
+            )
+    return _figure(
+        traces,
+        f"{stat} per epoch: median over runs (0/1 indicators: share of runs); dashed: the filter's threshold",
+        "time (s)",
+        stat,
+        log_y,
+        height=320,
+    )

@@ -37,11 +37,15 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
     """
     color = filter_color(res.key)
     fig = make_subplots(
-        rows=4, cols=1, shared_xaxes=True, vertical_spacing=0.05,
+        rows=4,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.05,
         subplot_titles=(
             "measurement z, prediction ẑ⁻ and truth",
             "NIS (bars: filter's own S; ◇: nominal S₀) vs χ² threshold",
-            "R used in the gain, R̂ and true R", "weights (1 = untouched)",
+            "R used in the gain, R̂ and true R",
+            "weights (1 = untouched)",
         ),
         row_heights=(0.32, 0.24, 0.24, 0.2),
     )
@@ -50,59 +54,142 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
     for i, (ch, g) in enumerate(df.groupby("channel", sort=False)):
         dash = CHANNEL_DASH[i % len(CHANNEL_DASH)]
         x = _a(g["epoch"])
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["truth"]), name=f"truth {ch}", mode="lines",
-            line={"color": TRUTH_COLOR, "dash": dash, "width": 1}, legendgroup="truth",
-        ), row=1, col=1)
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["z_pred"]), name=f"prediction ẑ⁻ {ch}", mode="lines+markers",
-            line={"color": color, "dash": dash}, legendgroup="pred",
-        ), row=1, col=1)
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["z"]), name=f"measurement z {ch}", mode="markers",
-            marker={"color": "#555555", "symbol": "circle-open", "size": 8},
-            legendgroup="z",
-        ), row=1, col=1)
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["truth"]),
+                name=f"truth {ch}",
+                mode="lines",
+                line={"color": TRUTH_COLOR, "dash": dash, "width": 1},
+                legendgroup="truth",
+            ),
+            row=1,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["z_pred"]),
+                name=f"prediction ẑ⁻ {ch}",
+                mode="lines+markers",
+                line={"color": color, "dash": dash},
+                legendgroup="pred",
+            ),
+            row=1,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["z"]),
+                name=f"measurement z {ch}",
+                mode="markers",
+                marker={"color": "#555555", "symbol": "circle-open", "size": 8},
+                legendgroup="z",
+            ),
+            row=1,
+            col=1,
+        )
         out = g[g["outlier"]]
         if len(out):
-            fig.add_trace(go.Scatter(
-                x=_a(out["epoch"]), y=_a(out["z"]), name=f"outlier {ch}", mode="markers",
-                marker={"color": "#d62728", "symbol": "x", "size": 12}, legendgroup="outlier",
-            ), row=1, col=1)
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["R_used"]), name=f"R used {ch}", mode="lines+markers",
-            line={"color": color, "dash": dash}, legendgroup="Rused",
-        ), row=3, col=1)
+            fig.add_trace(
+                go.Scatter(
+                    x=_a(out["epoch"]),
+                    y=_a(out["z"]),
+                    name=f"outlier {ch}",
+                    mode="markers",
+                    marker={"color": "#d62728", "symbol": "x", "size": 12},
+                    legendgroup="outlier",
+                ),
+                row=1,
+                col=1,
+            )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["R_used"]),
+                name=f"R used {ch}",
+                mode="lines+markers",
+                line={"color": color, "dash": dash},
+                legendgroup="Rused",
+            ),
+            row=3,
+            col=1,
+        )
         if np.isfinite(g["R_hat"].to_numpy(dtype=float)).any():
-            fig.add_trace(go.Scatter(
-                x=x, y=_a(g["R_hat"]), name=f"R̂ {ch}", mode="lines+markers",
-                line={"color": rgba(color, 0.55), "dash": dash, "width": 3},
-                marker={"symbol": "diamond"}, legendgroup="Rhat",
-            ), row=3, col=1)
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["R_true"]), name=f"true R {ch}", mode="lines",
-            line={"color": TRUTH_COLOR, "dash": dash, "width": 1}, legendgroup="Rtrue",
-        ), row=3, col=1)
-        fig.add_trace(go.Scatter(
-            x=x, y=_a(g["weight"]), name=f"weight {ch}", mode="lines+markers",
-            line={"color": color, "dash": dash}, text=g["flag_name"].astype(str).to_numpy(),
-            hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
-            legendgroup="w",
-        ), row=4, col=1)
+            fig.add_trace(
+                go.Scatter(
+                    x=x,
+                    y=_a(g["R_hat"]),
+                    name=f"R̂ {ch}",
+                    mode="lines+markers",
+                    line={"color": rgba(color, 0.55), "dash": dash, "width": 3},
+                    marker={"symbol": "diamond"},
+                    legendgroup="Rhat",
+                ),
+                row=3,
+                col=1,
+            )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["R_true"]),
+                name=f"true R {ch}",
+                mode="lines",
+                line={"color": TRUTH_COLOR, "dash": dash, "width": 1},
+                legendgroup="Rtrue",
+            ),
+            row=3,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_a(g["weight"]),
+                name=f"weight {ch}",
+                mode="lines+markers",
+                line={"color": color, "dash": dash},
+                text=g["flag_name"].astype(str).to_numpy(),
+                hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
+                legendgroup="w",
+            ),
+            row=4,
+            col=1,
+        )
     if len(ep):
         exceed = ep["nis_exceeds"].to_numpy(dtype=bool)
-        fig.add_trace(go.Bar(
-            x=_a(ep["epoch"]), y=_a(ep["nis"]), name="NIS",
-            marker={"color": np.where(exceed, "#d62728", color).tolist()},
-        ), row=2, col=1)
-        fig.add_trace(go.Scatter(
-            x=_a(ep["epoch"]), y=_a(ep["nis_nominal"]), name="NIS with nominal R₀",
-            mode="markers", marker={"color": TRUTH_COLOR, "symbol": "diamond-open", "size": 10},
-        ), row=2, col=1)
-        fig.add_trace(go.Scatter(
-            x=_a(ep["epoch"]), y=_a(ep["nis_threshold"]), name="χ² threshold", mode="lines",
-            line={"color": TRUTH_COLOR, "dash": "dash", "shape": "hvh"},
-        ), row=2, col=1)
+        fig.add_trace(
+            go.Bar(
+                x=_a(ep["epoch"]),
+                y=_a(ep["nis"]),
+                name="NIS",
+                marker={"color": np.where(exceed, "#d62728", color).tolist()},
+            ),
+            row=2,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=_a(ep["epoch"]),
+                y=_a(ep["nis_nominal"]),
+                name="NIS with nominal R₀",
+                mode="markers",
+                marker={"color": TRUTH_COLOR, "symbol": "diamond-open", "size": 10},
+            ),
+            row=2,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=_a(ep["epoch"]),
+                y=_a(ep["nis_threshold"]),
+                name="χ² threshold",
+                mode="lines",
+                line={"color": TRUTH_COLOR, "dash": "dash", "shape": "hvh"},
+            ),
+            row=2,
+            col=1,
+        )
     for r in (1, 2, 3, 4):
         fig.add_vline(x=step, line={"color": "#f0a500", "width": 2}, opacity=0.5, row=r, col=1)
     fig.update_yaxes(type="log", row=2, col=1)
@@ -110,8 +197,10 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
     fig.update_yaxes(range=[-0.05, 1.1], row=4, col=1)
     fig.update_xaxes(title_text="epoch k", dtick=1, row=4, col=1)
     fig.update_layout(
-        height=820, margin={"l": 50, "r": 10, "t": 40, "b": 40},
-        legend={"orientation": "h", "y": -0.08}, bargap=0.4,
+        height=820,
+        margin={"l": 50, "r": 10, "t": 40, "b": 40},
+        legend={"orientation": "h", "y": -0.08},
+        bargap=0.4,
     )
     return fig
 
@@ -124,11 +213,21 @@ def step_channels(res: StepThrough, step: int) -> pd.DataFrame:
     rows["√S"] = np.sqrt(rows["S"].to_numpy(dtype=float))
     prev = res.steps[res.steps["epoch"] == step - 1].set_index("channel")["R_hat"]
     rows["R̂ change"] = rows["R_hat"].to_numpy(dtype=float) - (
-        prev.reindex(rows["channel"]).to_numpy(dtype=float) if len(prev) else np.nan)
+        prev.reindex(rows["channel"]).to_numpy(dtype=float) if len(prev) else np.nan
+    )
     cols = {
-        "channel": "channel", "z": "z", "z_pred": "ẑ⁻ (predicted)", "innov": "innovation ν",
-        "√S": "√S", "innov_norm": "ν/√S", "weight": "weight", "flag_name": "flag",
-        "R_true": "true R", "R_used": "R used", "R_hat": "R̂", "R̂ change": "R̂ change",
+        "channel": "channel",
+        "z": "z",
+        "z_pred": "ẑ⁻ (predicted)",
+        "innov": "innovation ν",
+        "√S": "√S",
+        "innov_norm": "ν/√S",
+        "weight": "weight",
+        "flag_name": "flag",
+        "R_true": "true R",
+        "R_used": "R used",
+        "R_hat": "R̂",
+        "R̂ change": "R̂ change",
         "outlier": "outlier added",
     }
     stat_cols = [c for c in rows.columns if c.startswith("stat:")]
@@ -156,11 +255,15 @@ def cached_applicability(spec: TinySpec) -> pd.DataFrame:
     rows = []
     for key, r in applicability(spec).items():
         cls = registry()[key]
-        rows.append({
-            "filter": key, "label": cls.label, "family": cls.family,
-            "runs on the tiny example": "yes" if r.applicable else "no",
-            "why not": r.reason,
-        })
+        rows.append(
+            {
+                "filter": key,
+                "label": cls.label,
+                "family": cls.family,
+                "runs on the tiny example": "yes" if r.applicable else "no",
+                "why not": r.reason,
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -188,7 +291,8 @@ def render_filter_card(key: str) -> None:
     if info["reconstruction"]:
         st.warning(
             "Reconstruction: the original paper could not be retrieved; navlab implements the "
-            "reading documented in its spec section.", icon=":material/construction:",
+            "reading documented in its spec section.",
+            icon=":material/construction:",
         )
     st.markdown(info["idea"])
     st.subheader("Key equations")
@@ -211,25 +315,37 @@ def render_step(res: StepThrough, step: int) -> None:
     ep = res.epoch_table().set_index("epoch")
     row = ep.loc[step]
     c1, c2, c3, c4, c5 = st.columns(5)
-    c1.metric("NIS γ (filter's S)", f"{row['nis']:.3g}",
-              delta=f"{row['nis'] - row['nis_threshold']:+.3g} vs threshold",
-              delta_color="inverse",
-              help="νᵀS⁻¹ν with the S the filter used (a robust filter's S is already inflated)")
-    c2.metric("NIS with nominal R₀", f"{row['nis_nominal']:.3g}",
-              delta=f"{row['nis_nominal'] - row['nis_threshold']:+.3g} vs threshold",
-              delta_color="inverse", help="νᵀ(HP⁻Hᵀ + R₀)⁻¹ν: what a plain KF would test")
-    c3.metric("χ² threshold", f"{row['nis_threshold']:.3g}",
-              help=f"χ²_(1−α)(m) with α = {res.data.spec.alpha:g}")
+    c1.metric(
+        "NIS γ (filter's S)",
+        f"{row['nis']:.3g}",
+        delta=f"{row['nis'] - row['nis_threshold']:+.3g} vs threshold",
+        delta_color="inverse",
+        help="νᵀS⁻¹ν with the S the filter used (a robust filter's S is already inflated)",
+    )
+    c2.metric(
+        "NIS with nominal R₀",
+        f"{row['nis_nominal']:.3g}",
+        delta=f"{row['nis_nominal'] - row['nis_threshold']:+.3g} vs threshold",
+        delta_color="inverse",
+        help="νᵀ(HP⁻Hᵀ + R₀)⁻¹ν: what a plain KF would test",
+    )
+    c3.metric(
+        "χ² threshold", f"{row['nis_threshold']:.3g}", help=f"χ²_(1−α)(m) with α = {res.data.spec.alpha:g}"
+    )
     c4.metric("outlier at this epoch", "yes" if row["outlier"] else "no")
     flags = res.steps.loc[res.steps["epoch"] == step, "flag_name"].unique().tolist()
     c5.metric("flags", ", ".join(flags))
     if row["nis_exceeds"] or row["nis_nominal_exceeds"]:
         which = row["nis"] if row["nis_exceeds"] else row["nis_nominal"]
-        st.warning(f"Epoch {step}: the NIS {which:.3g} exceeds the χ² threshold "
-                   f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.",
-                   icon=":material/priority_high:")
-    st.markdown("**Per channel** (innovation, its normalised size, the weight/flag the filter "
-                "gave it, the R it used, its R̂ and the filter's own stats)")
+        st.warning(
+            f"Epoch {step}: the NIS {which:.3g} exceeds the χ² threshold "
+            f"{row['nis_threshold']:.3g} — the innovation is implausible under the model.",
+            icon=":material/priority_high:",
+        )
+    st.markdown(
+        "**Per channel** (innovation, its normalised size, the weight/flag the filter "
+        "gave it, the R it used, its R̂ and the filter's own stats)"
+    )
     st.dataframe(step_channels(res, step), hide_index=True, width="stretch")
     extra = res.extra_stats.get(step, {})
     if extra:

@@ -58,15 +58,28 @@ def usable_filters(scenario: str) -> list[str]:
     return out
 
 
-def build_spec(recording: str, filters: Sequence[str], *, epochs: int, runs: int = 1, seed: int = 1,
-               contamination: float = 0.0, outlier_scale: float = 10.0,
-               scenario_params: Mapping[str, Any] | None = None) -> ExperimentSpec:
+def build_spec(
+    recording: str,
+    filters: Sequence[str],
+    *,
+    epochs: int,
+    runs: int = 1,
+    seed: int = 1,
+    contamination: float = 0.0,
+    outlier_scale: float = 10.0,
+    scenario_params: Mapping[str, Any] | None = None,
+) -> ExperimentSpec:
     """The experiment spec the page runs (CLI equivalent: ``python -m navlab run --config``)."""
     sp = dict(scenario_params or {})
     sp["epochs"] = int(epochs)
     return ExperimentSpec(
-        scenario=scenario_of(recording), filters=tuple(filters), runs=int(runs), seed=int(seed),
-        outliers="mixture", contamination=float(contamination), outlier_scale=float(outlier_scale),
+        scenario=scenario_of(recording),
+        filters=tuple(filters),
+        runs=int(runs),
+        seed=int(seed),
+        outliers="mixture",
+        contamination=float(contamination),
+        outlier_scale=float(outlier_scale),
         scenario_params=sp,
     )
 
@@ -86,15 +99,15 @@ def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
     elif (d / "truth.csv").exists():
         (d / "truth.csv").unlink()
     try:
-        load_generic(d / "imu.csv", d / "gnss.csv", (d / "truth.csv") if truth else None,
-                     name="upload")
+        load_generic(d / "imu.csv", d / "gnss.csv", (d / "truth.csv") if truth else None, name="upload")
     except NavlabError as exc:  # the user sees the uploaded names, not the temp paths
         raise NavlabError(str(exc).replace(str(d) + "/", "uploaded ")) from None
     return d
 
 
-def run_with_progress(spec: ExperimentSpec,
-                      on_progress: Callable[[float, str], None] | None = None) -> Results:
+def run_with_progress(
+    spec: ExperimentSpec, on_progress: Callable[[float, str], None] | None = None
+) -> Results:
     """Load/prepare the data, then run every filter in one time loop, reporting per epoch."""
     t0 = time.perf_counter()
     if on_progress:
@@ -109,8 +122,7 @@ def run_with_progress(spec: ExperimentSpec,
             on_progress(k / total, f"epoch {k}/{total} · {time.perf_counter() - t0:.1f} s")
 
     runs = run_filters(data, p.filters, on_epoch=cb)
-    return Results(spec=spec, data=data, runs=runs, complete=True,
-                   elapsed_s=time.perf_counter() - t0)
+    return Results(spec=spec, data=data, runs=runs, complete=True, elapsed_s=time.perf_counter() - t0)
 
 
 def _dec(n: int) -> slice:
@@ -126,20 +138,45 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
     sl = _dec(d.K + 1)
     if d.has_truth:
         xt = d.x_true[run]
-        fig.add_trace(go.Scattergl(x=xt[sl, ie].astype(np.float32), y=xt[sl, inn].astype(np.float32),
-                                   mode="lines", name="truth", line={"color": "black", "width": 3}))
+        fig.add_trace(
+            go.Scattergl(
+                x=xt[sl, ie].astype(np.float32),
+                y=xt[sl, inn].astype(np.float32),
+                mode="lines",
+                name="truth",
+                line={"color": "black", "width": 3},
+            )
+        )
     if d.scenario == "drive0708":
         z = d.z[run]
-        fig.add_trace(go.Scattergl(x=z[sl, 1].astype(np.float32), y=z[sl, 0].astype(np.float32),
-                                   mode="markers", name="GNSS fixes (aiding)",
-                                   marker={"size": 4, "color": "rgba(120,120,120,0.5)"}))
+        fig.add_trace(
+            go.Scattergl(
+                x=z[sl, 1].astype(np.float32),
+                y=z[sl, 0].astype(np.float32),
+                mode="markers",
+                name="GNSS fixes (aiding)",
+                marker={"size": 4, "color": "rgba(120,120,120,0.5)"},
+            )
+        )
     for key, fr in res.runs.items():
         x = fr.x[run]
-        fig.add_trace(go.Scattergl(x=x[sl, ie].astype(np.float32), y=x[sl, inn].astype(np.float32),
-                                   mode="lines", name=fr.label, line={"color": colors[key], "width": 1.5}))
-    fig.update_layout(title=f"Track (run {run}) — local east/north, metres", height=520,
-                      xaxis_title="east (m)", yaxis_title="north (m)",
-                      yaxis={"scaleanchor": "x", "scaleratio": 1}, margin={"t": 50, "b": 40})
+        fig.add_trace(
+            go.Scattergl(
+                x=x[sl, ie].astype(np.float32),
+                y=x[sl, inn].astype(np.float32),
+                mode="lines",
+                name=fr.label,
+                line={"color": colors[key], "width": 1.5},
+            )
+        )
+    fig.update_layout(
+        title=f"Track (run {run}) — local east/north, metres",
+        height=520,
+        xaxis_title="east (m)",
+        yaxis_title="north (m)",
+        yaxis={"scaleanchor": "x", "scaleratio": 1},
+        margin={"t": 50, "b": 40},
+    )
     return fig
 
 
@@ -158,11 +195,23 @@ def error_figure(res: Results, run: int = 0, log_y: bool = False) -> go.Figure:
     sl = _dec(d.K + 1)
     for key, fr in res.runs.items():
         e = horizontal_error(res, fr)[run]
-        fig.add_trace(go.Scattergl(x=d.t[sl].astype(np.float32), y=e[sl].astype(np.float32),
-                                   mode="lines", name=fr.label, line={"color": colors[key]}))
-    fig.update_layout(title=f"Horizontal error (run {run})", height=380, xaxis_title="time (s)",
-                      yaxis_title="horizontal error (m)", yaxis_type="log" if log_y else "linear",
-                      margin={"t": 50, "b": 40})
+        fig.add_trace(
+            go.Scattergl(
+                x=d.t[sl].astype(np.float32),
+                y=e[sl].astype(np.float32),
+                mode="lines",
+                name=fr.label,
+                line={"color": colors[key]},
+            )
+        )
+    fig.update_layout(
+        title=f"Horizontal error (run {run})",
+        height=380,
+        xaxis_title="time (s)",
+        yaxis_title="horizontal error (m)",
+        yaxis_type="log" if log_y else "linear",
+        margin={"t": 50, "b": 40},
+    )
     return fig
 
 
@@ -174,18 +223,36 @@ def rhat_figure(res: Results, channel: int, run: int = 0) -> go.Figure:
     sl = _dec(d.K + 1)
     unit = d.channel_units[channel]
     r0 = float(np.sqrt(d.model.R0[channel, channel]))
-    fig.add_trace(go.Scattergl(x=d.t[[0, -1]], y=[r0, r0], mode="lines", name="nominal √R0",
-                               line={"color": "black", "dash": "dash"}))
+    fig.add_trace(
+        go.Scattergl(
+            x=d.t[[0, -1]],
+            y=[r0, r0],
+            mode="lines",
+            name="nominal √R0",
+            line={"color": "black", "dash": "dash"},
+        )
+    )
     for key, fr in res.runs.items():
         if fr.R_hat is None:
             continue
         with np.errstate(invalid="ignore"):
             s = np.sqrt(fr.R_hat[run, :, channel])
-        fig.add_trace(go.Scattergl(x=d.t[sl].astype(np.float32), y=s[sl].astype(np.float32),
-                                   mode="lines", name=fr.label, line={"color": colors[key]}))
-    fig.update_layout(title=f"Estimated noise √R̂ — channel {d.channel_names[channel]} ({unit})",
-                      height=340, xaxis_title="time (s)", yaxis_title=f"√R̂ ({unit})",
-                      margin={"t": 50, "b": 40})
+        fig.add_trace(
+            go.Scattergl(
+                x=d.t[sl].astype(np.float32),
+                y=s[sl].astype(np.float32),
+                mode="lines",
+                name=fr.label,
+                line={"color": colors[key]},
+            )
+        )
+    fig.update_layout(
+        title=f"Estimated noise √R̂ — channel {d.channel_names[channel]} ({unit})",
+        height=340,
+        xaxis_title="time (s)",
+        yaxis_title=f"√R̂ ({unit})",
+        margin={"t": 50, "b": 40},
+    )
     return fig
 
 
@@ -204,14 +271,24 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
         for cnt, name, sym in ((rej, "rejected", "x"), (down, "down-weighted", "circle-open")):
             k = np.flatnonzero(cnt > 0)
             if k.size:
-                fig.add_trace(go.Scattergl(
-                    x=d.t[k].astype(np.float32), y=np.full(k.size, i, np.float32), mode="markers",
-                    name=f"{fr.label}: {name}", marker={"symbol": sym, "color": colors[key], "size": 6},
-                    text=[f"{c} channel(s)" for c in cnt[k]], showlegend=False))
-    fig.update_layout(title=f"Epochs a filter rejected (×) or down-weighted (○) channels (run {run})",
-                      height=120 + 30 * len(labels), xaxis_title="time (s)",
-                      yaxis={"tickvals": list(range(len(labels))), "ticktext": labels},
-                      margin={"t": 50, "b": 40})
+                fig.add_trace(
+                    go.Scattergl(
+                        x=d.t[k].astype(np.float32),
+                        y=np.full(k.size, i, np.float32),
+                        mode="markers",
+                        name=f"{fr.label}: {name}",
+                        marker={"symbol": sym, "color": colors[key], "size": 6},
+                        text=[f"{c} channel(s)" for c in cnt[k]],
+                        showlegend=False,
+                    )
+                )
+    fig.update_layout(
+        title=f"Epochs a filter rejected (×) or down-weighted (○) channels (run {run})",
+        height=120 + 30 * len(labels),
+        xaxis_title="time (s)",
+        yaxis={"tickvals": list(range(len(labels))), "ticktext": labels},
+        margin={"t": 50, "b": 40},
+    )
     return fig
 
 

@@ -119,26 +119,35 @@ def bar_figure(df: pd.DataFrame, experiment: str, metric: str) -> go.Figure:
     t = t[(t["experiment"] == experiment) & (t["metric"] == metric)]
     filters = t["filter"].tolist()
     colours = filter_colors()
-    ours_c = [colours.get(f.split(" ")[0], PALETTE[i % len(PALETTE)])
-              for i, f in enumerate(filters)]
+    ours_c = [colours.get(f.split(" ")[0], PALETTE[i % len(PALETTE)]) for i, f in enumerate(filters)]
     unit = next((u for u in t["unit"] if u), "")
     fig = go.Figure()
-    fig.add_trace(go.Bar(
-        x=filters, y=t["paper"].to_numpy(dtype=np.float32), name="paper",
-        marker={"color": PAPER_COLOR, "pattern": {"shape": "/"}},
-        hovertemplate="%{x}<br>paper: %{y:.4g}<extra></extra>",
-    ))
-    fig.add_trace(go.Bar(
-        x=filters, y=t["value"].to_numpy(dtype=np.float32), name="navlab",
-        marker={"color": ours_c},
-        customdata=np.stack([t["rel_diff"].to_numpy(dtype=float)], axis=-1),
-        hovertemplate="%{x}<br>navlab: %{y:.4g}<br>rel. diff %{customdata[0]:+.1%}"
-                      "<extra></extra>",
-    ))
+    fig.add_trace(
+        go.Bar(
+            x=filters,
+            y=t["paper"].to_numpy(dtype=np.float32),
+            name="paper",
+            marker={"color": PAPER_COLOR, "pattern": {"shape": "/"}},
+            hovertemplate="%{x}<br>paper: %{y:.4g}<extra></extra>",
+        )
+    )
+    fig.add_trace(
+        go.Bar(
+            x=filters,
+            y=t["value"].to_numpy(dtype=np.float32),
+            name="navlab",
+            marker={"color": ours_c},
+            customdata=np.stack([t["rel_diff"].to_numpy(dtype=float)], axis=-1),
+            hovertemplate="%{x}<br>navlab: %{y:.4g}<br>rel. diff %{customdata[0]:+.1%}<extra></extra>",
+        )
+    )
     fig.update_layout(
-        barmode="group", title=f"{experiment} · {metric}", height=340,
+        barmode="group",
+        title=f"{experiment} · {metric}",
+        height=340,
         yaxis_title=f"{metric} ({unit})" if unit else metric,
-        margin={"l": 50, "r": 10, "t": 50, "b": 40}, legend={"orientation": "h", "y": 1.12},
+        margin={"l": 50, "r": 10, "t": 50, "b": 40},
+        legend={"orientation": "h", "y": 1.12},
     )
     return fig
 
@@ -149,19 +158,26 @@ def reldiff_figure(df: pd.DataFrame) -> go.Figure:
     d = d[np.isfinite(d["rel_diff"])].iloc[::-1]
     labels = (d["experiment"] + " · " + d["filter"] + " · " + d["metric"]).to_numpy()
     cmap = {"close": "#2ca02c", "differs": "#f0a500", "far": "#d62728"}
-    fig = go.Figure(go.Bar(
-        x=(100 * d["rel_diff"]).to_numpy(dtype=np.float32), y=labels, orientation="h",
-        marker={"color": [cmap.get(v, "#888888") for v in d["verdict"]]},
-        customdata=np.stack([d["paper"].to_numpy(dtype=float),
-                             d["value"].to_numpy(dtype=float)], axis=-1) if len(d) else None,
-        hovertemplate="%{y}<br>paper %{customdata[0]:.4g} · navlab %{customdata[1]:.4g}"
-                      "<br>%{x:+.1f} %<extra></extra>",
-    ))
+    fig = go.Figure(
+        go.Bar(
+            x=(100 * d["rel_diff"]).to_numpy(dtype=np.float32),
+            y=labels,
+            orientation="h",
+            marker={"color": [cmap.get(v, "#888888") for v in d["verdict"]]},
+            customdata=np.stack([d["paper"].to_numpy(dtype=float), d["value"].to_numpy(dtype=float)], axis=-1)
+            if len(d)
+            else None,
+            hovertemplate="%{y}<br>paper %{customdata[0]:.4g} · navlab %{customdata[1]:.4g}"
+            "<br>%{x:+.1f} %<extra></extra>",
+        )
+    )
     for x in (-100 * FAR, -100 * CLOSE, 100 * CLOSE, 100 * FAR):
         fig.add_vline(x=x, line={"color": "#bbbbbb", "dash": "dot", "width": 1})
     fig.update_layout(
-        title="navlab vs paper: relative difference (%)", xaxis_title="(navlab − paper)/paper, %",
-        height=max(260, 26 * len(d) + 110), margin={"l": 10, "r": 10, "t": 50, "b": 40},
+        title="navlab vs paper: relative difference (%)",
+        xaxis_title="(navlab − paper)/paper, %",
+        height=max(260, 26 * len(d) + 110),
+        margin={"l": 10, "r": 10, "t": 50, "b": 40},
     )
     return fig
 
@@ -202,7 +218,7 @@ def wide_groups(df: pd.DataFrame) -> dict[str, list[str]]:
     suffix = {}
     for c in cols:
         k = _key_of(c, keys)
-        suffix[c] = c[len(k) + 1:] if k and len(c) > len(k) else c
+        suffix[c] = c[len(k) + 1 :] if k and len(c) > len(k) else c
     bases = sorted(set(suffix.values()), key=len)
     groups: dict[str, list[str]] = {}
     for c in cols:
@@ -244,20 +260,29 @@ def curve_figure(
         dash = "dot" if any(s in name for s in ("tau", "true", "paper")) else "solid"
         step = max(1, int(np.ceil(len(y) / MAX_CURVE_POINTS)))
         trace = go.Scattergl if len(y) // step > 1000 else go.Scatter
-        fig.add_trace(trace(
-            x=x[::step].astype(np.float32), y=y[::step].astype(np.float32), name=name,
-            mode="lines", line={"color": colour, "dash": dash},
-        ))
+        fig.add_trace(
+            trace(
+                x=x[::step].astype(np.float32),
+                y=y[::step].astype(np.float32),
+                name=name,
+                mode="lines",
+                line={"color": colour, "dash": dash},
+            )
+        )
     fig.update_layout(
-        title=title if measure is None else f"{title} · {measure}", height=380,
-        xaxis_title=x_col or "row", margin={"l": 50, "r": 10, "t": 50, "b": 40},
+        title=title if measure is None else f"{title} · {measure}",
+        height=380,
+        xaxis_title=x_col or "row",
+        margin={"l": 50, "r": 10, "t": 50, "b": 40},
     )
     return fig
 
 
 # --------------------------------------------------------------------------------- running
 def run_reproduction(
-    key: str, runs: int | None, seed: int,
+    key: str,
+    runs: int | None,
+    seed: int,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
     """Run reproduction ``key`` into a temporary outdir: (tidy table, {csv name: curves})."""

@@ -119,8 +119,7 @@ def next_chunk_size(remaining: int, big: int = 200) -> int:
 
 def _concat_data(a: Any, b: Any) -> Any:
     per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
-    return dataclasses.replace(a, **{f: np.concatenate([getattr(a, f), getattr(b, f)])
-                                     for f in per_run})
+    return dataclasses.replace(a, **{f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in per_run})
 
 
 # What every filter cost per epoch in this process, per scenario: {runs in the batch: seconds}
@@ -168,8 +167,7 @@ def estimated_seconds(spec: ExperimentSpec, K: int, runs: int) -> float | None:
     """
     if K <= 0:
         return None
-    return sum(K * _per_epoch(_COST.get((spec.scenario, key)) or _PRIOR, runs)
-               for key in spec.filters)
+    return sum(K * _per_epoch(_COST.get((spec.scenario, key)) or _PRIOR, runs) for key in spec.filters)
 
 
 def _one_batch(spec: ExperimentSpec, K: int, remaining: int, first: int) -> bool:
@@ -224,8 +222,7 @@ def iter_chunks(
             acc_runs = {k: FilterRun.concat([acc.runs[k], out[k]]) for k in out}
         done += n
         elapsed += time.perf_counter() - t0
-        acc = Results(spec=spec, data=acc_data, runs=acc_runs, complete=done >= spec.runs,
-                      elapsed_s=elapsed)
+        acc = Results(spec=spec, data=acc_data, runs=acc_runs, complete=done >= spec.runs, elapsed_s=elapsed)
         yield acc
         if done < spec.runs:
             n = next_chunk_size(spec.runs - done)
@@ -283,12 +280,18 @@ def run_live(
             render(res)
         return res
     start = partial_results(page, spec)
-    prog = st.progress(0.0 if start is None else start.done_runs / spec.runs,
-                       text="starting the Monte Carlo…")
+    prog = st.progress(
+        0.0 if start is None else start.done_runs / spec.runs, text="starting the Monte Carlo…"
+    )
     stop_ph = st.empty()
     if stop_button:
-        stop_ph.button("Stop", key=f"_stop_{page}", on_click=cancel_run, args=(page,),
-                  help="stop after the current chunk of runs; Run resumes where it stopped")
+        stop_ph.button(
+            "Stop",
+            key=f"_stop_{page}",
+            on_click=cancel_run,
+            args=(page,),
+            help="stop after the current chunk of runs; Run resumes where it stopped",
+        )
     if start is not None and render is not None:
         render(start)
     t0 = time.perf_counter()
@@ -297,14 +300,15 @@ def run_live(
     def tick(runs_done: float) -> None:  # progress within a batch, at most every 5 %
         if runs_done - shown[0] >= 0.05 * spec.runs:
             shown[0] = runs_done
-            prog.progress(min(1.0, runs_done / spec.runs),
-                          text=f"{runs_done:.0f}/{spec.runs} runs…")
+            prog.progress(min(1.0, runs_done / spec.runs), text=f"{runs_done:.0f}/{spec.runs} runs…")
 
     try:
         for res in iter_chunks(spec, start, first_chunk, tick):
             _partials()[page] = (key, res)
-            prog.progress(res.done_runs / spec.runs,
-                          text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute")
+            prog.progress(
+                res.done_runs / spec.runs,
+                text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute",
+            )
             if render is not None:
                 render(res)
     except Exception as exc:  # shown to the user, never a traceback
@@ -318,8 +322,11 @@ def run_live(
     store.put(key, res)
     _partials().pop(page, None)
     cancel_run(page)
-    prog.progress(1.0, text=f"done: {spec.runs} runs, {res.elapsed_s:.2f} s compute, "
-                            f"{time.perf_counter() - t0:.2f} s on the page")
+    prog.progress(
+        1.0,
+        text=f"done: {spec.runs} runs, {res.elapsed_s:.2f} s compute, "
+        f"{time.perf_counter() - t0:.2f} s on the page",
+    )
     return res
 
 

@@ -14,17 +14,25 @@ from navlab.ui.widgets import spec_to_state
 UPLOAD_MSG_KEY = "_navlab_upload_msg"
 
 
-def config_download(spec: ExperimentSpec, name: str = "navlab-config.json", key: str = "dl_cfg",
-                    container=None) -> None:
+def config_download(
+    spec: ExperimentSpec, name: str = "navlab-config.json", key: str = "dl_cfg", container=None
+) -> None:
     """Download button for the configuration (the same JSON the CLI reads with --config)."""
     c = container if container is not None else st
-    c.download_button("Configuration (JSON)", spec.to_json(indent=2), file_name=name,
-                      mime="application/json", key=key, on_click="ignore",
-                      help="load it back here, or run it with: python -m navlab run --config FILE")
+    c.download_button(
+        "Configuration (JSON)",
+        spec.to_json(indent=2),
+        file_name=name,
+        mime="application/json",
+        key=key,
+        on_click="ignore",
+        help="load it back here, or run it with: python -m navlab run --config FILE",
+    )
 
 
-def csv_download(df: pd.DataFrame | Callable[[], pd.DataFrame], label: str, name: str, key: str,
-                 container=None) -> None:
+def csv_download(
+    df: pd.DataFrame | Callable[[], pd.DataFrame], label: str, name: str, key: str, container=None
+) -> None:
     """Download button for a table as CSV (a callable is evaluated only on click)."""
     c = container if container is not None else st
     data = (lambda: df().to_csv(index=False)) if callable(df) else df.to_csv(index=False)
@@ -38,8 +46,10 @@ def parse_config(raw: bytes) -> ExperimentSpec:
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
-        raise NavlabError("the uploaded file is not UTF-8 text; upload a navlab configuration "
-                          "JSON (e.g. one downloaded from this page)") from None
+        raise NavlabError(
+            "the uploaded file is not UTF-8 text; upload a navlab configuration "
+            "JSON (e.g. one downloaded from this page)"
+        ) from None
     return ExperimentSpec.from_json(text)
 
 
@@ -55,8 +65,7 @@ def _on_upload(key: str) -> None:
         return
     msg = f"Loaded {f.name}: scenario {spec.scenario}, {len(spec.filters)} filters, {spec.runs} runs."
     if hidden:
-        msg += (" Settings without a widget (kept for this session, not in the URL): "
-                + ", ".join(hidden))
+        msg += " Settings without a widget (kept for this session, not in the URL): " + ", ".join(hidden)
     st.session_state[UPLOAD_MSG_KEY] = ("success", msg)
 
 
@@ -66,9 +75,14 @@ def config_upload(key: str = "up_cfg", container=None) -> None:
     A broken file leaves the widgets untouched and shows an error saying what is wrong.
     """
     c = container if container is not None else st
-    c.file_uploader("Load a configuration (JSON)", type=["json"], key=key,
-                    on_change=_on_upload, args=(key,),
-                    help="a file downloaded with 'Configuration (JSON)' or a CLI --config file")
+    c.file_uploader(
+        "Load a configuration (JSON)",
+        type=["json"],
+        key=key,
+        on_change=_on_upload,
+        args=(key,),
+        help="a file downloaded with 'Configuration (JSON)' or a CLI --config file",
+    )
     msg = st.session_state.pop(UPLOAD_MSG_KEY, None)
     if msg:
         kind, text = msg

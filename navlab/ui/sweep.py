@@ -47,25 +47,45 @@ def sweepables(spec: ExperimentSpec) -> list[Sweepable]:
     sreg, freg = scenario_registry(), registry()
     scls = sreg[spec.scenario]
     groups: list[tuple[str, str, type, dict[str, Any], str]] = [
-        ("ol", spec.outliers, OUTLIERS[spec.outliers].Params,
-         scls.outlier_defaults.get(spec.outliers, {}), f"outliers {spec.outliers}"),
-        ("ns", spec.noise_schedule, SCHEDULES[spec.noise_schedule].Params, {},
-         f"noise {spec.noise_schedule}"),
+        (
+            "ol",
+            spec.outliers,
+            OUTLIERS[spec.outliers].Params,
+            scls.outlier_defaults.get(spec.outliers, {}),
+            f"outliers {spec.outliers}",
+        ),
+        (
+            "ns",
+            spec.noise_schedule,
+            SCHEDULES[spec.noise_schedule].Params,
+            {},
+            f"noise {spec.noise_schedule}",
+        ),
         ("sc", spec.scenario, scls.Params, {}, f"scenario {spec.scenario}"),
     ]
-    groups += [("fp", k, freg[k].Params, scls.filter_defaults.get(k, {}), f"filter {k}")
-               for k in spec.filters]
+    groups += [
+        ("fp", k, freg[k].Params, scls.filter_defaults.get(k, {}), f"filter {k}") for k in spec.filters
+    ]
     out = []
     for kind, owner, Params, over, where in groups:
         for p in describe(Params):
             d = over.get(p["name"], p["default"])
             if not p.get("ui", True) or isinstance(d, bool) or not isinstance(d, (int, float)):
                 continue
-            out.append(Sweepable(
-                id=f"{kind}.{owner}.{p['name']}", kind=kind, owner=owner, name=p["name"],
-                label=f"{p['name'].replace('_', ' ')} ({where})", default=float(d),
-                lo=p.get("lo"), hi=p.get("hi"), integer=isinstance(d, int), help=p.get("help", ""),
-            ))
+            out.append(
+                Sweepable(
+                    id=f"{kind}.{owner}.{p['name']}",
+                    kind=kind,
+                    owner=owner,
+                    name=p["name"],
+                    label=f"{p['name'].replace('_', ' ')} ({where})",
+                    default=float(d),
+                    lo=p.get("lo"),
+                    hi=p.get("hi"),
+                    integer=isinstance(d, int),
+                    help=p.get("help", ""),
+                )
+            )
     return out
 
 

@@ -31,11 +31,9 @@ def chart(container: Any, fig: Any, alt: str) -> None:
 def divergence_warnings(res: Results, container: Any = None) -> None:
     """One warning line per filter with diverged runs (they are excluded from every curve)."""
     c = container if container is not None else st
-    notes = [f"**{fr.label}**: {F.divergence_note(fr)}" for fr in res.runs.values()
-             if F.divergence_note(fr)]
+    notes = [f"**{fr.label}**: {F.divergence_note(fr)}" for fr in res.runs.values() if F.divergence_note(fr)]
     if notes:
-        c.warning("Diverged (non-finite state; excluded from curves and metrics) — "
-                  + "; ".join(notes))
+        c.warning("Diverged (non-finite state; excluded from curves and metrics) — " + "; ".join(notes))
 
 
 def headline_groups(res: Results) -> list[str]:
@@ -100,17 +98,24 @@ class CompareView:
         c1, c2, c3, c4, c5 = self.controls.columns([2, 1, 2, 1, 1])
         groups = list(res.data.groups)
         first = headline_groups(res)[0]
-        self.group = c1.selectbox("Error of", groups, index=groups.index(first),
-                                  format_func=lambda g: f"{res.data.groups[g].label} "
-                                                        f"({res.data.groups[g].unit})",
-                                  key=f"{self.page}_v_group")
+        self.group = c1.selectbox(
+            "Error of",
+            groups,
+            index=groups.index(first),
+            format_func=lambda g: f"{res.data.groups[g].label} ({res.data.groups[g].unit})",
+            key=f"{self.page}_v_group",
+        )
         self.log_err = c2.toggle("log error", key=f"{self.page}_v_logerr")
         m = res.data.z.shape[2]
-        self.channel = c3.selectbox("R̂ channel", list(range(m)),
-                                    format_func=lambda ch: channel_label(res, ch),
-                                    key=f"{self.page}_v_ch")
-        self.as_std = c4.toggle("σ not R", key=f"{self.page}_v_std",
-                                help="show standard deviations instead of variances")
+        self.channel = c3.selectbox(
+            "R̂ channel",
+            list(range(m)),
+            format_func=lambda ch: channel_label(res, ch),
+            key=f"{self.page}_v_ch",
+        )
+        self.as_std = c4.toggle(
+            "σ not R", key=f"{self.page}_v_std", help="show standard deviations instead of variances"
+        )
         self.log_r = c5.toggle("log R", key=f"{self.page}_v_logr")
 
     def render(self, res: Results) -> None:
@@ -121,8 +126,11 @@ class CompareView:
             f"scenario `{res.spec.scenario}`, {res.data.K} epochs"
         )
         group = self.group if self.group in res.data.groups else headline_groups(res)[0]
-        chart(self.err, F.error_vs_time(res, group, log_y=self.log_err),
-              "RMSE over time per filter with spread bands")
+        chart(
+            self.err,
+            F.error_vs_time(res, group, log_y=self.log_err),
+            "RMSE over time per filter with spread bands",
+        )
         self.table.dataframe(F.summary_table(res, headline_groups(res)), width="stretch")
         with self.notes.container():
             divergence_warnings(res)
@@ -133,8 +141,11 @@ class CompareView:
             self.nis.caption("NIS against its χ² band: drawn when the run completes")
             return
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
-        chart(self.rhat, F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std),
-              "true R(t) against each filter's R-hat")
+        chart(
+            self.rhat,
+            F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std),
+            "true R(t) against each filter's R-hat",
+        )
         chart(self.nis, F.nis_vs_chi2(res), "average NIS against its chi-square band")
 
 
@@ -168,8 +179,9 @@ def rhat_error_table(res: Results) -> Any:
             with np.errstate(all="ignore"):
                 ratio = np.sqrt(fr.R_hat[ok][:, W, ch]) / np.sqrt(d.R_schedule[W, ch])[None]
             ratio = ratio[np.isfinite(ratio)]
-            row[channel_label(res, ch)] = (float(100 * np.mean(np.abs(ratio - 1)))
-                                           if ratio.size else float("nan"))
+            row[channel_label(res, ch)] = (
+                float(100 * np.mean(np.abs(ratio - 1))) if ratio.size else float("nan")
+            )
         rows.append(row)
     return pd.DataFrame(rows).set_index("filter") if rows else pd.DataFrame()
 
@@ -189,8 +201,10 @@ class NoiseView:
         st.markdown("##### R̂ error against the schedule: mean |σ̂/σ − 1| over the window (%)")
         self.table = st.empty()
         self.notes = st.empty()
-        st.markdown("##### Filter internals: fading factors, test statistics against their "
-                    "thresholds, VB iterations, replaced measurements")
+        st.markdown(
+            "##### Filter internals: fading factors, test statistics against their "
+            "thresholds, VB iterations, replaced measurements"
+        )
         self.internals_ctrl = st.container()
         self.internals = st.empty()
         self._made = False
@@ -206,14 +220,14 @@ class NoiseView:
         self._made = True
         c1, c2, c3, c4 = self.controls.columns([3, 1, 1, 2])
         m = res.data.z.shape[2]
-        self.channel = c1.selectbox("Channel", list(range(m)),
-                                    format_func=lambda ch: channel_label(res, ch),
-                                    key=f"{self.page}_v_ch")
-        self.as_std = c2.toggle("σ not R", key=f"{self.page}_v_std",
-                                help="show standard deviations instead of variances")
+        self.channel = c1.selectbox(
+            "Channel", list(range(m)), format_func=lambda ch: channel_label(res, ch), key=f"{self.page}_v_ch"
+        )
+        self.as_std = c2.toggle(
+            "σ not R", key=f"{self.page}_v_std", help="show standard deviations instead of variances"
+        )
         self.log_r = c3.toggle("log scale", key=f"{self.page}_v_log")
-        self.show_used = c4.toggle("R used by non-adaptive filters", value=True,
-                                   key=f"{self.page}_v_used")
+        self.show_used = c4.toggle("R used by non-adaptive filters", value=True, key=f"{self.page}_v_used")
         stats = F.internal_stats(res)
         if stats:
             self.stat = self.internals_ctrl.selectbox("Statistic", stats, key=f"{self.page}_v_stat")
@@ -221,18 +235,19 @@ class NoiseView:
     def _chart(self, container: Any, fig: Any, name: str) -> None:
         # a streamed run renders once per chunk in the same script run, and the figures of two
         # chunks can be identical (no filter estimates R): the key keeps the element ids unique
-        container.plotly_chart(fig, width="stretch", config=PLOTLY_CONFIG, theme=None,
-                               key=f"{self.page}_{name}_{self._drawn}")
+        container.plotly_chart(
+            fig, width="stretch", config=PLOTLY_CONFIG, theme=None, key=f"{self.page}_{name}_{self._drawn}"
+        )
 
     def render(self, res: Results) -> None:
         self._controls(res)
         self._drawn += 1
         state = "complete" if res.complete else "partial"
-        self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · "
-                            f"{res.elapsed_s:.2f} s compute")
+        self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · {res.elapsed_s:.2f} s compute")
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
-        fig = F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std,
-                          show_used=self.show_used, outlier_strip=True)
+        fig = F.r_vs_rhat(
+            res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=True
+        )
         self._chart(self.fig, fig, "rhat")
         self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
         tab = rhat_error_table(res)
@@ -240,14 +255,18 @@ class NoiseView:
             from navlab.filters import registry
 
             est = ", ".join(f"`{k}`" for k, c in registry().items() if c.estimates_R)
-            self.table.info("None of the chosen filters estimates R; add one that does "
-                            f"({est or 'none registered yet'}) to see R̂ tracking.")
+            self.table.info(
+                "None of the chosen filters estimates R; add one that does "
+                f"({est or 'none registered yet'}) to see R̂ tracking."
+            )
         else:
             with self.table.container():
                 st.dataframe(tab.drop(columns="key"), width="stretch")
                 if "oracle-kf" in set(tab["key"]):
-                    st.caption("The oracle's R̂ is the variance actually drawn, outliers included, "
-                               "so it leaves the schedule at outlier epochs by design.")
+                    st.caption(
+                        "The oracle's R̂ is the variance actually drawn, outliers included, "
+                        "so it leaves the schedule at outlier epochs by design."
+                    )
         with self.notes.container():
             divergence_warnings(res)
         if self.stat is None:

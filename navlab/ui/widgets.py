@@ -124,18 +124,32 @@ def param_widget(p: dict[str, Any], key: str, default: Any, container: Any = Non
     if isinstance(default, bool):
         return c.checkbox(label, value=default, key=key, help=help_, bind=BIND)
     if isinstance(default, int):
-        return int(c.number_input(
-            label, value=int(default), step=1, key=key, help=help_, bind=BIND,
-            min_value=None if lo is None else math.ceil(lo),
-            max_value=None if hi is None else math.floor(hi),
-        ))
+        return int(
+            c.number_input(
+                label,
+                value=int(default),
+                step=1,
+                key=key,
+                help=help_,
+                bind=BIND,
+                min_value=None if lo is None else math.ceil(lo),
+                max_value=None if hi is None else math.floor(hi),
+            )
+        )
     if isinstance(default, float):
-        return float(c.number_input(
-            label, value=float(default), step=_float_step(default, lo, hi), format="%g", key=key,
-            help=help_, bind=BIND,
-            min_value=None if lo is None else float(lo),
-            max_value=None if hi is None else float(hi),
-        ))
+        return float(
+            c.number_input(
+                label,
+                value=float(default),
+                step=_float_step(default, lo, hi),
+                format="%g",
+                key=key,
+                help=help_,
+                bind=BIND,
+                min_value=None if lo is None else float(lo),
+                max_value=None if hi is None else float(hi),
+            )
+        )
     choices = p.get("choices")
     if choices:
         opts = list(choices)
@@ -263,32 +277,60 @@ def experiment_config(
     c = container if container is not None else st.sidebar
     reg, sreg = registry(), scenario_registry()
     skeys = scenario_keys()
-    scn = _selectbox(c, "Scenario", skeys, defaults.scenario, SCN,
-                     help="the simulated experiment (or real recording) every filter runs on",
-                     on_change=_on_scenario_change, args=(defaults,))
+    scn = _selectbox(
+        c,
+        "Scenario",
+        skeys,
+        defaults.scenario,
+        SCN,
+        help="the simulated experiment (or real recording) every filter runs on",
+        on_change=_on_scenario_change,
+        args=(defaults,),
+    )
     scls = sreg[scn]
     c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
 
     chosen = c.multiselect(
-        "Filters", filter_keys(), default=default_filters(scn, defaults), key=FLT, bind=BIND,
+        "Filters",
+        filter_keys(),
+        default=default_filters(scn, defaults),
+        key=FLT,
+        bind=BIND,
         help="registry keys; all selected filters see exactly the same measurements",
     )
     if chosen:
         c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
     col1, col2 = c.columns(2)
-    runs = int(col1.number_input("Monte Carlo runs", min_value=1, max_value=int(runs_max),
-                                 value=min(default_runs(scn, defaults), int(runs_max)), step=10,
-                                 key=RUNS, bind=BIND))
-    seed = int(col2.number_input("Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed,
-                                 step=1, key=SEED, bind=BIND))
+    runs = int(
+        col1.number_input(
+            "Monte Carlo runs",
+            min_value=1,
+            max_value=int(runs_max),
+            value=min(default_runs(scn, defaults), int(runs_max)),
+            step=10,
+            key=RUNS,
+            bind=BIND,
+        )
+    )
+    seed = int(
+        col2.number_input(
+            "Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed, step=1, key=SEED, bind=BIND
+        )
+    )
 
     sparams: dict[str, Any] = {}
     if has_widgets(scls.Params):
         with c.expander("Scenario parameters", expanded=False):
             sparams = param_group("sc", scn, scls.Params)
 
-    noise = _selectbox(c, "Noise schedule (true R(t))", list(SCHEDULES), defaults.noise_schedule,
-                       NOISE, help="how the true measurement-noise σ varies over the run")
+    noise = _selectbox(
+        c,
+        "Noise schedule (true R(t))",
+        list(SCHEDULES),
+        defaults.noise_schedule,
+        NOISE,
+        help="how the true measurement-noise σ varies over the run",
+    )
     ncls = SCHEDULES[noise]
     c.caption(ncls.summary)
     nparams: dict[str, Any] = {}
@@ -296,8 +338,14 @@ def experiment_config(
         with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
             nparams = param_group("ns", noise, ncls.Params)
 
-    out = _selectbox(c, "Outlier model", list(OUTLIERS), defaults.outliers, OUT,
-                     help="how measurements are contaminated (ground-truth mask recorded)")
+    out = _selectbox(
+        c,
+        "Outlier model",
+        list(OUTLIERS),
+        defaults.outliers,
+        OUT,
+        help="how measurements are contaminated (ground-truth mask recorded)",
+    )
     ocls = OUTLIERS[out]
     c.caption(ocls.summary)
     oparams: dict[str, Any] = {}
@@ -329,9 +377,14 @@ def experiment_config(
 
     extra = st.session_state.get(EXTRA_KEY) or {}
     spec_d: dict[str, Any] = {
-        "scenario": scn, "filters": tuple(run_filters), "runs": runs, "seed": seed,
-        "noise_schedule": noise, "noise_params": {**extra.get("noise_params", {}), **nparams},
-        "outliers": out, "outlier_params": {**extra.get("outlier_params", {}), **oparams},
+        "scenario": scn,
+        "filters": tuple(run_filters),
+        "runs": runs,
+        "seed": seed,
+        "noise_schedule": noise,
+        "noise_params": {**extra.get("noise_params", {}), **nparams},
+        "outliers": out,
+        "outlier_params": {**extra.get("outlier_params", {}), **oparams},
         "scenario_params": {**extra.get("scenario_params", {}), **sparams},
         "filter_params": fparams,
     }
@@ -368,8 +421,14 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     extra: dict[str, dict[str, Any]] = {}
     no_widget: list[str] = []
 
-    def put(kind: str, owner: str, Params: type, values: dict[str, Any], section: str,
-            overrides: dict[str, Any] | None = None) -> None:
+    def put(
+        kind: str,
+        owner: str,
+        Params: type,
+        values: dict[str, Any],
+        section: str,
+        overrides: dict[str, Any] | None = None,
+    ) -> None:
         for d in describe(Params):
             name = d["name"]
             default = (overrides or {}).get(name, d["default"])
@@ -391,11 +450,23 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
         op["contamination"] = spec.contamination
     if spec.outlier_scale is not None:
         op["scale"] = spec.outlier_scale
-    put("ol", spec.outliers, type(p.outliers).Params, op, "outlier_params",
-        scls.outlier_defaults.get(spec.outliers, {}))
+    put(
+        "ol",
+        spec.outliers,
+        type(p.outliers).Params,
+        op,
+        "outlier_params",
+        scls.outlier_defaults.get(spec.outliers, {}),
+    )
     for f in p.filters:
-        put("fp", f.key, type(f).Params, spec.filter_params.get(f.key, {}),
-            f"filter_params.{f.key}", scls.filter_defaults.get(f.key, {}))
+        put(
+            "fp",
+            f.key,
+            type(f).Params,
+            spec.filter_params.get(f.key, {}),
+            f"filter_params.{f.key}",
+            scls.filter_defaults.get(f.key, {}),
+        )
     ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
     return no_widget
 

@@ -16,8 +16,14 @@ def test_compare_renders_defaults_without_running(open_page):
 
 
 def test_query_params_initialise_the_widgets(open_page):
-    at = open_page(PAGE, runs="17", seed="5", flt=["kf", "chi2-kf"], noise="step",
-                   **{"ol.mixture.contamination": "0.2", "ns.step.factor": "4"})
+    at = open_page(
+        PAGE,
+        runs="17",
+        seed="5",
+        flt=["kf", "chi2-kf"],
+        noise="step",
+        **{"ol.mixture.contamination": "0.2", "ns.step.factor": "4"},
+    )
     assert_clean(at)
     assert at.number_input(key="runs").value == 17
     assert at.number_input(key="seed").value == 5

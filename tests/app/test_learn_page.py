@@ -82,6 +82,5 @@ def test_a_filter_that_cannot_run_is_explained(open_page, monkeypatch):
     monkeypatch.setattr(kalman.Chi2KF, "update", needs_ins)
     at = open_page(PAGE, filter="chi2-kf")
     assert not at.exception
-    assert any("cannot be stepped through" in w.value and "AttributeError" in w.value
-               for w in at.warning)
+    assert any("cannot be stepped through" in w.value and "AttributeError" in w.value for w in at.warning)
     assert not plotly_figs(at)

@@ -4,8 +4,7 @@ PAGE = "pages/2_Noise.py"
 
 
 def test_noise_page_small_run(open_page):
-    at = open_page(PAGE, runs="5", flt=["kf", "oracle-kf", "sage-husa"],
-                   **{"sc.cv2d.epochs": "80"})
+    at = open_page(PAGE, runs="5", flt=["kf", "oracle-kf", "sage-husa"], **{"sc.cv2d.epochs": "80"})
     assert_clean(at)
     assert at.selectbox(key="noise").value == "step"
     at.button(key="run_noise").click().run()

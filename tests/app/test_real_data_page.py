@@ -72,9 +72,12 @@ def test_bad_upload_names_the_file_line_and_column():
 
 def test_url_sets_the_recording_and_its_settings(open_page):
     """Every setting of the page is bound to the URL: a shared link opens the same run."""
-    at = open_page(PAGE, rd_rec="smartloc-berlin", rd_seed="7", **{
-        "rd_ep_smartloc-berlin": "40", "rd_flt_smartloc-berlin": ["wls", "ekf"],
-        "rd_alpha_sl": "0.05"})
+    at = open_page(
+        PAGE,
+        rd_rec="smartloc-berlin",
+        rd_seed="7",
+        **{"rd_ep_smartloc-berlin": "40", "rd_flt_smartloc-berlin": ["wls", "ekf"], "rd_alpha_sl": "0.05"},
+    )
     assert_clean(at)
     assert at.selectbox(key="rd_rec").value == "smartloc-berlin"
     assert at.number_input(key="rd_seed").value == 7

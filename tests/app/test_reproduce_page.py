@@ -24,17 +24,42 @@ def fake_run(runs=None, seed=1, outdir=None, on_progress=None):
         if on_progress is not None:
             on_progress(d, runs)
     rows = [
-        dict(experiment="exp", filter="kf", metric="rmse_pos", value=2.0, paper=1.0,
-             rel_diff=1.0, unit="m", note="the paper's run length is not stated"),
-        dict(experiment="exp", filter="chi2-kf", metric="rmse_pos", value=1.05, paper=1.0,
-             rel_diff=0.05, unit="m", note=""),
-        dict(experiment="exp", filter="kf", metric="runtime", value=3.0, paper=None,
-             rel_diff=None, unit="µs", note=""),
+        dict(
+            experiment="exp",
+            filter="kf",
+            metric="rmse_pos",
+            value=2.0,
+            paper=1.0,
+            rel_diff=1.0,
+            unit="m",
+            note="the paper's run length is not stated",
+        ),
+        dict(
+            experiment="exp",
+            filter="chi2-kf",
+            metric="rmse_pos",
+            value=1.05,
+            paper=1.0,
+            rel_diff=0.05,
+            unit="m",
+            note="",
+        ),
+        dict(
+            experiment="exp",
+            filter="kf",
+            metric="runtime",
+            value=3.0,
+            paper=None,
+            rel_diff=None,
+            unit="µs",
+            note="",
+        ),
     ]
     if outdir is not None:
         Path(outdir).mkdir(parents=True, exist_ok=True)
-        pd.DataFrame({"epoch": range(5), "kf": [3, 2, 2, 1, 1.0], "chi2-kf": [3, 2, 1, 1, 1.0]}
-                     ).to_csv(Path(outdir) / "fake_curves.csv", index=False)
+        pd.DataFrame({"epoch": range(5), "kf": [3, 2, 2, 1, 1.0], "chi2-kf": [3, 2, 1, 1, 1.0]}).to_csv(
+            Path(outdir) / "fake_curves.csv", index=False
+        )
     return pd.DataFrame(rows)
 
 
@@ -46,10 +71,16 @@ def failing_run(runs=None, seed=1, outdir=None):
 def fake(monkeypatch):
     CALLS.clear()
     R._CACHE.clear()
-    monkeypatch.setitem(REPRODUCTIONS, "aaa-fake", Reproduction(
-        key="aaa-fake", title="A fake reproduction", paper="Nobody 2026", run=fake_run))
-    monkeypatch.setitem(REPRODUCTIONS, "aab-failing", Reproduction(
-        key="aab-failing", title="Always fails", paper="Nobody 2026", run=failing_run))
+    monkeypatch.setitem(
+        REPRODUCTIONS,
+        "aaa-fake",
+        Reproduction(key="aaa-fake", title="A fake reproduction", paper="Nobody 2026", run=fake_run),
+    )
+    monkeypatch.setitem(
+        REPRODUCTIONS,
+        "aab-failing",
+        Reproduction(key="aab-failing", title="Always fails", paper="Nobody 2026", run=failing_run),
+    )
     yield
     R._CACHE.clear()
 
@@ -121,8 +152,16 @@ def test_a_registered_reproduction_small_run(open_page):
     at.button[0].click().run()
     assert_clean(at)
     table, _ = R.cached_run(key, 2, 1)
-    assert list(table.columns[:8]) == ["experiment", "filter", "metric", "value", "paper",
-                                        "rel_diff", "unit", "note"]
+    assert list(table.columns[:8]) == [
+        "experiment",
+        "filter",
+        "metric",
+        "value",
+        "paper",
+        "rel_diff",
+        "unit",
+        "note",
+    ]
     if table["paper"].notna().any():
         assert len(plotly_figs(at)) >= 2
     R._CACHE.clear()
@@ -135,14 +174,25 @@ def test_pure_helpers():
     assert R.paper_groups(df) == [("exp", "rmse_pos")]
     fig = R.bar_figure(df, "exp", "rmse_pos")
     assert fig.data[0].name == "paper" and list(fig.data[1].x) == ["kf", "chi2-kf"]
-    long = pd.DataFrame({"epoch": [0, 1, 0, 1], "filter": ["kf", "kf", "ekf", "ekf"],
-                         "rmse": [1.0, 2.0, 3.0, 4.0], "bias": [0.0, 0, 0, 0]})
+    long = pd.DataFrame(
+        {
+            "epoch": [0, 1, 0, 1],
+            "filter": ["kf", "kf", "ekf", "ekf"],
+            "rmse": [1.0, 2.0, 3.0, 4.0],
+            "bias": [0.0, 0, 0, 0],
+        }
+    )
     assert R.is_long(long) and R.curve_measures(long) == ["rmse", "bias"]
     assert [t.name for t in R.curve_figure(long, "c", "rmse").data] == ["kf", "ekf"]
-    wide = pd.DataFrame({c: [0.0, 1.0] for c in (
-        "t", "ekf_rmse_pos", "ekf_rmse_vel", "vb-ekf_rmse_pos", "vb-ekf_tauP3_rmse_pos")})
-    assert R.wide_groups(wide) == {"rmse_pos": ["ekf_rmse_pos", "vb-ekf_rmse_pos",
-                                                "vb-ekf_tauP3_rmse_pos"],
-                                   "rmse_vel": ["ekf_rmse_vel"]}
+    wide = pd.DataFrame(
+        {
+            c: [0.0, 1.0]
+            for c in ("t", "ekf_rmse_pos", "ekf_rmse_vel", "vb-ekf_rmse_pos", "vb-ekf_tauP3_rmse_pos")
+        }
+    )
+    assert R.wide_groups(wide) == {
+        "rmse_pos": ["ekf_rmse_pos", "vb-ekf_rmse_pos", "vb-ekf_tauP3_rmse_pos"],
+        "rmse_vel": ["ekf_rmse_vel"],
+    }
     assert R.wide_groups(pd.DataFrame({"epoch": [0], "kf": [1.0], "ekf": [2.0]})) == {}
     assert R.accepts(fake_run, "on_progress") and not R.accepts(failing_run, "on_progress")

@@ -4,8 +4,7 @@ PAGE = "pages/3_Sweep.py"
 
 
 def test_sweep_contamination_small(open_page):
-    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], swn="3",
-                   **{"sc.cv2d.epochs": "30"})
+    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], swn="3", **{"sc.cv2d.epochs": "30"})
     assert_clean(at)
     assert at.selectbox(key="swp").value == "ol.mixture.contamination"
     at.button(key="run_sweep").click().run()
@@ -18,8 +17,9 @@ def test_sweep_contamination_small(open_page):
 
 
 def test_sweep_a_filter_parameter_and_bad_range(open_page):
-    at = open_page(PAGE, runs="3", flt=["kf", "chi2-kf"], swn="2", swp="fp.chi2-kf.alpha",
-                   **{"sc.cv2d.epochs": "20"})
+    at = open_page(
+        PAGE, runs="3", flt=["kf", "chi2-kf"], swn="2", swp="fp.chi2-kf.alpha", **{"sc.cv2d.epochs": "20"}
+    )
     assert_clean(at)
     assert at.selectbox(key="swp").value == "fp.chi2-kf.alpha"
     at.number_input(key="sw.fp.chi2-kf.alpha.lo").set_value(0.2).run()

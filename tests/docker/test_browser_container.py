@@ -20,8 +20,9 @@ CONTAINER = "navlab-verify"  # the name verify-docker.sh gives its container
 
 def _remove_container() -> None:
     """Remove the container this test started."""
-    subprocess.run(["podman", "--runtime", "runc", "rm", "-f", CONTAINER],
-                   capture_output=True, check=False, timeout=120)
+    subprocess.run(
+        ["podman", "--runtime", "runc", "rm", "-f", CONTAINER], capture_output=True, check=False, timeout=120
+    )
 
 
 @pytest.mark.docker
@@ -29,24 +30,35 @@ def _remove_container() -> None:
 def test_browser_suite_against_the_container(request):
     require_container_tools(request, chromium=True)
 
-    exists = subprocess.run(["podman", "container", "exists", CONTAINER], capture_output=True,
-                            check=False, timeout=60)
+    exists = subprocess.run(
+        ["podman", "container", "exists", CONTAINER], capture_output=True, check=False, timeout=60
+    )
     if exists.returncode == 0:
-        pytest.skip(f"a container named {CONTAINER} already runs (someone else's verify-docker "
-                    f"run?); remove it with `podman --runtime runc rm -f {CONTAINER}` first")
+        pytest.skip(
+            f"a container named {CONTAINER} already runs (someone else's verify-docker "
+            f"run?); remove it with `podman --runtime runc rm -f {CONTAINER}` first"
+        )
     port = free_port()
     try:
         build = subprocess.run(
             ["bash", str(VERIFY_DOCKER), str(ROOT), str(port)],
-            env={**os.environ, "KEEP": "1"}, stdin=subprocess.DEVNULL, capture_output=True,
-            text=True, timeout=25 * 60, check=False,
+            env={**os.environ, "KEEP": "1"},
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=25 * 60,
+            check=False,
         )
         assert build.returncode == 0, (build.stdout[-4000:], build.stderr[-4000:])
         assert "left running" in build.stdout
         e2e = subprocess.run(
             [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/e2e"],
-            cwd=ROOT, env={**os.environ, "NAVLAB_E2E_URL": f"http://127.0.0.1:{port}"},
-            stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=30 * 60,
+            cwd=ROOT,
+            env={**os.environ, "NAVLAB_E2E_URL": f"http://127.0.0.1:{port}"},
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=30 * 60,
             check=False,
         )
         assert e2e.returncode == 0, e2e.stdout[-6000:] + e2e.stderr[-3000:]

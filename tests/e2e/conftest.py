@@ -77,9 +77,7 @@ def _wait_healthy(url: str, proc: subprocess.Popen | None, log: Path | None) -> 
             return
         if proc is not None and proc.poll() is not None:
             tail = log.read_text(errors="replace")[-3000:] if log else ""
-            pytest.fail(
-                f"streamlit exited with code {proc.returncode} before it was healthy:\n{tail}"
-            )
+            pytest.fail(f"streamlit exited with code {proc.returncode} before it was healthy:\n{tail}")
         time.sleep(0.25)
     pytest.fail(f"{url}/_stcore/health did not answer 'ok' within {HEALTH_TIMEOUT_S:.0f} s")
 
@@ -111,9 +109,7 @@ def serve(log: Path) -> Iterator[str]:
         "--server.fileWatcherType=none",
     ]
     with log.open("w") as out:
-        proc = subprocess.Popen(
-            cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT
-        )
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT)
     try:
         _wait_healthy(url, proc, log)
         yield url

@@ -28,14 +28,13 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.fixture
 def browser_context_args(browser_context_args: dict) -> dict:
-    return {**browser_context_args, "viewport": {"width": 1400, "height": 1000},
-            "accept_downloads": True}
-
+    return {**browser_context_args, "viewport": {"width": 1400, "height": 1000}, "accept_downloads": True}
 
 
 def button(page: Page, name: str, exact: bool = True):
     """An app button by its label; never Streamlit's own header buttons (its "Stop" while running)."""
     return page.get_by_role("button", name=name, exact=exact).and_(page.locator("button:not([kind=header])"))
+
 
 def settle(page: Page) -> None:
     """Wait until the page has a title and the script is no longer running."""
@@ -73,8 +72,10 @@ def expect_value(page: Page, label: str, value: str) -> None:
 
 
 def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_dir: Path):
-    url = (f"{fresh_server}/Compare?runs=12&seed=7&flt=kf&flt=chi2-kf&noise=step"
-           "&ns.step.factor=4&ol.mixture.contamination=0.2")
+    url = (
+        f"{fresh_server}/Compare?runs=12&seed=7&flt=kf&flt=chi2-kf&noise=step"
+        "&ns.step.factor=4&ol.mixture.contamination=0.2"
+    )
     page.goto(url)
     settle(page)
     assert_no_exception(page)
@@ -95,8 +96,12 @@ def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_di
     first = run_and_wait(page)
     expect(page.locator(CHART)).to_have_count(3, timeout=T)
     expect(page.get_by_text("12/12 runs (complete)")).to_be_visible()
-    log_timing(artifacts_dir, test="deep_link_fresh", run_to_first_chart_s=round(first, 2),
-               config="cv2d kf,chi2-kf 12 runs")
+    log_timing(
+        artifacts_dir,
+        test="deep_link_fresh",
+        run_to_first_chart_s=round(first, 2),
+        config="cv2d kf,chi2-kf 12 runs",
+    )
 
 
 def test_default_compare_run_and_timing(page: Page, artifacts_dir: Path):
@@ -108,8 +113,13 @@ def test_default_compare_run_and_timing(page: Page, artifacts_dir: Path):
     expect(page.get_by_text("100/100 runs (complete)")).to_be_visible()
     cap = page.get_by_text(re.compile(r"done: 100 runs, [\d.]+ s compute")).inner_text()
     compute = float(re.search(r"([\d.]+) s compute", cap).group(1))
-    log_timing(artifacts_dir, test="default_compare", run_to_first_chart_s=round(first, 2),
-               server_compute_s=compute, config="cv2d default 3 filters 100 runs")
+    log_timing(
+        artifacts_dir,
+        test="default_compare",
+        run_to_first_chart_s=round(first, 2),
+        server_compute_s=compute,
+        config="cv2d default 3 filters 100 runs",
+    )
     # the table lists every filter
     expect(page.locator('[data-testid="stDataFrame"]').first).to_be_visible()
 
@@ -163,7 +173,8 @@ def test_config_upload_round_trip_and_broken_file(page: Page, tmp_path: Path):
     bad.write_text('{"scenario": "cv2d", "runs": ')
     page.locator('[data-testid="stFileUploaderDropzoneInput"]').set_input_files(str(bad))
     expect(page.get_by_text(re.compile("Configuration not loaded: .*not valid JSON"))).to_be_visible(
-        timeout=T)
+        timeout=T
+    )
     assert_no_exception(page)
     good = tmp_path / "good.json"
     good.write_text(ExperimentSpec(runs=21, seed=9, filters=("kf", "chi2-kf")).to_json())
@@ -175,8 +186,9 @@ def test_config_upload_round_trip_and_broken_file(page: Page, tmp_path: Path):
 
 
 def test_five_sessions_run_at_once(browser: Browser, base_url: str, artifacts_dir: Path):
-    contexts = [browser.new_context(base_url=base_url, viewport={"width": 1300, "height": 900})
-                for _ in range(5)]
+    contexts = [
+        browser.new_context(base_url=base_url, viewport={"width": 1300, "height": 900}) for _ in range(5)
+    ]
     try:
         pages = [c.new_page() for c in contexts]
         for i, p in enumerate(pages):

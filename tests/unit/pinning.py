@@ -59,8 +59,9 @@ def rel_diff(a: np.ndarray, b: np.ndarray, q: str) -> float:
     return float(np.max(np.abs(a[ok] - b[ok]) / np.broadcast_to(scale, b.shape)[ok], initial=0.0))
 
 
-def assert_matches_pin(case: str, current: dict, jittered: dict, pinned: dict,
-                       exact: tuple[str, ...], close: tuple[str, ...]) -> None:
+def assert_matches_pin(
+    case: str, current: dict, jittered: dict, pinned: dict, exact: tuple[str, ...], close: tuple[str, ...]
+) -> None:
     """Decisions (``exact``) identical; the ``close`` quantities equal to 1e-8 relative, or to 100x
     the change that a 1e-15 relative perturbation of z causes in the current code where the case
     amplifies round-off more than that."""

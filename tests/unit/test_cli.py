@@ -28,8 +28,22 @@ def test_list_filters_and_scenarios(capsys):
 
 
 def test_run_json_has_tidy_rows(capsys):
-    rc, out, _ = run_cli(capsys, "run", "--scenario", "cv2d", "--filters", "kf,oracle-kf,chi2-kf",
-                         "--runs", "20", "--seed", "1", "--epochs", "50", "--format", "json")
+    rc, out, _ = run_cli(
+        capsys,
+        "run",
+        "--scenario",
+        "cv2d",
+        "--filters",
+        "kf,oracle-kf,chi2-kf",
+        "--runs",
+        "20",
+        "--seed",
+        "1",
+        "--epochs",
+        "50",
+        "--format",
+        "json",
+    )
     assert rc == 0
     rows = json.loads(out)
     assert all({"filter", "metric", "value"} <= set(r) for r in rows)
@@ -42,8 +56,22 @@ def test_run_json_has_tidy_rows(capsys):
 
 def test_config_file_and_overrides(tmp_path, capsys):
     spec = tmp_path / "spec.json"
-    rc, _, _ = run_cli(capsys, "run", "--filters", "kf", "--runs", "5", "--epochs", "20",
-                       "--contamination", "0.2", "--save-spec", str(spec), "--format", "csv")
+    rc, _, _ = run_cli(
+        capsys,
+        "run",
+        "--filters",
+        "kf",
+        "--runs",
+        "5",
+        "--epochs",
+        "20",
+        "--contamination",
+        "0.2",
+        "--save-spec",
+        str(spec),
+        "--format",
+        "csv",
+    )
     assert rc == 0
     saved = json.loads(spec.read_text())
     assert saved["contamination"] == 0.2
@@ -86,8 +114,24 @@ def test_broken_config_file(tmp_path, capsys):
 
 
 def test_module_entry_point():
-    p = subprocess.run([sys.executable, "-m", "navlab", "run", "--runs", "3", "--epochs", "10",
-                        "--filters", "kf", "--format", "csv"], capture_output=True, text=True,
-                       timeout=120)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "navlab",
+            "run",
+            "--runs",
+            "3",
+            "--epochs",
+            "10",
+            "--filters",
+            "kf",
+            "--format",
+            "csv",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert p.returncode == 0, p.stderr
     assert p.stdout.startswith("filter,label,metric,value,unit")

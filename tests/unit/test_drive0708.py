@@ -9,8 +9,9 @@ from navlab.data import data_root
 from navlab.data.loaders import RTKX_DIR
 
 ROOT = data_root()
-needs_rtkx = pytest.mark.skipif(not (ROOT / RTKX_DIR).is_dir(),
-                                reason=f"real data not found: {ROOT / RTKX_DIR} (set NAVLAB_DATA)")
+needs_rtkx = pytest.mark.skipif(
+    not (ROOT / RTKX_DIR).is_dir(), reason=f"real data not found: {ROOT / RTKX_DIR} (set NAVLAB_DATA)"
+)
 
 
 def test_static_noise_densities_recover_white_noise():
@@ -36,8 +37,11 @@ def test_imu_noise_defaults_match_the_static_start():
     imu = rec.imu
     t = imu.t_s.to_numpy()
     s = t < t[0] + 30.0  # the car stands still for ≈ 38 s
-    g, a = static_noise_densities(t[s], imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()[s],
-                                  imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()[s])
+    g, a = static_noise_densities(
+        t[s],
+        imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()[s],
+        imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()[s],
+    )
     nz = ImuNoise()
     # ARW at rest and VRW = the static densities (the vibration term adds the driving part)
     assert nz.arw_rad_rts == pytest.approx(np.median(g), rel=0.5)
@@ -61,12 +65,17 @@ def test_imu_time_offset_aligns_yaw_rate_with_the_position_course():
     tg = g.t_s.to_numpy()
     lat0, h0 = np.radians(g.lat_deg[0]), float(g.h_m[0])
     R_Mh, R_Nh = radii(lat0, h0)
-    p = np.stack([np.radians(g.lat_deg.to_numpy()) * R_Mh,
-                  np.radians(g.lon_deg.to_numpy()) * R_Nh * np.cos(lat0)], -1)
+    p = np.stack(
+        [np.radians(g.lat_deg.to_numpy()) * R_Mh, np.radians(g.lon_deg.to_numpy()) * R_Nh * np.cos(lat0)], -1
+    )
     vd = np.gradient(p, tg, axis=0)  # N, E from positions
     vr = g[["vn_mps", "ve_mps"]].to_numpy()
-    lag_rms = [np.sqrt(np.mean((np.stack([np.interp(tg - lag, tg, vd[:, i]) for i in range(2)], -1)
-                                - vr)[5:-5] ** 2)) for lag in (0.0, 0.1, 0.15)]
+    lag_rms = [
+        np.sqrt(
+            np.mean((np.stack([np.interp(tg - lag, tg, vd[:, i]) for i in range(2)], -1) - vr)[5:-5] ** 2)
+        )
+        for lag in (0.0, 0.1, 0.15)
+    ]
     assert min(lag_rms[1:]) < 0.5 * lag_rms[0]  # RTK velocities lag the positions by ≈ 0.1 s
 
     imu = rec.imu
@@ -77,8 +86,9 @@ def test_imu_time_offset_aligns_yaw_rate_with_the_position_course():
     speed = np.hypot(vd[:, 0], vd[:, 1])
     course_rate = np.gradient(np.unwrap(np.arctan2(vd[:, 1], vd[:, 0])), tg)
     m = speed > 4
-    resid = {off: np.std(course_rate[m] + np.interp(tg[m] + off, t, w_up))
-             for off in (-0.1, -0.05, 0.0, 0.05, 0.1)}
+    resid = {
+        off: np.std(course_rate[m] + np.interp(tg[m] + off, t, w_up)) for off in (-0.1, -0.05, 0.0, 0.05, 0.1)
+    }
     # the loader's offset (extra 0) beats the README's −0.10 s (extra +0.10 s here)
     assert resid[0.0] < resid[0.1]
     assert min(resid, key=resid.get) in (-0.05, 0.0, 0.05)
@@ -92,8 +102,14 @@ def test_nhc_sigma_consistent_with_its_innovations():
 
     out = {}
     for s in (0.2, 0.1):
-        spec = ExperimentSpec(scenario="drive0708", filters=("kf",), runs=1, seed=3, outliers="none",
-                              scenario_params={"epochs": 150, "nhc_sigma_mps": s})
+        spec = ExperimentSpec(
+            scenario="drive0708",
+            filters=("kf",),
+            runs=1,
+            seed=3,
+            outliers="none",
+            scenario_params={"epochs": 150, "nhc_sigma_mps": s},
+        )
         fr = run_experiment(spec).runs["kf"]
         out[s] = np.nanmean(fr.innov[:, 1:, 3:5] ** 2 / fr.S_diag[:, 1:, 3:5])
     assert out[0.2] < 0.3
@@ -147,8 +163,7 @@ def test_velocity_truth_is_aligned_with_the_positions():
     assert np.isfinite(setup.v_true).all()
     g = rtkx_drive_0708().gnss
     tg = g.t_s.to_numpy()
-    p = setup.to_local(np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()),
-                       g.h_m.to_numpy())
+    p = setup.to_local(np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()), g.h_m.to_numpy())
     vd = np.gradient(p[:, [1, 0]], tg, axis=0)  # E, N
     vd = np.stack([np.interp(setup.t, tg, vd[:, i]) for i in range(2)], -1)
     v_at_epoch = np.stack([np.interp(setup.t, tg, g[c].to_numpy()) for c in ("ve_mps", "vn_mps")], -1)

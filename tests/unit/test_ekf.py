@@ -182,7 +182,8 @@ def test_pseudorange_interference_and_schedules():
     np.testing.assert_allclose(d2.R_schedule, 4 * data.R_schedule)
     with pytest.raises(NavlabError, match="interfered"):
         make_scenario("gps-ins-pseudorange", {"interfered": [9]}).simulate(
-            make_schedule("constant"), make_outliers("none"), [0], 1)
+            make_schedule("constant"), make_outliers("none"), [0], 1
+        )
 
 
 def test_pseudorange_run_is_the_same_alone_or_in_a_batch():
@@ -196,8 +197,13 @@ def test_pseudorange_run_is_the_same_alone_or_in_a_batch():
 
 def test_ekf_is_consistent_on_the_pseudorange_model_without_interference():
     """Truth and filter model agree: with R0 right, the EKF's ANEES lies in the χ² band."""
-    spec = ExperimentSpec(scenario="gps-ins-pseudorange", filters=("ekf",), runs=20,
-                          outliers="none", scenario_params={"interference": 1.0, "epochs": 100})
+    spec = ExperimentSpec(
+        scenario="gps-ins-pseudorange",
+        filters=("ekf",),
+        runs=20,
+        outliers="none",
+        scenario_params={"interference": 1.0, "epochs": 100},
+    )
     df = run_experiment(spec).metrics().set_index("metric").value
     assert 7.0 < df["anees"] < 9.0  # n = 8
     assert 7.0 < df["anis"] < 9.0  # m = 8

@@ -142,8 +142,9 @@ def test_bad_specs_say_what_to_change(change, words):
 
 
 def test_spec_json_round_trip_and_broken_json():
-    spec = ExperimentSpec(filters=("kf", "chi2-kf"), runs=7, contamination=0.2,
-                          filter_params={"chi2-kf": {"alpha": 0.05}})
+    spec = ExperimentSpec(
+        filters=("kf", "chi2-kf"), runs=7, contamination=0.2, filter_params={"chi2-kf": {"alpha": 0.05}}
+    )
     assert ExperimentSpec.from_json(spec.to_json()) == spec
     with pytest.raises(NavlabError):
         ExperimentSpec.from_json("{not json")
@@ -177,8 +178,7 @@ def test_recorded_nis_and_nees_are_the_quadratic_forms():
     for k in range(1, data.K + 1):
         st, out = f.update(data.model, f.predict(data.model, st, k), k, data.z[:, k], data.side(k))
         np.testing.assert_allclose(res["hakf"].nis[:, k], quad(out.innov, out.S), rtol=1e-9)
-        np.testing.assert_allclose(res["hakf"].nees[:, k], quad(out.x - data.x_true[:, k], out.P),
-                                   rtol=1e-9)
+        np.testing.assert_allclose(res["hakf"].nees[:, k], quad(out.x - data.x_true[:, k], out.P), rtol=1e-9)
     assert np.isfinite(res["chi2-kf"].nees[:, 1:]).all()
 
 

@@ -210,8 +210,7 @@ def test_vb_filters_follow_step_within_their_memory(key):
     # σ ×3 (R ×9) at epoch 250; memory 1/(1−ρ) ≈ 55 epochs: R̂ covers ≈ 1 − e⁻¹ of the jump
     # after 55 epochs and > 90 % after 3 memories (exponential forgetting of α, β)
     K = 500
-    data = _data(runs=25, epochs=K, schedule="step", sp={"at": 0.5, "factor": 3.0},
-                 outliers="none", op={})
+    data = _data(runs=25, epochs=K, schedule="step", sp={"at": 0.5, "factor": 3.0}, outliers="none", op={})
     (fr,) = _run(data, (key, None))
     R0 = data.model.R0[0, 0]
     frac = lambda k: (np.mean(fr.R_hat[:, k]) - R0) / (9 * R0 - R0)  # noqa: E731
@@ -244,8 +243,7 @@ def test_general_H_and_correlated_R_paths():
     z = data.x_true @ H2.T + noise
     z[:, 0] = np.nan
     d_full = dataclasses.replace(data, model=LinearModel(m.F_, m.Q_, H2, R_full), z=z)
-    kf, hk, st = _run(d_full, ("kf", None), ("huber-kf", {"gamma": 1e12}),
-                      ("student-t-kf", {"dof": 1e12}))
+    kf, hk, st = _run(d_full, ("kf", None), ("huber-kf", {"gamma": 1e12}), ("student-t-kf", {"dof": 1e12}))
     assert np.max(np.abs(hk.x - kf.x)) < 1e-9
     assert np.max(np.abs(st.x - kf.x)) < 1e-6
     with pytest.raises(NavlabError, match="DIAGONAL"):

@@ -110,11 +110,17 @@ def _error(ins, truth):
     phi = -dcm_to_rotvec(ins.C_bn @ np.swapaxes(truth.C_bn, -1, -2))
     dv = ins.v_enu_mps - truth.v_enu_mps
     R_Mh, R_Nh = radii(truth.lat_rad, truth.h_m)
-    dp = np.stack([(ins.lat_rad - truth.lat_rad) * R_Mh,
-                   (ins.lon_rad - truth.lon_rad) * R_Nh * np.cos(truth.lat_rad),
-                   ins.h_m - truth.h_m], -1)
-    return np.concatenate([phi, dv, dp, truth.bias_g_radps - ins.bias_g_radps,
-                           truth.bias_a_mps2 - ins.bias_a_mps2], axis=-1)
+    dp = np.stack(
+        [
+            (ins.lat_rad - truth.lat_rad) * R_Mh,
+            (ins.lon_rad - truth.lon_rad) * R_Nh * np.cos(truth.lat_rad),
+            ins.h_m - truth.h_m,
+        ],
+        -1,
+    )
+    return np.concatenate(
+        [phi, dv, dp, truth.bias_g_radps - ins.bias_g_radps, truth.bias_a_mps2 - ins.bias_a_mps2], axis=-1
+    )
 
 
 def test_error_model_matches_finite_differences():
@@ -136,8 +142,13 @@ def test_error_model_matches_finite_differences():
     T = 1.0
     ins1 = _run(ins0, f_b, w_b, T)
     tr1 = _run(truth, f_b, w_b, T)
-    trB = init_state(np.full(B, tr1.lat_rad[0]), tr1.lon_rad[0], tr1.h_m[0], tr1.v_enu_mps[0],
-                     np.broadcast_to(tr1.C_bn[0], (B, 3, 3)))
+    trB = init_state(
+        np.full(B, tr1.lat_rad[0]),
+        tr1.lon_rad[0],
+        tr1.h_m[0],
+        tr1.v_enu_mps[0],
+        np.broadcast_to(tr1.C_bn[0], (B, 3, 3)),
+    )
     e1 = _error(ins1, trB)
     J = (e1[:n] - e1[n:]).T / (2 * scales[None, :])
     # the mechanisation's gravity depends on h: compare with the gravity-gradient option on
@@ -151,8 +162,9 @@ def test_error_model_matches_finite_differences():
 
 
 def test_discretise_matches_expm_for_small_step():
-    F, G = error_model_FG(LAT, H, np.array([5.0, 3.0, 0.0]), np.array([0.3, 0.1, 9.8]),
-                          euler_to_dcm(0.0, 0.0, 1.0))
+    F, G = error_model_FG(
+        LAT, H, np.array([5.0, 3.0, 0.0]), np.array([0.3, 0.1, 9.8]), euler_to_dcm(0.0, 0.0, 1.0)
+    )
     Qc = np.diag([1e-6] * 3 + [1e-4] * 3 + [1e-10] * 3 + [1e-8] * 3)
     Phi, Qd = discretise(F, G, Qc, 0.01)
     np.testing.assert_allclose(Phi[0], expm(F[0] * 0.01), atol=5e-6)  # O((FT)³/6)
@@ -173,8 +185,9 @@ def test_alignment_recovers_attitude_and_gyro_bias():
     assert res.roll_deg == pytest.approx(-2.0, abs=0.01)
     assert res.heading_deg % 360 == pytest.approx(130.0, abs=1e-6)
     np.testing.assert_allclose(res.gyro_bias_radps, bias, atol=1e-4)
-    np.testing.assert_allclose(np.degrees(dcm_to_euler(res.C_bn)), np.degrees([pitch, roll, heading]),
-                               atol=0.01)
+    np.testing.assert_allclose(
+        np.degrees(dcm_to_euler(res.C_bn)), np.degrees([pitch, roll, heading]), atol=0.01
+    )
     assert OMEGA_IE_RADPS > 0
 
 

@@ -55,8 +55,7 @@ def test_kf_step_through_matches_hand_computed_update(dims):
         st = res.states[res.states.epoch == k]
         np.testing.assert_allclose(st["posterior"].to_numpy(), x, rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(st["P_post"].to_numpy(), np.diag(P), rtol=1e-9)
-        np.testing.assert_allclose(rows["z_pred"].to_numpy() + rows["innov"].to_numpy(),
-                                   rows["z"].to_numpy())
+        np.testing.assert_allclose(rows["z_pred"].to_numpy() + rows["innov"].to_numpy(), rows["z"].to_numpy())
 
 
 def test_first_kf_update_by_hand_1d():
@@ -149,8 +148,13 @@ def test_a_failing_filter_is_not_applicable_not_an_exception(monkeypatch):
 @pytest.mark.parametrize(
     "bad",
     [
-        {"dims": 3}, {"epochs": 0}, {"outlier_epoch": 99}, {"r": 0.0}, {"alpha": 0.9},
-        {"outlier_channel": "second"}, {"q": float("nan")},
+        {"dims": 3},
+        {"epochs": 0},
+        {"outlier_epoch": 99},
+        {"r": 0.0},
+        {"alpha": 0.9},
+        {"outlier_channel": "second"},
+        {"q": float("nan")},
     ],
 )
 def test_bad_spec_is_a_navlab_error(bad):
@@ -166,9 +170,26 @@ def test_unknown_filter_and_bad_params_are_navlab_errors():
 
 
 def test_equations_and_ideas():
-    for key in ("kf", "oracle-kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "student-t-kf",
-                "sage-husa", "irakf", "rrae", "rakf", "rsshakf", "ekf", "svd-ukf", "mfukf",
-                "nnmfukf", "vb-ekf", "wls"):
+    for key in (
+        "kf",
+        "oracle-kf",
+        "chi2-kf",
+        "huber-kf",
+        "vb-akf",
+        "hakf",
+        "student-t-kf",
+        "sage-husa",
+        "irakf",
+        "rrae",
+        "rakf",
+        "rsshakf",
+        "ekf",
+        "svd-ukf",
+        "mfukf",
+        "nnmfukf",
+        "vb-ekf",
+        "wls",
+    ):
         assert equations(key), key
         assert key in IDEAS
     assert equations("unknown-key") == []
@@ -182,7 +203,6 @@ def test_equations_and_ideas():
 def test_nominal_nis_equals_own_nis_for_the_kf():
     res = step_through("kf", TinySpec(dims=2, outlier_epoch=3))
     np.testing.assert_allclose(res.steps["nis_nominal"], res.steps["nis"], rtol=1e-10)
-
 
 
 @pytest.mark.parametrize("key", ["huber-kf", "chi2-kf", "student-t-kf"])

@@ -60,8 +60,20 @@ VARIANTS = {
     "rsshakf": {},
     "rsshakf-exclude": {"exclude_outliers": True},
 }
-_KNOWN = ("oracle-kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "student-t-kf", "sage-husa",
-          "irakf", "rrae", "rakf", "rsshakf", "kf")
+_KNOWN = (
+    "oracle-kf",
+    "chi2-kf",
+    "huber-kf",
+    "vb-akf",
+    "hakf",
+    "student-t-kf",
+    "sage-husa",
+    "irakf",
+    "rrae",
+    "rakf",
+    "rsshakf",
+    "kf",
+)
 
 
 def _key(variant: str) -> str:
@@ -121,8 +133,11 @@ def run_case(case, key: str, params: dict) -> dict[str, np.ndarray]:
             got["x"].append(out.x)
             got["Pd"].append(np.diagonal(P, axis1=-2, axis2=-1))
             got["Sd"].append(np.broadcast_to(np.diagonal(out.S, axis1=-2, axis2=-1), (B, m)))
-            R_hat = np.full((B, m), np.nan) if out.R_hat is None else np.diagonal(
-                np.broadcast_to(out.R_hat, (B, m, m)), axis1=-2, axis2=-1)
+            R_hat = (
+                np.full((B, m), np.nan)
+                if out.R_hat is None
+                else np.diagonal(np.broadcast_to(out.R_hat, (B, m, m)), axis1=-2, axis2=-1)
+            )
             got["Rhat"].append(R_hat)
             got["weights"].append(np.ones((B, m)) if out.weights is None else out.weights)
             got["flags"].append(np.zeros((B, m), np.int8) if out.flags is None else out.flags)
@@ -168,8 +183,9 @@ CASE_NAMES = case_names(PIN)
 
 @pytest.mark.parametrize("case", CASE_NAMES)
 def test_outputs_equal_the_pinned_reference(case, current, jittered, pinned):
-    assert_matches_pin(case, current, jittered, pinned, ("flags",),
-                       ("x", "Pd", "P_end", "Sd", "Rhat", "weights"))
+    assert_matches_pin(
+        case, current, jittered, pinned, ("flags",), ("x", "Pd", "P_end", "Sd", "Rhat", "weights")
+    )
 
 
 if __name__ == "__main__":

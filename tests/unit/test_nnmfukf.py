@@ -148,8 +148,10 @@ def test_rtk_qualitative_claims_of_the_paper(rtk, rtk_out):
 
     out = {k: rtk_out[k] for k in ("svd-ukf", "mfukf", "oracle-kf")}
     W = rtk.window
-    r = {k: {g: pooled_rmse(sq_error(fr.x, rtk.x_true, rtk.groups[g]), W)
-             for g in ("pos", "pos_N", "pos_D")} for k, fr in out.items()}
+    r = {
+        k: {g: pooled_rmse(sq_error(fr.x, rtk.x_true, rtk.groups[g]), W) for g in ("pos", "pos_N", "pos_D")}
+        for k, fr in out.items()
+    }
     assert r["mfukf"]["pos_D"] < 0.5 * r["svd-ukf"]["pos_D"]
     assert r["mfukf"]["pos_N"] > 1.5 * r["svd-ukf"]["pos_N"]
     gm = rtk.extras["gross_mask"][:, :, 0]

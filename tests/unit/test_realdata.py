@@ -12,10 +12,12 @@ from navlab.filters.base import LinearModel, SideInfo, make_filter
 from navlab.ins.earth import OMEGA_IE_RADPS
 
 ROOT = data_root()
-needs_rtkx = pytest.mark.skipif(not (ROOT / RTKX_DIR).is_dir(),
-                                reason=f"real data not found: {ROOT / RTKX_DIR} (set NAVLAB_DATA)")
-needs_smartloc = pytest.mark.skipif(not (ROOT / SMARTLOC_DIR).is_dir(),
-                                    reason=f"real data not found: {ROOT / SMARTLOC_DIR} (set NAVLAB_DATA)")
+needs_rtkx = pytest.mark.skipif(
+    not (ROOT / RTKX_DIR).is_dir(), reason=f"real data not found: {ROOT / RTKX_DIR} (set NAVLAB_DATA)"
+)
+needs_smartloc = pytest.mark.skipif(
+    not (ROOT / SMARTLOC_DIR).is_dir(), reason=f"real data not found: {ROOT / SMARTLOC_DIR} (set NAVLAB_DATA)"
+)
 
 
 def _metric(res, key, metric):
@@ -39,8 +41,9 @@ def test_free_ins_on_the_static_start_stays_within_mems_drift():
     al = align_static(f[a], w[a], lat, h, 0.0, C_bv=rec.C_bv)
     assert abs(al.pitch_deg) < 3 and abs(al.roll_deg) < 3  # the README's mounting: a level car
     ba = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
-    s = init_state(lat, lon, h, np.zeros(3), al.C_bn, bias_g_radps=al.gyro_bias_radps,
-                   bias_a_mps2=ba, t_s=20.0)
+    s = init_state(
+        lat, lon, h, np.zeros(3), al.C_bn, bias_g_radps=al.gyro_bias_radps, bias_a_mps2=ba, t_s=20.0
+    )
     b = (t >= 20.0) & (t < 36.0)
     s, _ = propagate_block(s, t[b], f[b], w[b], t_end_s=36.0)
     R_Mh, R_Nh = radii(lat, h)
@@ -54,8 +57,14 @@ def test_free_ins_on_the_static_start_stays_within_mems_drift():
 
 @needs_rtkx
 def test_lc_kf_with_clean_gnss_beats_the_gnss_noise():
-    spec = ExperimentSpec(scenario="drive0708", filters=("kf", "wls"), runs=2, seed=2,
-                          outliers="none", scenario_params={"epochs": 60, "sigma_m": 1.0})
+    spec = ExperimentSpec(
+        scenario="drive0708",
+        filters=("kf", "wls"),
+        runs=2,
+        seed=2,
+        outliers="none",
+        scenario_params={"epochs": 60, "sigma_m": 1.0},
+    )
     res = run_experiment(spec)
     # 3-D GNSS noise RMS = √3 σ; the INS-aided KF must do better, the per-epoch solve cannot
     assert _metric(res, "kf", "rmse_pos") < 0.8 * np.sqrt(3)
@@ -81,8 +90,13 @@ def test_ins_model_f_and_nhc_jacobian():
     x = x + np.r_[np.radians([0.05, -0.03, 0.1]), [0.2, -0.1, 0.05], np.zeros(9)]
     H = model.H(x[None], k)[0]
     eps = np.r_[[1e-6] * 3, [1e-5] * 3, [1e-3] * 9]
-    J = np.stack([(model.h((x + e)[None], k)[0] - model.h((x - e)[None], k)[0]) / (2 * e[j])
-                  for j, e in enumerate(np.diag(eps))], axis=1)
+    J = np.stack(
+        [
+            (model.h((x + e)[None], k)[0] - model.h((x - e)[None], k)[0]) / (2 * e[j])
+            for j, e in enumerate(np.diag(eps))
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(H[3:5, :6], J[3:5, :6], atol=2e-3 * np.abs(J[3:5, :6]).max())
     np.testing.assert_allclose(H[:3], J[:3], atol=1e-6)
 
@@ -132,8 +146,12 @@ def test_sagnac_term_sign():
 
 @needs_smartloc
 def test_smartloc_robust_filter_beats_per_epoch_wls():
-    spec = ExperimentSpec(scenario="smartloc-berlin", filters=("wls", "ekf", "huber-kf"), runs=1,
-                          scenario_params={"epochs": 400})
+    spec = ExperimentSpec(
+        scenario="smartloc-berlin",
+        filters=("wls", "ekf", "huber-kf"),
+        runs=1,
+        scenario_params={"epochs": 400},
+    )
     res = run_experiment(spec)
     wls = _metric(res, "wls", "h_err_median")
     best = min(_metric(res, k, "h_err_median") for k in ("huber-kf",))
@@ -154,15 +172,26 @@ def test_generic_folder_runs_through_the_drive_scenario(tmp_path):
     w = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy() @ r.C_bv.T
     cols = ("f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps")
     pd.DataFrame({"t_s": imu.t_s, **dict(zip(cols, np.c_[f, w].T, strict=True))}).to_csv(
-        tmp_path / "imu.csv", index=False)
+        tmp_path / "imu.csv", index=False
+    )
     gn = r.gnss[r.gnss.t_s < 90]
     rng = np.random.default_rng(0)
-    pd.DataFrame({"t_s": gn.t_s, "lat_deg": gn.lat_deg + 2 * rng.standard_normal(len(gn)) / 111e3,
-                  "lon_deg": gn.lon_deg + 2 * rng.standard_normal(len(gn)) / 85e3,
-                  "h_m": gn.h_m}).to_csv(tmp_path / "gnss.csv", index=False)
+    pd.DataFrame(
+        {
+            "t_s": gn.t_s,
+            "lat_deg": gn.lat_deg + 2 * rng.standard_normal(len(gn)) / 111e3,
+            "lon_deg": gn.lon_deg + 2 * rng.standard_normal(len(gn)) / 85e3,
+            "h_m": gn.h_m,
+        }
+    ).to_csv(tmp_path / "gnss.csv", index=False)
     gn[["t_s", "lat_deg", "lon_deg", "h_m"]].to_csv(tmp_path / "truth.csv", index=False)
-    spec = ExperimentSpec(scenario="drive0708", filters=("kf", "wls"), runs=1, outliers="none",
-                          scenario_params={"data_dir": str(tmp_path), "add_noise": False})
+    spec = ExperimentSpec(
+        scenario="drive0708",
+        filters=("kf", "wls"),
+        runs=1,
+        outliers="none",
+        scenario_params={"data_dir": str(tmp_path), "add_noise": False},
+    )
     res = run_experiment(spec)
     assert res.data.has_truth
     # noisy fixes of ≈2 m per horizontal axis: the INS-aided KF smooths them, WLS returns them

@@ -43,8 +43,13 @@ def test_table_shape_and_paper_numbers(table):
     assert df[df.paper.isna()].rel_diff.isna().all()
     # a maximum-error metric in both experiments, and one closest reading per paper number
     assert any("max" in m for m in df[df.experiment == "continuous"].metric)
-    n_paper_numbers = len({(r.experiment, r["filter"], r.unit) for _, r in paper.iterrows()
-                           if r.metric != "improvement_over_rrae_pct"})
+    n_paper_numbers = len(
+        {
+            (r.experiment, r["filter"], r.unit)
+            for _, r in paper.iterrows()
+            if r.metric != "improvement_over_rrae_pct"
+        }
+    )
     assert df.note.str.contains("reading closest to the paper").sum() == n_paper_numbers
     assert np.isfinite(df.value.astype(float)).all()
 

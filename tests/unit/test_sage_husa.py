@@ -18,8 +18,11 @@ KEYS = ("sage-husa", "irakf", "rrae", "rakf", "rsshakf")
 
 
 def simulate(outliers="isolated", runs=8, epochs=60, seed=3):
-    p = plan(ExperimentSpec(scenario="cv2d", filters=("kf",), runs=runs, epochs=epochs,
-                            outliers=outliers, seed=seed))
+    p = plan(
+        ExperimentSpec(
+            scenario="cv2d", filters=("kf",), runs=runs, epochs=epochs, outliers=outliers, seed=seed
+        )
+    )
     return p.scenario.simulate(p.schedule, p.outliers, list(range(runs)), seed)
 
 
@@ -172,12 +175,15 @@ def test_rae_matches_direct_window_formula(mode):
         if i < M:  # window not full: R0
             np.testing.assert_allclose(R_hat, np.broadcast_to(data.model.R0, R_hat.shape))
             continue
-        E = np.stack(eta[i - M:i], axis=1)  # (B, M, m): epochs k−M … k−1
+        E = np.stack(eta[i - M : i], axis=1)  # (B, M, m): epochs k−M … k−1
         S_hat = np.einsum("bji,bjl->bil", E, E) / M
         P_post_prev = r["prev"][1]
         P_prior = r["prior"][1]
-        use_prior = {"never": np.zeros(4, bool), "always": np.ones(4, bool),
-                     "conditional": r["out"].stats["skf_flag"].any(axis=1)}[mode]
+        use_prior = {
+            "never": np.zeros(4, bool),
+            "always": np.ones(4, bool),
+            "conditional": r["out"].stats["skf_flag"].any(axis=1),
+        }[mode]
         for b in range(4):
             Pref = P_prior[b] if use_prior[b] else P_post_prev[b]
             np.testing.assert_allclose(R_hat[b], S_hat[b] + H @ Pref @ H.T, rtol=1e-12, atol=1e-12)
@@ -354,8 +360,13 @@ def test_missing_channel_is_skipped_cleanly():
 
 @pytest.fixture(scope="module")
 def isolated50():
-    spec = ExperimentSpec(scenario="cv2d", runs=50, seed=11, outliers="isolated",
-                          filters=("kf", "irakf", "rrae", "rakf", "rsshakf"))
+    spec = ExperimentSpec(
+        scenario="cv2d",
+        runs=50,
+        seed=11,
+        outliers="isolated",
+        filters=("kf", "irakf", "rrae", "rakf", "rsshakf"),
+    )
     return run_experiment(spec)
 
 
@@ -390,8 +401,9 @@ def test_irakf_detection_rates(isolated50):
 
 
 def test_irakf_false_alarms_on_clean_data():
-    res = run_experiment(ExperimentSpec(scenario="cv2d", runs=30, seed=5, outliers="none",
-                                        filters=("kf", "irakf")))
+    res = run_experiment(
+        ExperimentSpec(scenario="cv2d", runs=30, seed=5, outliers="none", filters=("kf", "irakf"))
+    )
     rejected = np.isin(res.runs["irakf"].flags[:, 1:], (2, 3))
     assert rejected.mean() < 0.02
     # and costs little on clean data (M = 10 window: ≈ 12 % on y, §4.6)
@@ -399,8 +411,11 @@ def test_irakf_false_alarms_on_clean_data():
 
 
 def test_rhat_inflates_during_outlier_burst():
-    res = run_experiment(ExperimentSpec(scenario="cv2d", runs=20, seed=2, outliers="continuous",
-                                        filters=("irakf", "sage-husa")))
+    res = run_experiment(
+        ExperimentSpec(
+            scenario="cv2d", runs=20, seed=2, outliers="continuous", filters=("irakf", "sage-husa")
+        )
+    )
     for key in ("irakf", "sage-husa"):
         Rx = np.median(res.runs[key].R_hat[:, :, 0], axis=0)
         assert Rx[65:72].mean() > 3 * Rx[35:45].mean(), key  # burst: var 4 + 64 on x

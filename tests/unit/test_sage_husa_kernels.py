@@ -89,8 +89,10 @@ def test_weight_functions_match_their_three_segment_definitions(k0, k1):
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         huber = k0 / np.where(a > 0, a, 1.0)
         igg = huber * ((k1 - a) / max(k1 - k0, 1e-300)) ** 2
-    for got, ref in ((irakf_weights(nt, k0, k1), _weights_reference(a, k0, k1, huber)),
-                     (igg3_weights(nt, k0, k1), _weights_reference(a, k0, k1, igg))):
+    for got, ref in (
+        (irakf_weights(nt, k0, k1), _weights_reference(a, k0, k1, huber)),
+        (igg3_weights(nt, k0, k1), _weights_reference(a, k0, k1, igg)),
+    ):
         np.testing.assert_array_equal(got[1], ref[1])
         assert got[1].dtype == np.int8
         np.testing.assert_array_equal(got[0], ref[0])

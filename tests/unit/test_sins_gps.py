@@ -88,8 +88,9 @@ def test_error_model_hand_entries(FG):
     assert F[7, 8] == pytest.approx(-vE / RNh, rel=1e-12)
     assert F[7, 8] < 0  # the seed's PLUS sign would make this positive
     assert F[6, 8] == pytest.approx(-vN / RMh, rel=1e-12)  # Mpp(1,3)·R_Mh
-    assert F[7, 6] == pytest.approx(vE * np.tan(L0) / (np.cos(L0) * RNh) * RNh * np.cos(L0) / RMh,
-                                    rel=1e-12)  # D_E Mpp(2,1) / D_N
+    assert F[7, 6] == pytest.approx(
+        vE * np.tan(L0) / (np.cos(L0) * RNh) * RNh * np.cos(L0) / RMh, rel=1e-12
+    )  # D_E Mpp(2,1) / D_N
     assert F[6, 4] == pytest.approx(1.0, rel=1e-12)  # δṗ_N = δv_N
     assert F[7, 3] == pytest.approx(1.0, rel=1e-12)  # δṗ_E = δv_E
     assert F[0, 4] == pytest.approx(-1.0 / RMh, rel=1e-12)  # Mav(1,2)
@@ -104,15 +105,17 @@ def test_discretisation_second_order(FG):
     T = 1.0
     deg = np.pi / 180
     # the scenario's IMU (ARW 0.01 °/√h, VRW 10 µg/√Hz, bias random walks)
-    Qc = np.diag(np.repeat([(0.01 * deg / 60) ** 2, (10e-6 * 9.78) ** 2,
-                            (0.001 * deg / 3600) ** 2, (1e-6 * 9.78) ** 2], 3))
+    Qc = np.diag(
+        np.repeat(
+            [(0.01 * deg / 60) ** 2, (10e-6 * 9.78) ** 2, (0.001 * deg / 3600) ** 2, (1e-6 * 9.78) ** 2], 3
+        )
+    )
     Phi, Qd = discretise(F[None], G[None], Qc, T)
     E = expm(F * T)
     bound = np.linalg.norm(np.abs(F * T), 2) ** 3 / 6 * 1.01
     assert np.linalg.norm(Phi[0] - E, 2) <= bound  # Φ = I + FT + (FT)²/2 is expm to O(T³)
     GQG = G @ Qc @ G.T
-    np.testing.assert_allclose(Qd[0], 0.5 * (Phi[0] @ GQG @ Phi[0].T + GQG) * T, rtol=1e-9,
-                               atol=1e-22)
+    np.testing.assert_allclose(Qd[0], 0.5 * (Phi[0] @ GQG @ Phi[0].T + GQG) * T, rtol=1e-9, atol=1e-22)
     # against Van Loan's exact Q_d: the directly driven φ and δv blocks agree to a few %;
     # the position block (driven through ∫δv only) is the trapezoid's ½T³ instead of ⅓T³ —
     # a property of the §8.0 formula, harmless here (≈ 1e-8 m² against R = 100 m²)
@@ -191,7 +194,8 @@ def test_static_preset_and_body_frame_errors():
     dt = _simulate(1, runs=2, epochs=30)
     e = body_attitude_errors(dt.x_true * 0, dt.x_true, dt.extras["C_bn"])
     np.testing.assert_allclose(
-        np.hypot(e[..., 0], e[..., 1]), np.hypot(dt.x_true[..., 0], dt.x_true[..., 1]) * 3437.746,
+        np.hypot(e[..., 0], e[..., 1]),
+        np.hypot(dt.x_true[..., 0], dt.x_true[..., 1]) * 3437.746,
         rtol=1e-5,
     )
 
@@ -206,8 +210,13 @@ def test_hakf_and_akf_track_r_on_the_clean_case():
 
 
 def test_experiment_runs_with_default_filters():
-    spec = ExperimentSpec(scenario="sins-gps", filters=("kf", "huber-kf", "vb-akf", "hakf"),
-                          runs=2, epochs=120, scenario_params={"case": 4})
+    spec = ExperimentSpec(
+        scenario="sins-gps",
+        filters=("kf", "huber-kf", "vb-akf", "hakf"),
+        runs=2,
+        epochs=120,
+        scenario_params={"case": 4},
+    )
     df = run_experiment(spec).metrics()
     att = df[df.metric == "rmse_att"].set_index("filter").value
     assert att.notna().all() and (att > 0).all()
@@ -230,8 +239,12 @@ def test_reproduction_table_shape():
 @pytest.mark.slow
 def test_hakf_best_attitude_in_case_4():
     """The paper's headline (issue 4): case 4, HAKF has the lowest attitude RMSE, KF the highest."""
-    spec = ExperimentSpec(scenario="sins-gps", filters=("kf", "huber-kf", "vb-akf", "hakf"),
-                          runs=20, scenario_params={"case": 4})
+    spec = ExperimentSpec(
+        scenario="sins-gps",
+        filters=("kf", "huber-kf", "vb-akf", "hakf"),
+        runs=20,
+        scenario_params={"case": 4},
+    )
     df = run_experiment(spec).metrics()
     att = df[df.metric == "rmse_att"].set_index("filter").value
     assert att.idxmin() == "hakf", att.to_dict()

@@ -22,7 +22,8 @@ from tests.unit.linmodels import side
 
 needs_smartloc = pytest.mark.skipif(
     not (data_root() / SMARTLOC_DIR).is_dir(),
-    reason=f"real data not found: {data_root() / SMARTLOC_DIR} (set NAVLAB_DATA)")
+    reason=f"real data not found: {data_root() / SMARTLOC_DIR} (set NAVLAB_DATA)",
+)
 
 LAT, LON, HGT = np.radians(52.5), np.radians(13.37), 75.0
 
@@ -44,14 +45,34 @@ def _epochs(K1=6, ms=8, speed=10.0, yaw=0.2, seed=0):
     rho = np.linalg.norm(sat - r0, axis=-1)
     sys_idx = np.arange(ms) % 2
     nan = np.full((K1, ms), 40.0)
-    ep = PrEpochs(t, rho, sat, nan, nan, nan, sys_idx, tuple(f"s{j}" for j in range(ms)),
-                  np.full(K1, speed), np.full(K1, yaw), np.broadcast_to(r0, (K1, 3)).copy())
+    ep = PrEpochs(
+        t,
+        rho,
+        sat,
+        nan,
+        nan,
+        nan,
+        sys_idx,
+        tuple(f"s{j}" for j in range(ms)),
+        np.full(K1, speed),
+        np.full(K1, yaw),
+        np.broadcast_to(r0, (K1, 3)).copy(),
+    )
     return ep, r0
 
 
 def _model(ep, r0, sigma_height=2.0, **kw):
-    q = dict(sigma_speed=0.05, q_heading=1e-4, q_pos=0.01, q_height=0.05, q_clock=0.1,
-             q_drift=0.1, q_isb=1e-3, sigma_norm=0.02, sigma_height=sigma_height)
+    q = dict(
+        sigma_speed=0.05,
+        q_heading=1e-4,
+        q_pos=0.01,
+        q_height=0.05,
+        q_clock=0.1,
+        q_drift=0.1,
+        q_isb=1e-3,
+        sigma_norm=0.02,
+        sigma_height=sigma_height,
+    )
     q.update(kw)
     return PseudorangeModel(ep, np.full(ep.rho.shape, 3.0), r0, **q)
 
@@ -90,8 +111,13 @@ def test_jacobian_matches_central_differences():
     x = np.array([[12.0, -7.0, 3.0, 0.6, 0.7, 30.0, 25.0, 1.0]])
     H = model.H(x, 2)[0]
     eps = np.array([1e-3] * 3 + [1e-6] * 2 + [1e-3] * 3)
-    J = np.stack([(model.h(x + e, 2)[0] - model.h(x - e, 2)[0]) / (2 * e[0, j])
-                  for j, e in enumerate(np.diag(eps)[:, None, :])], axis=1)
+    J = np.stack(
+        [
+            (model.h(x + e, 2)[0] - model.h(x - e, 2)[0]) / (2 * e[0, j])
+            for j, e in enumerate(np.diag(eps)[:, None, :])
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(H, J, atol=1e-6 * np.abs(J).max())
     assert model.m == ep.rho.shape[1] + 2  # satellites, ‖d‖, height
     assert _model(ep, r0, sigma_height=None).m == ep.rho.shape[1] + 1
@@ -154,9 +180,9 @@ def test_vb_statistic_of_missing_channels_is_the_conditional_expectation():
         Boo = BR[b][np.ix_(o, o)]
         np.testing.assert_allclose(out[b][np.ix_(o, o)], Boo, atol=1e-10)
         np.testing.assert_allclose(out[b][np.ix_(mi, o)], A @ Boo, atol=1e-9)
-        np.testing.assert_allclose(out[b][np.ix_(mi, mi)],
-                                   A @ Boo @ A.T + R[b][np.ix_(mi, mi)] - A @ R[b][np.ix_(o, mi)],
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            out[b][np.ix_(mi, mi)], A @ Boo @ A.T + R[b][np.ix_(mi, mi)] - A @ R[b][np.ix_(o, mi)], atol=1e-9
+        )
 
 
 def test_vb_ekf_r_hat_stays_positive_definite_when_channels_come_and_go():
@@ -182,8 +208,12 @@ def test_vb_ekf_r_hat_stays_positive_definite_when_channels_come_and_go():
 def test_real_data_every_filter_stays_on_the_road():
     from navlab.experiment import ExperimentSpec, run_experiment
 
-    spec = ExperimentSpec(scenario="smartloc-berlin", runs=1, scenario_params={"epochs": 250},
-                          filters=("wls", "ekf", "vb-ekf", "chi2-kf"))
+    spec = ExperimentSpec(
+        scenario="smartloc-berlin",
+        runs=1,
+        scenario_params={"epochs": 250},
+        filters=("wls", "ekf", "vb-ekf", "chi2-kf"),
+    )
     df = run_experiment(spec).metrics()
     med = df[df.metric == "h_err_median"].set_index("filter").value
     assert med.max() < 25.0  # vb-ekf diverged to km, chi2-kf locked out at 345 m before

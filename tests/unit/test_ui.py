@@ -89,8 +89,7 @@ def test_fully_diverged_filter_is_a_legend_entry_only(res):
 
 
 def test_r_vs_rhat_truth_and_outlier_strip():
-    r = run_experiment(ExperimentSpec(runs=4, epochs=80, outliers="isolated",
-                                      noise_schedule="step"))
+    r = run_experiment(ExperimentSpec(runs=4, epochs=80, outliers="isolated", noise_schedule="step"))
     fig = F.r_vs_rhat(r, 0, outlier_strip=True)
     truth = fig.data[0]
     assert truth.name == "true R(t) (schedule)"
@@ -184,8 +183,7 @@ def test_config_round_trip():
 def test_sweep_parameters_grid_and_apply():
     spec = ExperimentSpec(filters=("kf", "chi2-kf"), epochs=None)
     s = {x.id: x for x in sweepables(spec)}
-    assert {"ol.mixture.contamination", "ol.mixture.scale", "fp.chi2-kf.alpha",
-            "sc.cv2d.epochs"} <= set(s)
+    assert {"ol.mixture.contamination", "ol.mixture.scale", "fp.chi2-kf.alpha", "sc.cv2d.epochs"} <= set(s)
     g = grid(s["ol.mixture.contamination"], 0.0, 0.3, 4, False)
     np.testing.assert_allclose(g, [0.0, 0.1, 0.2, 0.3])
     assert apply(spec, s["ol.mixture.contamination"], 0.2).outlier_params == {"contamination": 0.2}

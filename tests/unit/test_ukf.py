@@ -69,7 +69,7 @@ def test_ut_polar_to_cartesian_matches_closed_form():
     chi, _ = sigma_points(x, P, w.c)
     Y = np.stack([chi[..., 0] * np.cos(chi[..., 1]), chi[..., 0] * np.sin(chi[..., 1])], axis=-1)
     mean, cov, _ = ut_mean_cov(Y, w)
-    e = np.exp(-st**2 / 2)
+    e = np.exp(-(st**2) / 2)
     m_true = np.array([mr * np.cos(mt) * e, mr * np.sin(mt) * e])
     Er2 = mr**2 + sr**2
     e2 = np.exp(-2 * st**2)
@@ -160,7 +160,11 @@ def test_svd_ukf_equals_filterpy_ukf(resample):
 
     pts = MerweScaledSigmaPoints(4, alpha, beta, kappa, sqrt_method=svd_rows)
     ukf = UnscentedKalmanFilter(
-        4, 2, 1.0, hx=lambda s: model.h(s[None], 0)[0], fx=lambda s, dt: model.f(s[None], 0)[0],
+        4,
+        2,
+        1.0,
+        hx=lambda s: model.h(s[None], 0)[0],
+        fx=lambda s, dt: model.f(s[None], 0)[0],
         points=pts,
     )
     ukf.x, ukf.P, ukf.Q, ukf.R = x0.copy(), P0.copy(), model.Q_, model.R0
@@ -224,11 +228,23 @@ def test_fading_factors_appear_with_a_state_anomaly_and_help():
     runs, K1, _ = x.shape
     zeros = np.zeros_like(z)
     data = ScenarioData(
-        scenario="t", t=np.arange(K1) * 1.0, model=model, x_true=x, z=z,
-        R_true=zeros + np.diag(model.R0), R_schedule=zeros[0] + np.diag(model.R0),
-        outlier_mask=zeros.astype(bool), bias=zeros, x0=x[:, 0].copy(), P0=np.eye(2) * 0.01,
-        runs=np.arange(runs), state_names=("p", "v"), channel_names=("p", "v"),
-        channel_units=("m", "m/s"), groups={}, window=np.arange(K1) >= 1,
+        scenario="t",
+        t=np.arange(K1) * 1.0,
+        model=model,
+        x_true=x,
+        z=z,
+        R_true=zeros + np.diag(model.R0),
+        R_schedule=zeros[0] + np.diag(model.R0),
+        outlier_mask=zeros.astype(bool),
+        bias=zeros,
+        x0=x[:, 0].copy(),
+        P0=np.eye(2) * 0.01,
+        runs=np.arange(runs),
+        state_names=("p", "v"),
+        channel_names=("p", "v"),
+        channel_units=("m", "m/s"),
+        groups={},
+        window=np.arange(K1) >= 1,
     )
     out = run_filters(data, [make_filter("svd-ukf"), make_filter("mfukf")])
     fad = out["mfukf"].stats["fading"]

@@ -157,8 +157,11 @@ def run_case(model, x0, P0, z, key: str, params: dict) -> dict[str, np.ndarray]:
             rej.append(out.stats.get("rejected", np.zeros(B)))
             rep.append(out.stats.get("replaced", np.zeros(B)))
     return {
-        "x": np.stack(xs, 1)[:, ::EVERY], "Pd": np.stack(Pd, 1)[:, ::EVERY], "P_end": np.array(P),
-        "flags": np.stack(flags, 1), "rejected": np.stack(rej, 1).astype(np.int8),
+        "x": np.stack(xs, 1)[:, ::EVERY],
+        "Pd": np.stack(Pd, 1)[:, ::EVERY],
+        "P_end": np.array(P),
+        "flags": np.stack(flags, 1),
+        "rejected": np.stack(rej, 1).astype(np.int8),
         "replaced": np.stack(rep, 1).astype(np.int8),
     }
 
@@ -198,8 +201,9 @@ def test_outputs_equal_the_pinned_reference(case, current, jittered, pinned):
     relative perturbation of z causes in the current code, where the case amplifies round-off
     more than that (the faithful NNMFUKF's lock-out into chained replacements with fading
     factors up to 1e6: ≈ 1e-8 from a 1e-15 perturbation on this case)."""
-    assert_matches_pin(case, current, jittered, pinned, ("flags", "rejected", "replaced"),
-                       ("x", "Pd", "P_end"))
+    assert_matches_pin(
+        case, current, jittered, pinned, ("flags", "rejected", "replaced"), ("x", "Pd", "P_end")
+    )
 
 
 if __name__ == "__main__":

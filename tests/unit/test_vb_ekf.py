@@ -75,8 +75,9 @@ def test_vb_ekf_equals_plain_algorithm_on_pseudoranges(tau_P, tau_R, N):
     f = make_filter("vb-ekf", {"tau_P": tau_P, "tau_R": tau_R, "iterations": N})
     st = f.init(model, data.x0, data.P0)
     # epochs 1 … 120 cover the onset of the burst (R̂ moves a lot)
-    ref = paper_vb_ekf(model, data.x0[0], data.P0, m + 1 + tau_R, tau_R * model.R0,
-                       data.z[0, 1:], 1, tau_P, RHO, N)
+    ref = paper_vb_ekf(
+        model, data.x0[0], data.P0, m + 1 + tau_R, tau_R * model.R0, data.z[0, 1:], 1, tau_P, RHO, N
+    )
     for k in range(1, 121):
         st, out = f.update(model, f.predict(model, st, k), k, data.z[:, k], data.side(k))
         x_ref, P_ref, R_ref = ref[k - 1]
@@ -113,8 +114,7 @@ def test_vb_ekf_without_adaptation_equals_ekf():
         s2, o2 = ekf.update(model, ekf.predict(model, s2, k), k, data.z[:, k], data.side(k))
         np.testing.assert_allclose(o1.x, o2.x, rtol=1e-7, atol=1e-7)
         np.testing.assert_allclose(o1.P, np.broadcast_to(o2.P, o1.P.shape), rtol=1e-7, atol=1e-9)
-        np.testing.assert_allclose(o1.R_hat, np.broadcast_to(model.R0, o1.R_hat.shape),
-                                   rtol=1e-7, atol=1e-7)
+        np.testing.assert_allclose(o1.R_hat, np.broadcast_to(model.R0, o1.R_hat.shape), rtol=1e-7, atol=1e-7)
 
 
 def test_vb_ekf_reduces_to_kf_on_a_linear_model():
@@ -141,8 +141,9 @@ def test_vb_ekf_batched_equals_single_runs():
     for k in range(1, data.K + 1):
         st, out = f.update(model, f.predict(model, st, k), k, data.z[:, k], data.side(k))
         for b in range(4):
-            singles[b], ob = f.update(model, f.predict(model, singles[b], k), k,
-                                      data.z[[b], k], data.side(k, slice(b, b + 1)))
+            singles[b], ob = f.update(
+                model, f.predict(model, singles[b], k), k, data.z[[b], k], data.side(k, slice(b, b + 1))
+            )
             np.testing.assert_allclose(out.x[b], ob.x[0], rtol=1e-10, atol=1e-10)
             np.testing.assert_allclose(out.R_hat[b], ob.R_hat[0], rtol=1e-10, atol=1e-10)
             assert out.stats["vb_iters"][b] == ob.stats["vb_iters"][0]
@@ -192,8 +193,9 @@ def test_vb_ekf_r_hat_converges_to_the_true_r():
 
 def test_vb_ekf_r_hat_follows_the_interference_burst():
     data = pseudorange_data(range(1), epochs=2)
-    res = run_experiment(ExperimentSpec(scenario="gps-ins-pseudorange", filters=("vb-ekf",),
-                                        runs=5, outliers="none"))
+    res = run_experiment(
+        ExperimentSpec(scenario="gps-ins-pseudorange", filters=("vb-ekf",), runs=5, outliers="none")
+    )
     Rh = res.runs["vb-ekf"].R_hat.mean(axis=0)  # (K+1, m), diagonal
     bad, good = [1, 3, 6], [0, 2, 4, 5, 7]
     R0 = data.model.R0[0, 0]
