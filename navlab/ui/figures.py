@@ -7,6 +7,13 @@ central line plus a quantile band (``fill="tonexty"``), never one trace per run;
 (``Scattergl``) is used only for long series so a page stays under the browser's WebGL-context
 cap. Runs whose state became non-finite ("diverged") are excluded from every curve and reported in
 the legend; a filter that diverged in every run is listed as diverged, never drawn as NaN.
+
+Every chart reads the same way (STYLE.md "Charts that read"; :func:`readable` applies it to any
+figure, also those of the Reproduce, Learn and Real data pages): the legend sits below the plot,
+anchored to the bottom of the figure, so it can never cover the title or the data at any width
+(plotly adds the legend's height to the margin the axes need); the title sits above the plot area
+and pushes the top margin; log axes carry one label per decade (1, 10, 100) or 1-2-5 labels,
+never one per minor tick; a reference (the true R(t), the χ² band) is drawn in black, last.
 """
 
 from __future__ import annotations
@@ -66,12 +73,31 @@ def _f32(a: np.ndarray) -> np.ndarray:
 
 
 def nan_quantiles(v: np.ndarray, qs: Sequence[float]) -> np.ndarray:
-    """Quantiles over axis 0 ignoring NaN; all-NaN columns give NaN without a warning."""
-    if np.isfinite(v).all():
-        return np.quantile(v, list(qs), axis=0)  # np.nanquantile is ~10x slower
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanquantile(v, list(qs), axis=0)
+    """Quantiles over axis 0 ignoring NaN (numpy's default linear method); all-NaN columns give
+    NaN without a warning.
+
+    Sorting once (NaN last) and interpolating between order statistics gives exactly
+    ``np.nanquantile`` at the cost of one ``np.sort`` (np.nanquantile loops per column, ~10x slower).
+    """
+    v = np.asarray(v, dtype=float)
+    if not np.isnan(v).any():
+        return np.quantile(v, list(qs), axis=0)
+    s = np.sort(v, axis=0)  # NaN sort last
+    n = (~np.isnan(v)).sum(axis=0)
+    out = np.full((len(qs), *v.shape[1:]), np.nan)
+    top = np.maximum(n - 1, 0)
+    for i, q in enumerate(qs):
+        pos = q * top
+        lo = np.floor(pos).astype(int)
+        hi = np.minimum(lo + 1, top)
+        frac = pos - lo
+        a = np.take_along_axis(s, lo[None], axis=0)[0]
+        b = np.take_along_axis(s, hi[None], axis=0)[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # inf − inf in a column of infs
+            val = a + frac * (b - a)
+        out[i] = np.where(n > 0, np.where(frac == 0, a, val), np.nan)
+    return out
 
 
 def ok_runs(fr: FilterRun) -> np.ndarray:
@@ -163,11 +189,12 @@ def add_line(
     dash: str | None = None,
     width: float = 2.0,
     showlegend: bool = True,
+    cls: type | None = None,
     **axes,
 ) -> None:
-    """One decimated line trace from numpy arrays."""
+    """One decimated line trace from numpy arrays (``cls``: force Scatter or Scattergl)."""
     sl = decimation(x.shape[0])
-    cls = _scatter(x[sl].shape[0])
+    cls = cls or _scatter(x[sl].shape[0])
     traces.append(
         cls(
             x=_f32(x[sl]),
@@ -182,24 +209,175 @@ def add_line(
     )
 
 
-def _base_layout(title: str, height: int) -> dict:
+# ------------------------------------------------------------------------------ chart layout
+
+# Below the plot, anchored to the bottom of the figure (yref "container"): plotly reserves the
+# legend's height in addition to the margin the x axis needs, so at any width and any number of
+# legend rows the legend covers neither the title, the data nor the axis labels (a legend anchored
+# to the plot area, y = 1.02, overlapped the title as soon as it wrapped to a second row).
+LEGEND_BELOW: dict = {
+    "orientation": "h",
+    "xref": "paper",
+    "x": 0.0,
+    "xanchor": "left",
+    "yref": "container",
+    "y": 0.0,
+    "yanchor": "bottom",
+    "font": {"size": 12},
+}
+# minimal margins: axis labels, the title and the legend push them out as far as they need
+MARGIN: dict = {"l": 10, "r": 10, "t": 10, "b": 10, "pad": 0}
+SUBTITLE_FONT: dict = {"size": 12, "color": "#555555"}
+
+
+def title_layout(text: str, subtitle: str = "") -> dict:
+    """A title left-aligned above the plot area that pushes the top margin (never overlapped).
+
+    ``subtitle`` (lines separated by ``<br>``) is written under it in smaller grey type, inside
+    the title's text: plotly's own ``title.subtitle`` is left out of the title's automargin and
+    ran into the plot area.
+    """
+    if subtitle:
+        style = f"font-size:{SUBTITLE_FONT['size']}px;color:{SUBTITLE_FONT['color']}"
+        text += "".join(f"<br><span style='{style}'>{line}</span>" for line in subtitle.split("<br>"))
+    t = {
+        "text": text,
+        "x": 0,
+        "xref": "paper",
+        "xanchor": "left",
+        "y": 1,
+        "yref": "paper",
+        "yanchor": "bottom",
+        "automargin": True,
+        "pad": {"b": 14},
+        "font": {"size": 15},
+    }
+    return t
+
+
+def _base_layout(title: str, height: int, subtitle: str = "") -> dict:
     return {
-        "title": {"text": title, "x": 0, "xanchor": "left", "font": {"size": 15}},
+        "title": title_layout(title, subtitle),
         "height": height,
-        "margin": {"l": 60, "r": 20, "t": 60, "b": 45},
+        "margin": dict(MARGIN),
         "hovermode": "x unified",
-        "legend": {"orientation": "h", "yanchor": "bottom", "y": 1.02, "xanchor": "right", "x": 1},
+        "legend": dict(LEGEND_BELOW),
     }
 
 
+NICE = (1.0, 2.0, 5.0)  # the labelled mantissas of a log axis with fewer than LOG_DECADES decades
+LOG_DECADES = 2.0  # from this span on, one label per decade
+
+
+def _nice_log_values(lo: float, hi: float) -> np.ndarray:
+    """The 1-2-5 values (×10ⁿ) inside [lo, hi]."""
+    d0, d1 = int(np.floor(np.log10(lo))) - 1, int(np.ceil(np.log10(hi))) + 1
+    v = np.array([m * 10.0**d for d in range(d0, d1 + 1) for m in NICE])
+    return v[(v >= lo * (1 - 1e-9)) & (v <= hi * (1 + 1e-9))]
+
+
+def log_axis(lo: float, hi: float, pad: float = 0.04) -> dict:
+    """Settings of a log axis showing [lo, hi] (> 0): an explicit range (log10 units, ``pad`` of
+    the span added either side) and clean ticks.
+
+    Spanning ``LOG_DECADES`` decades or more: one label per decade (``dtick = 1``: 1, 10, 100);
+    less: labels at the 1-2-5 values written in full (plotly's own ``"D2"`` writes a bare "2" and
+    "5"), the range widened out to the 1-2-5 values on either side of the data (and one more
+    step each side while fewer than three values would be labelled).
+    """
+    lo, hi = float(lo), float(hi)
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo > 0):
+        return {"type": "log"}
+    hi = max(hi, lo)
+    span = float(np.log10(hi / lo))
+    if span < LOG_DECADES:
+        lo = float(_nice_log_values(lo / 10, lo)[-1])
+        hi = float(_nice_log_values(hi, hi * 10)[0])
+        while _nice_log_values(lo, hi).size < 3:
+            lo = float(_nice_log_values(lo / 10, lo * 0.999)[-1])
+            hi = float(_nice_log_values(hi * 1.001, hi * 10)[0])
+        span = float(np.log10(hi / lo))
+    p = pad * span
+    out: dict = {"type": "log", "range": [float(np.log10(lo) - p), float(np.log10(hi) + p)]}
+    if span >= LOG_DECADES:
+        out.update(tickmode="linear", tick0=0, dtick=1)
+    else:
+        v = _nice_log_values(lo, hi)
+        out.update(tickmode="array", tickvals=v.tolist(), ticktext=[f"{x:g}" for x in v])
+    return out
+
+
+def _trace_values(fig: go.Figure, axis_name: str) -> np.ndarray:
+    """Every finite y (or x) value of the traces drawn on layout axis ``axis_name`` (e.g. yaxis2)."""
+    letter = axis_name[0]
+    ref = letter + axis_name[5:]  # yaxis2 -> y2, yaxis -> y
+    vals = []
+    for tr in fig.data:
+        if getattr(tr, f"{letter}axis", None) not in (ref, None if ref == letter else ref):
+            continue
+        v = getattr(tr, letter, None)
+        if v is None or isinstance(v, str):
+            continue
+        try:
+            a = np.asarray(v, dtype=float).ravel()
+        except (TypeError, ValueError):
+            continue
+        vals.append(a[np.isfinite(a)])
+    return np.concatenate(vals) if vals else np.zeros(0)
+
+
+def clean_log_ticks(fig: go.Figure) -> go.Figure:
+    """Give every log axis of ``fig`` clean ticks (:func:`log_axis`): from its explicit range if
+    it has one, else from the positive values of the traces drawn on it.
+    """
+    layout = fig.layout
+    for name in [k for k in layout.to_plotly_json() if k[:5] in ("xaxis", "yaxis")]:
+        ax = layout[name]
+        if ax.type != "log" or ax.tickmode is not None:  # not log, or ticks already chosen
+            continue
+        if ax.range is not None:
+            lo, hi = 10.0 ** np.asarray(ax.range, dtype=float)
+            settings = log_axis(lo, hi, pad=0.0)
+        else:
+            v = _trace_values(fig, name)
+            v = v[v > 0]
+            if not v.size:
+                continue
+            settings = log_axis(float(v.min()), float(v.max()))
+        fig.update_layout({name: settings})
+    return fig
+
+
+def readable(fig: go.Figure, *, title_above: bool = True) -> go.Figure:
+    """Apply navlab's chart conventions to any figure, in place (returned for chaining).
+
+    Legend below the plot (:data:`LEGEND_BELOW`), every axis pushing the margins it needs, the
+    title (if any) above the plot area pushing the top margin (``title_above``; leave False for
+    a figure whose subplot titles sit where a main title would), clean log ticks.
+    """
+    fig.update_layout(legend=LEGEND_BELOW, margin=MARGIN)
+    fig.update_xaxes(automargin=True)
+    fig.update_yaxes(automargin=True)
+    text = fig.layout.title.text
+    if title_above and text:
+        fig.update_layout(title=title_layout(text))
+    return clean_log_ticks(fig)
+
+
 def _figure(
-    traces: list, title: str, x_title: str, y_title: str, log_y: bool = False, height: int = 380
+    traces: list,
+    title: str,
+    x_title: str,
+    y_title: str,
+    log_y: bool = False,
+    height: int = 380,
+    subtitle: str = "",
 ) -> go.Figure:
     """One figure from all traces at once (much cheaper than trace-by-trace ``add_trace``)."""
-    layout = _base_layout(title, height)
-    layout["xaxis"] = {"title": {"text": x_title}}
-    layout["yaxis"] = {"title": {"text": y_title}, "type": "log" if log_y else "linear"}
-    return go.Figure(data=traces, layout=layout)
+    layout = _base_layout(title, height, subtitle)
+    layout["xaxis"] = {"title": {"text": x_title}, "automargin": True}
+    layout["yaxis"] = {"title": {"text": y_title}, "type": "log" if log_y else "linear", "automargin": True}
+    return clean_log_ticks(go.Figure(data=traces, layout=layout))
 
 
 # --------------------------------------------------------------------------- compare page
@@ -231,10 +409,11 @@ def error_vs_time(
     bt = "" if band is None else f"; band: {int(band[0] * 100)}–{int(band[1] * 100)} % of runs"
     return _figure(
         traces,
-        f"{g.label.capitalize()} error — RMSE over {data.B} runs{bt}",
+        f"{g.label.capitalize()} error over time",
         "time (s)",
         f"{g.label} error ({g.unit})",
         log_y,
+        subtitle=f"line: RMSE over {data.B} runs{bt}",
     )
 
 
@@ -245,22 +424,58 @@ def _r_units(data, channel: int, as_std: bool) -> str:
     return f"{u}²" if u else ""
 
 
+def _positive(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=float).ravel()
+    return a[np.isfinite(a) & (a > 0)]
+
+
+def value_range(values: Sequence[np.ndarray], log: bool) -> tuple[float, float] | None:
+    """(lo, hi) spanning ``values`` (positive ones on a log axis; from 0 on a linear one)."""
+    v = np.concatenate([_positive(a) if log else np.asarray(a, float).ravel() for a in values] or [[]])
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return None
+    return (float(v.min()), float(v.max())) if log else (min(0.0, float(v.min())), float(v.max()))
+
+
+def y_range_layout(lo: float, hi: float, log: bool) -> dict:
+    """A y axis showing [lo, hi]: :func:`log_axis`, or a linear range with 10 % headroom."""
+    if log:
+        return log_axis(lo, hi)
+    top = hi + 0.1 * (hi - lo) if hi > lo else hi + 1.0
+    return {"type": "linear", "range": [lo, top]}
+
+
+def truth_line(traces: list, x: np.ndarray, y: np.ndarray, name: str, width: float = 3.0, **kw) -> None:
+    """A reference drawn to be unmistakable: black on a white halo (append it LAST: on top).
+
+    ``kw`` goes to :func:`add_line` (subplot axes, ``cls``).
+    """
+    add_line(traces, x, y, name, "#ffffff", "truth", width=width + 4, showlegend=False, **kw)
+    traces[-1].hoverinfo = "skip"
+    add_line(traces, x, y, name, TRUTH_COLOR, "truth", width=width, **kw)
+
+
 def r_vs_rhat(
     res: Results,
     channel: int,
     *,
-    log_y: bool = False,
+    log_y: bool = True,
     as_std: bool = False,
     show_used: bool = True,
     band: tuple[float, float] = BAND,
     outlier_strip: bool = False,
-    height: int = 400,
+    height: int = 420,
 ) -> go.Figure:
     """True R(t) of the noise schedule beside each filter's R̂ (median and spread over runs).
 
-    Filters without an R̂ show the R they used (dashed median) when ``show_used``. With
-    ``outlier_strip`` a lower panel shows, per epoch, the share of runs with an outlier on the
-    channel (the outlier epochs marked on the time axis).
+    Log y axis by default (``log_y=False``: linear). The true R(t) is drawn last, in black on a
+    white halo. The y range is computed from clean entries only — per filter, the band's
+    quantiles over the runs whose measurement on this channel and epoch is not an outlier — so a
+    contaminated-epoch variance (the oracle's R̂ *is* the variance drawn, outliers included) never
+    sets the scale; what lies beyond is cut off and the subtitle says so. Filters without an R̂
+    show the R they used (dashed median) when ``show_used``. With ``outlier_strip`` a lower panel
+    shows, per epoch, the share of runs with an outlier on the channel.
     """
     data = res.data
     colors = filter_colors(list(res.runs))
@@ -268,9 +483,9 @@ def r_vs_rhat(
     tf = lambda v: np.sqrt(np.maximum(v, 0.0)) if as_std else v  # noqa: E731
     traces: list = []
     sym = "σ" if as_std else "R"
-    add_line(
-        traces, t, tf(data.R_schedule[:, channel]), f"true {sym}(t) (schedule)", TRUTH_COLOR, "truth", width=3
-    )
+    truth = tf(data.R_schedule[:, channel])
+    clean: list[np.ndarray] = [truth]  # what sets the axis range
+    drawn: list[np.ndarray] = []  # what is drawn (to tell whether anything is cut off)
     for key, fr in res.runs.items():
         ok = ok_runs(fr)
         c = colors[key]
@@ -280,17 +495,23 @@ def r_vs_rhat(
         est = fr.R_hat is not None
         if not est and not show_used:
             continue
-        v = (fr.R_hat if est else fr.R_used)[ok][:, 1:, channel]
-        q = nan_quantiles(tf(v), (band[0], 0.5, band[1]))
+        v = tf((fr.R_hat if est else fr.R_used)[ok][:, 1:, channel])
+        q = nan_quantiles(v, (band[0], 0.5, band[1]))
+        dirty = data.outlier_mask[ok][:, 1:, channel]
+        qc = nan_quantiles(np.where(dirty, np.nan, v), (band[0], 0.5, band[1])) if dirty.any() else q
         if est:
+            clean += [qc[0], qc[2]]
+            drawn += [q[0], q[2]]
             add_band(traces, t[1:], q[0], q[2], c, key)
-            add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym}̂ (median)", c, key)
+            add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym}̂", c, key)
         else:
+            clean.append(qc[1])
+            drawn.append(q[1])
             add_line(
                 traces,
                 t[1:],
                 q[1],
-                f"{_legend_name(fr)} {sym} used (no {sym}̂)",
+                f"{_legend_name(fr)} {sym} used",
                 c,
                 key,
                 dash="dash",
@@ -299,29 +520,48 @@ def r_vs_rhat(
     name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
     units = _r_units(data, channel, as_std)
     y_title = f"{sym} ({units})" if units else sym
-    title = f"Channel {name}: true {sym}(t) vs each filter's {sym}̂ (median, {int(band[0] * 100)}–"
-    title += f"{int(band[1] * 100)} % band over runs)"
-    if not outlier_strip:
-        return _figure(traces, title, "time (s)", y_title, log_y, height)
-    frac = data.outlier_mask[:, :, channel].mean(axis=0)
-    idx, fmax = bucket_max(frac)
-    traces.append(
-        go.Bar(
-            x=_f32(t[idx]),
-            y=_f32(fmax),
-            name="share of runs with an outlier",
-            marker={"color": "#d62728", "line": {"width": 0}},
-            legendgroup="outliers",
-            xaxis="x",
-            yaxis="y2",
+    title = f"Channel {name}: true {sym}(t) vs each filter's {sym}̂"
+    sub = f"median, {int(band[0] * 100)}–{int(band[1] * 100)} % band over {data.B} runs"
+    rng = value_range(clean, log_y)
+    yaxis: dict = {"title": {"text": y_title}, "automargin": True, "type": "log" if log_y else "linear"}
+    if rng is not None:
+        yaxis.update(y_range_layout(*rng, log_y))
+        top = 10 ** yaxis["range"][1] if log_y else yaxis["range"][1]
+        if any((_positive(d) if log_y else np.asarray(d, float)).max(initial=-np.inf) > top for d in drawn):
+            sub += "<br>outlier-epoch values above the top are cut off"
+    if outlier_strip:
+        frac = data.outlier_mask[:, :, channel].mean(axis=0)
+        idx, fmax = bucket_max(frac)
+        traces.append(
+            go.Bar(
+                x=_f32(t[idx]),
+                y=_f32(fmax),
+                name="outlier epochs",
+                marker={"color": "#d62728", "line": {"width": 0}},
+                legendgroup="outliers",
+                hovertemplate="%{y:.0%} of runs<extra>outliers</extra>",
+                xaxis="x",
+                yaxis="y2",
+            )
         )
-    )
-    layout = _base_layout(title, height + 90)
+    truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
+    if not outlier_strip:
+        layout = _base_layout(title, height, sub)
+        layout["xaxis"] = {"title": {"text": "time (s)"}, "automargin": True}
+        layout["yaxis"] = yaxis
+        return go.Figure(data=traces, layout=layout)
+    layout = _base_layout(title, height + 90, sub)
     layout.update(
         bargap=0,
-        xaxis={"title": {"text": "time (s)"}, "anchor": "y2"},
-        yaxis={"title": {"text": y_title}, "type": "log" if log_y else "linear", "domain": [0.27, 1.0]},
-        yaxis2={"title": {"text": "outliers"}, "range": [0, 1], "domain": [0.0, 0.2]},
+        xaxis={"title": {"text": "time (s)"}, "anchor": "y2", "automargin": True},
+        yaxis={**yaxis, "domain": [0.3, 1.0]},
+        yaxis2={
+            "title": {"text": "share of runs"},
+            "range": [0, 1],
+            "dtick": 0.5,
+            "domain": [0.0, 0.2],
+            "automargin": True,
+        },
     )
     return go.Figure(data=traces, layout=layout)
 
@@ -365,7 +605,14 @@ def nis_vs_chi2(res: Results, *, log_y: bool = True, level: float = 0.95) -> go.
         add_line(
             traces, x, np.full(x.shape, float(m)), f"E[NIS] = {m}", TRUTH_COLOR, "chi2", dash="dot", width=1
         )
-    return _figure(traces, "Consistency: average NIS over runs vs its χ² band", "time (s)", "ANIS", log_y)
+    return _figure(
+        traces,
+        "Consistency: average NIS vs its χ² band",
+        "time (s)",
+        "ANIS (dimensionless)",
+        log_y,
+        subtitle="ANIS: NIS averaged over the runs at each epoch",
+    )
 
 
 # --------------------------------------------------------------------------- tables
@@ -469,7 +716,7 @@ def sweep_lines(
         )
     fig = _figure(traces, f"{y_label} against {x_label}", x_label, y_label, log_y)
     fig.update_layout(hovermode="closest", xaxis_type="log" if log_x else "linear")
-    return fig
+    return clean_log_ticks(fig)
 
 
 def sweep_heatmap(df: pd.DataFrame, x_label: str, y_label: str) -> go.Figure:
@@ -491,11 +738,12 @@ def sweep_heatmap(df: pd.DataFrame, x_label: str, y_label: str) -> go.Figure:
         )
     )
     fig.update_layout(
-        title={"text": f"{y_label}: filters × {x_label}", "x": 0, "font": {"size": 15}},
+        title=title_layout(f"{y_label}: filters × {x_label}"),
         height=140 + 40 * len(piv.index),
-        margin={"l": 120, "r": 20, "t": 50, "b": 45},
+        margin=MARGIN,
     )
-    fig.update_xaxes(title_text=x_label, type="category")
+    fig.update_xaxes(title_text=x_label, type="category", automargin=True)
+    fig.update_yaxes(automargin=True)
     return fig
 
 
@@ -542,6 +790,28 @@ def _per_epoch(v: np.ndarray, channel: int, m: int) -> np.ndarray:
     return v
 
 
+# y-axis titles (with units) of the per-step statistics the filters report
+STAT_AXIS = {
+    "nis": "NIS (dimensionless)",
+    "gamma": "χ² test statistic γ (dimensionless)",
+    "fading": "fading factor (dimensionless)",
+    "rejected": "share of runs rejecting",
+    "replaced": "share of runs replacing",
+    "nn_trained": "share of runs with a trained network",
+    "skf_flag": "share of runs (parallel SKF flag)",
+    "improved_rae": "share of runs (improved RAE)",
+    "run_len": "consecutive replacements (epochs)",
+    "vb_iters": "VB iterations (count)",
+    "vb_delta": "last VB change (relative)",
+    "huber_passes": "Huber passes (count)",
+    "alpha": "VB shape α (dimensionless)",
+    "lambda": "λ (dimensionless)",
+    "d_k": "Sage–Husa weight d_k (dimensionless)",
+    "nu_tilde": "normalised innovation ν̃ (σ)",
+    "P_scale": "tr P (state units², mixed)",
+}
+
+
 def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = False) -> go.Figure:
     """Per filter, the median over runs of statistic ``stat`` per epoch (for 0/1 indicators such as
     ``rejected`` or ``replaced``: the share of runs), with ``<stat>_threshold`` dashed if reported.
@@ -577,9 +847,10 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
             )
     return _figure(
         traces,
-        f"{stat} per epoch: median over runs (0/1 indicators: share of runs); dashed: the filter's threshold",
+        f"{stat} per epoch",
         "time (s)",
-        stat,
+        STAT_AXIS.get(stat, f"{stat} (as the filter reports it)"),
         log_y,
-        height=320,
+        height=340,
+        subtitle="median over runs (0/1 indicators: share of runs)<br>dashed: the filter's threshold",
     )

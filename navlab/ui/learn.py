@@ -16,6 +16,7 @@ from navlab.errors import NavlabError
 from navlab.filters import registry
 from navlab.learn import StepThrough, TinySpec, applicability, filter_info, step_through
 from navlab.ui.colors import TRUTH_COLOR, filter_color, rgba
+from navlab.ui.figures import readable
 
 F32 = np.float32
 CHANNEL_DASH = ("solid", "dot", "dash", "dashdot")
@@ -51,6 +52,7 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
     )
     df = res.steps
     ep = res.epoch_table()
+    true_R: list[go.Scatter] = []  # drawn after every channel's R used and R̂: on top
     for i, (ch, g) in enumerate(df.groupby("channel", sort=False)):
         dash = CHANNEL_DASH[i % len(CHANNEL_DASH)]
         x = _a(g["epoch"])
@@ -130,17 +132,15 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
                 row=3,
                 col=1,
             )
-        fig.add_trace(
+        true_R.append(
             go.Scatter(
                 x=x,
                 y=_a(g["R_true"]),
                 name=f"true R {ch}",
                 mode="lines",
-                line={"color": TRUTH_COLOR, "dash": dash, "width": 1},
+                line={"color": TRUTH_COLOR, "dash": dash, "width": 2.5},
                 legendgroup="Rtrue",
-            ),
-            row=3,
-            col=1,
+            )
         )
         fig.add_trace(
             go.Scatter(
@@ -156,6 +156,8 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
             row=4,
             col=1,
         )
+    for tr in true_R:  # black, thick enough to be unmistakable
+        fig.add_trace(tr, row=3, col=1)
     if len(ep):
         exceed = ep["nis_exceeds"].to_numpy(dtype=bool)
         fig.add_trace(
@@ -192,16 +194,16 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
         )
     for r in (1, 2, 3, 4):
         fig.add_vline(x=step, line={"color": "#f0a500", "width": 2}, opacity=0.5, row=r, col=1)
-    fig.update_yaxes(type="log", row=2, col=1)
-    fig.update_yaxes(type="log", row=3, col=1)
-    fig.update_yaxes(range=[-0.05, 1.1], row=4, col=1)
-    fig.update_xaxes(title_text="epoch k", dtick=1, row=4, col=1)
-    fig.update_layout(
-        height=820,
-        margin={"l": 50, "r": 10, "t": 40, "b": 40},
-        legend={"orientation": "h", "y": -0.08},
-        bargap=0.4,
-    )
+    fig.update_yaxes(title_text="z (m)", row=1, col=1)
+    fig.update_yaxes(type="log", title_text="NIS (dimensionless)", row=2, col=1)
+    fig.update_yaxes(type="log", title_text="R (m²)", row=3, col=1)
+    fig.update_yaxes(range=[-0.05, 1.1], title_text="weight", row=4, col=1)
+    fig.update_xaxes(title_text="epoch k", dtick=1 if res.epochs <= 20 else 2, row=4, col=1)
+    fig.update_layout(height=860, bargap=0.4)
+    # legend below, clean 1-2-5 / decade ticks on the two log panels (no main title: the
+    # subplot titles sit where it would)
+    readable(fig, title_above=False)
+    fig.update_layout(margin_t=40)  # room for the first subplot title
     return fig
 
 

@@ -22,7 +22,8 @@ from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
-from navlab.ui.colors import filter_colors
+from navlab.ui.colors import TRUTH_COLOR, filter_colors
+from navlab.ui.figures import readable, truth_line, value_range, y_range_layout
 
 RECORDINGS = {
     "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
@@ -144,7 +145,7 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
                 y=xt[sl, inn].astype(np.float32),
                 mode="lines",
                 name="truth",
-                line={"color": "black", "width": 3},
+                line={"color": TRUTH_COLOR, "width": 3},
             )
         )
     if d.scenario == "drive0708":
@@ -171,13 +172,12 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
         )
     fig.update_layout(
         title=f"Track (run {run}) — local east/north, metres",
-        height=520,
+        height=560,
         xaxis_title="east (m)",
         yaxis_title="north (m)",
         yaxis={"scaleanchor": "x", "scaleratio": 1},
-        margin={"t": 50, "b": 40},
     )
-    return fig
+    return readable(fig)
 
 
 def horizontal_error(res: Results, fr: FilterRun) -> np.ndarray:
@@ -206,38 +206,38 @@ def error_figure(res: Results, run: int = 0, log_y: bool = False) -> go.Figure:
         )
     fig.update_layout(
         title=f"Horizontal error (run {run})",
-        height=380,
+        height=400,
         xaxis_title="time (s)",
         yaxis_title="horizontal error (m)",
         yaxis_type="log" if log_y else "linear",
-        margin={"t": 50, "b": 40},
     )
-    return fig
+    return readable(fig)
 
 
-def rhat_figure(res: Results, channel: int, run: int = 0) -> go.Figure:
-    """√R̂ of one channel for the filters that estimate R, with √R0 (nominal) for reference."""
+def rhat_figure(res: Results, channel: int, run: int = 0, *, log_y: bool = True) -> go.Figure:
+    """√R̂ of one channel for the filters that estimate R, with √R0 (nominal) for reference.
+
+    Log y axis by default (``log_y=False``: linear); the nominal √R0 is drawn last, in black on a
+    white halo; the y range comes from the epochs without an injected outlier on this channel, so
+    a filter's reaction to an injected gross error never flattens the rest (what lies beyond is
+    cut off, and the subtitle says so).
+    """
     d = res.data
     colors = filter_colors(list(res.runs))
-    fig = go.Figure()
+    traces: list = []
     sl = _dec(d.K + 1)
     unit = d.channel_units[channel]
     r0 = float(np.sqrt(d.model.R0[channel, channel]))
-    fig.add_trace(
-        go.Scattergl(
-            x=d.t[[0, -1]],
-            y=[r0, r0],
-            mode="lines",
-            name="nominal √R0",
-            line={"color": "black", "dash": "dash"},
-        )
-    )
+    dirty = d.outlier_mask[run, :, channel]
+    clean, drawn = [np.array([r0])], []
     for key, fr in res.runs.items():
         if fr.R_hat is None:
             continue
         with np.errstate(invalid="ignore"):
             s = np.sqrt(fr.R_hat[run, :, channel])
-        fig.add_trace(
+        clean.append(s[~dirty])
+        drawn.append(s)
+        traces.append(
             go.Scattergl(
                 x=d.t[sl].astype(np.float32),
                 y=s[sl].astype(np.float32),
@@ -246,14 +246,25 @@ def rhat_figure(res: Results, channel: int, run: int = 0) -> go.Figure:
                 line={"color": colors[key]},
             )
         )
+    truth_line(traces, d.t[[0, -1]], np.array([r0, r0]), "nominal √R0", width=2.0, cls=go.Scattergl)
+    traces[-1].line.dash = "dash"
+    sub = ""
+    yaxis: dict = {"title": {"text": f"√R̂ ({unit})" if unit else "√R̂"}}
+    rng = value_range(clean, log_y)
+    if rng is not None:
+        yaxis.update(y_range_layout(*rng, log_y))
+        top = 10 ** yaxis["range"][1] if log_y else yaxis["range"][1]
+        if any(np.nanmax(v, initial=-np.inf) > top for v in drawn):
+            sub = "y range from epochs without an injected outlier: values above it are cut off"
+    fig = go.Figure(data=traces)
     fig.update_layout(
-        title=f"Estimated noise √R̂ — channel {d.channel_names[channel]} ({unit})",
-        height=340,
+        title=f"Estimated noise √R̂ — channel {d.channel_names[channel]}"
+        + (f"<br><span style='font-size:12px;color:#555555'>{sub}</span>" if sub else ""),
+        height=380,
         xaxis_title="time (s)",
-        yaxis_title=f"√R̂ ({unit})",
-        margin={"t": 50, "b": 40},
+        yaxis=yaxis,
     )
-    return fig
+    return readable(fig)
 
 
 def flags_figure(res: Results, run: int = 0) -> go.Figure:
@@ -284,12 +295,12 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
                 )
     fig.update_layout(
         title=f"Epochs a filter rejected (×) or down-weighted (○) channels (run {run})",
-        height=120 + 30 * len(labels),
+        height=140 + 30 * len(labels),
         xaxis_title="time (s)",
-        yaxis={"tickvals": list(range(len(labels))), "ticktext": labels},
-        margin={"t": 50, "b": 40},
+        yaxis={"tickvals": list(range(len(labels))), "ticktext": labels, "range": [-0.6, len(labels) - 0.4]},
+        showlegend=False,
     )
-    return fig
+    return readable(fig)
 
 
 def flag_table(res: Results) -> pd.DataFrame:

@@ -22,7 +22,8 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from navlab.reproduce import COLUMNS, REPRODUCTIONS, Reproduction
-from navlab.ui.colors import PALETTE, filter_colors
+from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
+from navlab.ui.figures import readable
 
 PAPER_COLOR = "#9aa0a6"  # the paper's bars: neutral grey beside the filter's own colour
 CONFIG = {"displaylogo": False}
@@ -113,13 +114,67 @@ def paper_groups(df: pd.DataFrame) -> list[tuple[str, str]]:
     return list(dict.fromkeys(zip(t["experiment"], t["metric"], strict=True)))
 
 
+NAME_TABLES = ("PAPER_NAMES", "NAMES")  # {registry key: paper's name} in a reproduction module
+
+
+def paper_name_keys() -> dict[str, str]:
+    """Paper name → registry key, from the name tables of the registered reproductions' modules
+    (e.g. ``navlab.reproduce.hakf.PAPER_NAMES``: ``"HKF"`` → ``huber-kf``). The first
+    reproduction (by key) naming a paper name wins.
+    """
+    out: dict[str, str] = {}
+    for rk in sorted(REPRODUCTIONS):
+        mod = sys.modules.get(getattr(REPRODUCTIONS[rk].run, "__module__", ""), None)
+        for attr in NAME_TABLES:
+            table = getattr(mod, attr, None)
+            if isinstance(table, dict):
+                for key, name in table.items():
+                    if isinstance(key, str) and isinstance(name, str):
+                        out.setdefault(name, key)
+    return out
+
+
+def filter_key(name: str, keys: list[str] | None = None, names: dict[str, str] | None = None) -> str | None:
+    """The registry key a reproduction's ``filter`` entry (or curve column) stands for, or None.
+
+    A registry key itself; a paper's name of one (:func:`paper_name_keys`); a key followed by a
+    variant (``vb-ekf (τ_P=3)``, ``vb-ekf_tauP3_rmse_pos_m``): the longest key it starts with.
+    """
+    keys = sorted(filter_colors(), key=len, reverse=True) if keys is None else keys
+    names = paper_name_keys() if names is None else names
+    if name in names:
+        return names[name]
+    return _key_of(name, keys) or _key_of(name.split(" ")[0], keys)
+
+
+def reproduction_colors(names: list[str]) -> list[str]:
+    """The colour of each reproduction ``filter`` entry: its registry key's colour on every page
+    (Compare's colour), a palette colour for what is not a filter (e.g. a ratio row).
+    """
+    colours = filter_colors()
+    keys = sorted(colours, key=len, reverse=True)
+    table = paper_name_keys()
+    out = []
+    for i, n in enumerate(names):
+        k = filter_key(n, keys, table)
+        out.append(colours[k] if k else PALETTE[i % len(PALETTE)])
+    return out
+
+
 def bar_figure(df: pd.DataFrame, experiment: str, metric: str) -> go.Figure:
-    """Grouped bars per filter: the paper's number (grey) and navlab's (the filter's colour)."""
+    """Grouped bars per filter: the paper's number (grey) and navlab's (the filter's colour).
+
+    Bars are coloured by registry key (``filter``; a paper's name is mapped to its key) and
+    labelled with ``label`` where the table has one.
+    """
     t = numeric_table(df)
     t = t[(t["experiment"] == experiment) & (t["metric"] == metric)]
-    filters = t["filter"].tolist()
-    colours = filter_colors()
-    ours_c = [colours.get(f.split(" ")[0], PALETTE[i % len(PALETTE)]) for i, f in enumerate(filters)]
+    ours_c = reproduction_colors(t["filter"].tolist())
+    labels = t["label"] if "label" in t.columns else t["filter"]
+    filters = [
+        str(lab) if isinstance(lab, str) and lab else str(f)
+        for lab, f in zip(labels, t["filter"], strict=True)
+    ]
     unit = next((u for u in t["unit"] if u), "")
     fig = go.Figure()
     fig.add_trace(
@@ -144,12 +199,11 @@ def bar_figure(df: pd.DataFrame, experiment: str, metric: str) -> go.Figure:
     fig.update_layout(
         barmode="group",
         title=f"{experiment} · {metric}",
-        height=340,
-        yaxis_title=f"{metric} ({unit})" if unit else metric,
-        margin={"l": 50, "r": 10, "t": 50, "b": 40},
-        legend={"orientation": "h", "y": 1.12},
+        height=360,
+        yaxis_title=f"{metric} ({unit})" if unit else f"{metric} (no unit)",
+        xaxis_title="filter",
     )
-    return fig
+    return readable(fig)
 
 
 def reldiff_figure(df: pd.DataFrame) -> go.Figure:
@@ -175,11 +229,11 @@ def reldiff_figure(df: pd.DataFrame) -> go.Figure:
         fig.add_vline(x=x, line={"color": "#bbbbbb", "dash": "dot", "width": 1})
     fig.update_layout(
         title="navlab vs paper: relative difference (%)",
-        xaxis_title="(navlab − paper)/paper, %",
+        xaxis_title="(navlab − paper)/paper (%)",
         height=max(260, 26 * len(d) + 110),
-        margin={"l": 10, "r": 10, "t": 50, "b": 40},
+        showlegend=False,
     )
-    return fig
+    return readable(fig)
 
 
 def _x_column(df: pd.DataFrame) -> str | None:
@@ -230,19 +284,51 @@ def wide_groups(df: pd.DataFrame) -> dict[str, list[str]]:
     return groups
 
 
+UNIT_SUFFIX = {"m": "m", "mps": "m/s", "arcmin": "arcmin", "deg": "deg", "rad": "rad", "s": "s", "m2": "m²"}
+X_TITLES = {"epoch": "epoch", "k": "epoch k", "t_s": "time (s)", "t": "time (s)", "time_s": "time (s)"}
+WORDS = {"rmse": "RMSE", "sigma": "σ", "att": "attitude", "pos": "position", "vel": "velocity"}
+
+
+def split_unit(quantity: str) -> tuple[str, str]:
+    """``"rmse_vel_mps"`` → (``"rmse_vel"``, ``"m/s"``); no unit suffix → (quantity, "")."""
+    base, _, suffix = quantity.rpartition("_")
+    return (base, UNIT_SUFFIX[suffix]) if base and suffix in UNIT_SUFFIX else (quantity, "")
+
+
+def quantity_label(quantity: str, with_unit: bool = True) -> str:
+    """A curve column's quantity in words.
+
+    ``"rmse_att_arcmin"`` → ``"RMSE attitude (arcmin)"``; ``"sigma_hat_x_m"`` → ``"σ̂ x (m)"``.
+    """
+    base, unit = split_unit(quantity)
+    text = " ".join(base.split("_")).replace("sigma hat", "σ̂")
+    text = " ".join(WORDS.get(w, w) for w in text.split(" "))
+    return f"{text} ({unit})" if with_unit and unit else text
+
+
+def _is_truth(name: str) -> bool:
+    return "true" in name.replace(" ", "_").split("_")
+
+
 def curve_figure(
     df: pd.DataFrame, title: str, measure: str | None = None, columns: list[str] | None = None
 ) -> go.Figure:
     """Curves of a reproduction's CSV against its time/epoch column (decimated, float32).
 
     Wide table: every numeric column (or those in ``columns``; ``measure`` then names the group)
-    is a line. Tidy table (a ``filter`` column): one line per
-    filter of ``measure`` (default: the first numeric column). A line named after a registered
-    filter key takes that filter's colour.
+    is a line. Tidy table (a ``filter`` column): one line per filter of ``measure`` (default: the
+    first numeric column). A line of a registered filter (its key or paper name leading the
+    column) takes that filter's colour on every page and its label; a "true …" column is the
+    reference, drawn last in black. The y axis is titled with the quantity and its unit (from the
+    column's unit suffix, e.g. ``_m``, ``_mps``, ``_arcmin``).
     """
+    from navlab.filters import registry
+
+    reg = registry()
     x_col = _x_column(df)
     colours = filter_colors()
     keys = sorted(colours, key=len, reverse=True)
+    names = paper_name_keys()
     series: list[tuple[str, np.ndarray, np.ndarray]] = []
     if is_long(df):
         measure = measure or (curve_measures(df) or [None])[0]
@@ -253,29 +339,61 @@ def curve_figure(
     else:
         x = df[x_col].to_numpy(dtype=float) if x_col else np.arange(len(df), dtype=float)
         series = [(c, x, df[c].to_numpy(dtype=float)) for c in (columns or curve_measures(df))]
-    fig = go.Figure()
-    for i, (name, x, y) in enumerate(series):
-        key = _key_of(name, keys)
-        colour = colours[key] if key else PALETTE[i % len(PALETTE)]
-        dash = "dot" if any(s in name for s in ("tau", "true", "paper")) else "solid"
+    # what each column measures once its filter key is taken off
+    parts = []
+    for name, _, _ in series:
+        k = filter_key(name, keys, names)
+        rest = name[len(k) + 1 :] if k and name.startswith(k) and len(name) > len(k) else ""
+        parts.append((k, rest))
+    rests = {r for _, r in parts if r}
+    if is_long(df):
+        common = measure or ""
+    elif measure:
+        common = measure
+    else:
+        common = next(iter(rests)) if len(rests) == 1 else ""
+    traces, refs = [], []
+    for i, ((name, x, y), (k, rest)) in enumerate(zip(series, parts, strict=True)):
+        if k in reg:
+            label = reg[k].label
+            if is_long(df) or not rest:
+                shown = label
+            elif common and rest.endswith(common):
+                variant = rest[: -len(common)].strip("_")
+                shown = f"{label} {variant}" if variant else label
+            else:
+                shown = f"{label} {quantity_label(rest)}"
+        else:
+            shown = quantity_label(name)
+        truth = _is_truth(name)
+        colour = TRUTH_COLOR if truth else (colours[k] if k else PALETTE[i % len(PALETTE)])
+        dash = "dot" if any(s in name for s in ("tau", "paper")) else "solid"
         step = max(1, int(np.ceil(len(y) / MAX_CURVE_POINTS)))
         trace = go.Scattergl if len(y) // step > 1000 else go.Scatter
-        fig.add_trace(
-            trace(
-                x=x[::step].astype(np.float32),
-                y=y[::step].astype(np.float32),
-                name=name,
-                mode="lines",
-                line={"color": colour, "dash": dash},
-            )
+        tr = trace(
+            x=x[::step].astype(np.float32),
+            y=y[::step].astype(np.float32),
+            name=shown,
+            mode="lines",
+            line={"color": colour, "dash": dash, "width": 2.5 if truth else 1.8},
         )
+        (refs if truth else traces).append(tr)
+    units = {split_unit(r)[1] for r in rests} | {split_unit(n)[1] for n, _, _ in series if _is_truth(n)}
+    units.discard("")
+    if common:
+        y_title = quantity_label(common)
+        if not split_unit(common)[1]:
+            y_title += " (unit not stated in the CSV)"
+    else:
+        y_title = f"value ({units.pop()})" if len(units) == 1 else "value (see legend)"
+    fig = go.Figure(data=traces + refs)  # references last: on top
     fig.update_layout(
-        title=title if measure is None else f"{title} · {measure}",
-        height=380,
-        xaxis_title=x_col or "row",
-        margin={"l": 50, "r": 10, "t": 50, "b": 40},
+        title=title if measure is None else f"{title} · {quantity_label(measure, with_unit=False)}",
+        height=420,
+        xaxis_title=X_TITLES.get(x_col or "", x_col or "row"),
+        yaxis_title=y_title,
     )
-    return fig
+    return readable(fig)
 
 
 # --------------------------------------------------------------------------------- running

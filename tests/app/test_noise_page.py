@@ -11,9 +11,9 @@ def test_noise_page_small_run(open_page):
     assert_clean(at)
     fig, _internals = plotly_figs(at)
     names = [t.get("name", "") for t in fig["data"]]
-    assert "true R(t) (schedule)" in names
-    assert any("R̂ (median)" in n for n in names)
-    assert fig["data"][-1]["type"] == "bar"  # outlier epochs marked on the time axis
+    assert names[-1] == "true R(t) (schedule)"  # the truth drawn last, on top
+    assert "Sage–Husa AKF R̂" in names
+    assert any(t["type"] == "bar" for t in fig["data"])  # outlier epochs marked on the time axis
     assert any("epochs contaminated in most runs: 20, 25" in c.value for c in at.caption)
     tab = at.dataframe[0].value
     assert "Oracle KF" in tab.index and tab.shape[1] == 2  # one R̂ error column per channel

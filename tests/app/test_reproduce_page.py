@@ -113,7 +113,7 @@ def test_fake_reproduction_runs_shows_paper_vs_ours_and_caches(open_page, fake):
     bars = figs[1]["data"]
     assert [t["name"] for t in bars] == ["paper", "navlab"]
     curve_names = {t["name"] for t in figs[2]["data"]}
-    assert curve_names == {"kf", "chi2-kf"}
+    assert curve_names == {"KF", "χ²-gated KF"}  # the filters' labels (coloured by key)
     (diff,) = [d.value for d in at.dataframe if "verdict" in d.value.columns]
     assert list(diff["filter"]) == ["kf", "chi2-kf"]  # largest disagreement first
     assert list(diff["verdict"]) == ["far", "close"]
@@ -183,7 +183,7 @@ def test_pure_helpers():
         }
     )
     assert R.is_long(long) and R.curve_measures(long) == ["rmse", "bias"]
-    assert [t.name for t in R.curve_figure(long, "c", "rmse").data] == ["kf", "ekf"]
+    assert [t.name for t in R.curve_figure(long, "c", "rmse").data] == ["KF", "EKF"]
     wide = pd.DataFrame(
         {
             c: [0.0, 1.0]

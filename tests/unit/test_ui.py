@@ -91,11 +91,11 @@ def test_fully_diverged_filter_is_a_legend_entry_only(res):
 def test_r_vs_rhat_truth_and_outlier_strip():
     r = run_experiment(ExperimentSpec(runs=4, epochs=80, outliers="isolated", noise_schedule="step"))
     fig = F.r_vs_rhat(r, 0, outlier_strip=True)
-    truth = fig.data[0]
+    truth = fig.data[-1]  # drawn last: on top
     assert truth.name == "true R(t) (schedule)"
     np.testing.assert_allclose(truth.y, r.data.R_schedule[:, 0], rtol=1e-6)
-    bar = fig.data[-1]
-    assert bar.type == "bar" and bar.yaxis == "y2"
+    bar = next(t for t in fig.data if t.type == "bar")
+    assert bar.yaxis == "y2"
     np.testing.assert_array_equal(F.outlier_epochs(r, 0), np.arange(20, 71, 5))
     assert F.outlier_epochs(r, 1).size == 0  # cv2d's isolated outliers hit x only
 
