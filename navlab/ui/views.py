@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import streamlit as st
 
+from navlab.diagnostics import explain
 from navlab.scenarios import scenario_registry
 from navlab.ui import figures as F
 
@@ -134,6 +135,8 @@ class CompareView:
         self.table.dataframe(F.summary_table(res, headline_groups(res)), width="stretch")
         with self.notes.container():
             divergence_warnings(res)
+            for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
+                st.info(e.markdown(), icon=":material/lightbulb:")
         if not res.complete and self.live:
             # while chunks stream, only the error curves and the table update: fewer browser
             # redraws, so the first chart appears sooner
@@ -269,6 +272,8 @@ class NoiseView:
                     )
         with self.notes.container():
             divergence_warnings(res)
+            for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
+                st.info(e.markdown(), icon=":material/lightbulb:")
         if self.stat is None:
             self.internals.caption("None of the chosen filters reports per-step statistics.")
         elif res.complete:  # drawn once the run is complete (fewer browser redraws)

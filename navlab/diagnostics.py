@@ -1,0 +1,314 @@
+"""Explanations of the ways a filter is known to fail, one sentence each, with the number.
+
+A student who sees the χ²-gated KF's error climb to 17 m after a few outliers concludes "gating is
+bad"; what happened is a gate lock-out. :func:`explain` looks for the known failure mechanisms in a
+finished :class:`~navlab.experiment.Results` and returns one :class:`Explanation` per filter and
+mechanism found: the filter, the kind, the number that shows it, a sentence to print next to the
+chart or table, and a link to the Learn page where the mechanism can be stepped through.
+
+Kinds (the rule each one applies; thresholds are stated here and were not tuned to any result):
+
+``lockout``
+    Gate lock-out: in at least one run the filter rejected every measurement of
+    ``LOCKOUT_MIN_EPOCHS`` or more consecutive epochs (flags 2/3 on every present channel) while
+    its covariance of the headline error group grew at least ``LOCKOUT_P_GROWTH``-fold. Each
+    rejection skips the update, P only grows by prediction, the error drifts, and the next
+    innovation is even less plausible (ALGORITHMS.md §1.5). Ten chance rejections in a row have
+    probability α¹⁰ = 1e-20 under the model at α = 0.01.
+``runaway``
+    Replacement run-away (NNMFUKF, ALGORITHMS.md §6.4 pitfall): in at least one run the measurement
+    was replaced by a prediction (flag 4) on ``REPLACEMENT_CHAIN_MIN`` or more consecutive epochs;
+    chained predictions integrate their errors like a random walk.
+``numerical_fix``
+    Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements.
+    For the Sage–Husa family (``navlab.filters.sage_husa``) the fix is the clamp of an R̂ that lost
+    positive-definiteness (ALGORITHMS.md §4.1 step 4): R̂ there is the clamp's bound, not an
+    estimate. A numerical fix is never an outlier detection.
+``divergence``
+    Runs the experiment marks as diverged (``FilterRun.diverged``); they are left out of the
+    curves and the metrics.
+
+Pure library code (no streamlit); the app shows :meth:`Explanation.markdown`, the CLI
+:meth:`Explanation.to_dict`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+from urllib.parse import urlencode
+
+import numpy as np
+
+from navlab.filters.base import NUMERICAL_FIX, REJECTED, REJECTED_AUX, REPLACED
+
+if TYPE_CHECKING:
+    from navlab.experiment import FilterRun, Results
+
+LOCKOUT_MIN_EPOCHS = 10  # consecutive epochs with every present measurement rejected
+LOCKOUT_P_GROWTH = 2.0  # … while the headline group's variance grew at least this much
+REPLACEMENT_CHAIN_MIN = 10  # consecutive epochs with a measurement replaced by a prediction
+NUMERICAL_FIX_PCT = 1.0  # numerical fixes on more than this share of measurements (%)
+
+KINDS = ("lockout", "runaway", "numerical_fix", "divergence")
+
+LEARN_PAGE = "Learn"  # relative link: works from every page and under a server base path
+# the Learn page's tiny example set to show each mechanism (its URL parameters)
+LEARN_EXAMPLES: dict[str, dict[str, object]] = {
+    # true noise 3× the assumed one: the gate rejects run after run while P grows (epochs 10–13
+    # and 16–20 of the default seed)
+    "lockout": {"ex_epochs": 20, "ex_noise": 3.0},
+    # no outlier, smaller true noise: ννᵀ − HP⁻Hᵀ < 0 and R̂ is clamped (flag 9) in the first epochs
+    "numerical_fix": {"ex_epochs": 20, "ex_noise": 0.5, "ex_outk": 0, "ex_seed": 1},
+    "runaway": {"ex_epochs": 30},
+    "divergence": {},
+}
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """One known failure of one filter in one experiment.
+
+    filter, label : registry key and readable name of the filter.
+    kind : one of :data:`KINDS`.
+    value, unit : the number that shows it (e.g. 76 epochs of consecutive rejections).
+    runs, of_runs : runs affected, runs in the experiment.
+    sentence : one sentence saying what happened, with the numbers.
+    learn : relative link to the Learn page showing the mechanism (``Learn?filter=…``).
+    """
+
+    filter: str
+    label: str
+    kind: str
+    value: float
+    unit: str
+    runs: int
+    of_runs: int
+    sentence: str
+    learn: str
+
+    def markdown(self, link_text: str = "see how on Learn") -> str:
+        """The sentence followed by a markdown link to the Learn page."""
+        return f"{self.sentence} [{link_text}]({self.learn})"
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def learn_link(key: str, kind: str) -> str:
+    """``Learn?filter=<key>&…``: the Learn page on ``key`` with the example showing ``kind``."""
+    return f"{LEARN_PAGE}?" + urlencode({"filter": key, **LEARN_EXAMPLES.get(kind, {})})
+
+
+def longest_run(b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of a (B, K) boolean array: (length, last index) of the longest run of True.
+
+    Length 0 (last index 0) for a row without True; the first of equally long runs wins.
+    """
+    b = np.asarray(b, dtype=bool)
+    B, K = b.shape
+    if K == 0:
+        return np.zeros(B, int), np.zeros(B, int)
+    k = np.arange(K)
+    last_false = np.maximum.accumulate(np.where(b, -1, k), axis=1)
+    run = k - last_false  # length of the run of True ending at k (0 where False)
+    end = run.argmax(axis=1)
+    return run[np.arange(B), end], end
+
+
+def _headline(res: Results) -> str:
+    from navlab.scenarios import scenario_registry
+
+    try:
+        want = scenario_registry()[res.spec.scenario].headline
+    except (KeyError, AttributeError):
+        want = ()
+    got = [g for g in want if g in res.data.groups]
+    return got[0] if got else next(iter(res.data.groups))
+
+
+def _error_norm(res: Results, fr: FilterRun, group: str, runs=slice(None), epochs=slice(None)):
+    """Error norm of ``group`` on the chosen runs and epochs, or None without truth."""
+    d = res.data
+    if not getattr(d, "has_truth", True):
+        return None
+    idx = list(d.groups[group].idx)
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.linalg.norm(fr.x[runs, epochs][..., idx] - d.x_true[runs, epochs][..., idx], axis=-1)
+
+
+def _g(v: float) -> str:
+    """Three significant figures, without an exponent between 0.001 and 1e6 (5930, not 5.93e+03)."""
+    v = float(v)
+    if v != 0 and np.isfinite(v) and 1e-3 <= abs(v) < 1e6:
+        return f"{float(f'{v:.3g}'):g}" if abs(v) < 1e5 else f"{float(f'{v:.3g}'):.0f}"
+    return f"{v:.3g}"
+
+
+def _runs(n: int, of: int) -> str:
+    return f"{n} of {of} run" + ("" if of == 1 else "s")
+
+
+def _lockout(res: Results, fr: FilterRun, group: str) -> Explanation | None:
+    d = res.data
+    present = np.isfinite(d.z[:, 1:])  # (B, K, m)
+    fl = fr.flags[:, 1:]
+    rejected = (fl == REJECTED) | (fl == REJECTED_AUX) | ~present
+    rej_epoch = rejected.all(axis=2) & present.any(axis=2)  # (B, K): nothing used at epoch k+1
+    ok = ~np.asarray(fr.diverged)
+    length, end = longest_run(rej_epoch & ok[:, None])
+    start = end - length + 1  # in epochs 1…K: epoch = index + 1
+    idx = list(d.groups[group].idx)
+    P = fr.P_diag[..., idx].sum(axis=-1)  # (B, K+1)
+    b = np.arange(d.B)
+    p_before = P[b, np.maximum(start, 0)]  # posterior just before the first rejection
+    p_end = P[b, end + 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        growth = p_end / p_before
+    locked = ok & (length >= LOCKOUT_MIN_EPOCHS) & (growth >= LOCKOUT_P_GROWTH)
+    if not locked.any():
+        return None
+    r = int(np.argmax(np.where(locked, length, -1)))  # the longest lock-out
+    e0, e1 = int(start[r]) + 1, int(end[r]) + 1
+    g = d.groups[group]
+    n = int(locked.sum())
+    s = (
+        f"{fr.label} — gate lock-out in {_runs(n, d.B)}: the gate rejected every measurement for "
+        f"{int(length[r])} consecutive epochs (t = {_g(d.t[e0])}–{_g(d.t[e1])} s) while the "
+        f"{g.label} variance (trace of P) grew from {_g(p_before[r])} to {_g(p_end[r])} {g.unit}²"
+    )
+    err = _error_norm(res, fr, group, r, slice(e0, None))  # that run, from the lock-out on
+    if err is not None:
+        k = e0 + int(np.nanargmax(err))
+        at_k = _error_norm(res, fr, group, ok, k)  # every valid run at that epoch
+        with np.errstate(invalid="ignore"):
+            rmse = float(np.sqrt(np.nanmean(at_k**2)))
+        s += (
+            f", so the error in that run reached {_g(err[k - e0])} {g.unit} "
+            f"(RMSE over all runs at t = {_g(d.t[k])} s: {_g(rmse)} {g.unit})"
+        )
+    return Explanation(
+        fr.key,
+        fr.label,
+        "lockout",
+        float(length[r]),
+        "epochs",
+        n,
+        d.B,
+        s + ".",
+        learn_link(fr.key, "lockout"),
+    )
+
+
+def _runaway(res: Results, fr: FilterRun, group: str) -> Explanation | None:
+    from navlab.filters import registry
+
+    d = res.data
+    replaced = (fr.flags[:, 1:] == REPLACED).any(axis=2)
+    length, _ = longest_run(replaced)
+    hit = length >= REPLACEMENT_CHAIN_MIN
+    if not hit.any():
+        return None
+    n = int(hit.sum())
+    g = d.groups[group]
+    s = (
+        f"{fr.label} — replacement run-away in {_runs(n, d.B)}: the measurement was replaced by "
+        f"the prediction for up to {int(length.max())} consecutive epochs, and chained "
+        "predictions integrate their errors like a random walk"
+    )
+    err = _error_norm(res, fr, group, hit)  # the runs with a chain
+    if err is not None:
+        with np.errstate(invalid="ignore"):
+            peak = np.nanmax(np.where(np.isfinite(err), err, np.nan), axis=1)
+        s += f"; the {g.label} error reached {_g(np.nanmax(peak))} {g.unit}"
+        if n > 1:
+            s += f" (median over those runs {_g(np.nanmedian(peak))} {g.unit})"
+    guarded = f"{fr.key}-guarded"
+    if guarded in registry() and guarded not in (fr.key,):
+        s += f"; `{guarded}` caps the chain"
+    return Explanation(
+        fr.key,
+        fr.label,
+        "runaway",
+        float(length.max()),
+        "epochs",
+        n,
+        d.B,
+        s + ".",
+        learn_link(fr.key, "runaway"),
+    )
+
+
+def _numerical_fix(res: Results, fr: FilterRun) -> Explanation | None:
+    from navlab.filters import registry
+
+    d = res.data
+    ok = ~np.asarray(fr.diverged)
+    present = np.isfinite(d.z[ok, 1:])
+    if not present.any():
+        return None
+    fixed = fr.flags[ok, 1:] == NUMERICAL_FIX
+    pct = 100.0 * float(fixed[present].mean())
+    if pct <= NUMERICAL_FIX_PCT:
+        return None
+    n = int(fixed.any(axis=(1, 2)).sum())
+    cls = registry().get(fr.key)
+    if cls is not None and cls.__module__ == "navlab.filters.sage_husa":
+        s = (
+            f"{fr.label} — its Sage–Husa R̂ update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) lost positive-"
+            f"definiteness and was clamped (a numerical fix, flag 9) on {_g(pct)} % of the "
+            "measurements: there R̂ is the clamp's bound, not an estimate, and these are not outlier "
+            "detections."
+        )
+    else:
+        s = (
+            f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"
+            f"definite) on {_g(pct)} % of the measurements; these are not outlier detections."
+        )
+    return Explanation(
+        fr.key, fr.label, "numerical_fix", pct, "%", n, int(ok.sum()), s, learn_link(fr.key, "numerical_fix")
+    )
+
+
+def _divergence(res: Results, fr: FilterRun) -> Explanation | None:
+    d = res.data
+    bad = np.asarray(fr.diverged)
+    n = int(bad.sum())
+    if n == 0:
+        return None
+    at = np.asarray(fr.diverged_at)[bad]
+    k = int(at[at >= 0].min()) if (at >= 0).any() else 0
+    s = (
+        f"{fr.label} — {_runs(n, d.B)} diverged (the first at epoch {k}, t = {_g(d.t[k])} s); "
+        "they are left out of the curves and the table."
+    )
+    return Explanation(
+        fr.key, fr.label, "divergence", float(n), "runs", n, d.B, s, learn_link(fr.key, "divergence")
+    )
+
+
+def explain(res: Results, kinds: tuple[str, ...] = KINDS) -> list[Explanation]:
+    """The known failures found in ``res``: per filter (in ``res.runs`` order), per kind (in
+    :data:`KINDS` order). A filter that fails in none of these ways gets no explanation.
+    """
+    unknown = set(kinds) - set(KINDS)
+    if unknown:
+        raise ValueError(f"unknown kinds {sorted(unknown)}; known: {', '.join(KINDS)}")
+    if res.data.K == 0:
+        return []
+    group = _headline(res)
+    out: list[Explanation] = []
+    for fr in res.runs.values():
+        found = {
+            "lockout": lambda fr=fr: _lockout(res, fr, group),
+            "runaway": lambda fr=fr: _runaway(res, fr, group),
+            "numerical_fix": lambda fr=fr: _numerical_fix(res, fr),
+            "divergence": lambda fr=fr: _divergence(res, fr),
+        }
+        for kind in KINDS:
+            if kind in kinds:
+                e = found[kind]()
+                if e is not None:
+                    out.append(e)
+    return out

@@ -1,0 +1,183 @@
+"""navlab.diagnostics: explanations of known filter failures (issue #11 item 6), on real runs and on
+constructed flag patterns at the thresholds."""
+
+from __future__ import annotations
+
+import dataclasses
+from urllib.parse import parse_qs, urlparse
+
+import numpy as np
+import pytest
+
+from navlab import diagnostics as D
+from navlab.experiment import ExperimentSpec, run_experiment
+from navlab.filters.base import NUMERICAL_FIX, REJECTED, REPLACED
+
+
+@pytest.fixture(scope="module")
+def r_step():
+    """An R step 4 → 36 m² (no outliers): the χ²-gated KF's gate locks out in some runs."""
+    spec = ExperimentSpec(
+        runs=20,
+        epochs=100,
+        seed=1,
+        noise_schedule="step",
+        outliers="none",
+        filters=("kf", "oracle-kf", "chi2-kf"),
+    )
+    return run_experiment(spec)
+
+
+@pytest.fixture(scope="module")
+def quiet():
+    """Constant R, no outliers: nothing fails."""
+    return run_experiment(
+        ExperimentSpec(runs=4, epochs=60, seed=5, outliers="none", filters=("kf", "chi2-kf", "sage-husa"))
+    )
+
+
+def _with(res, key, **fields):
+    fr = dataclasses.replace(res.runs[key], **fields)
+    return dataclasses.replace(res, runs={**res.runs, key: fr})
+
+
+def test_longest_run_matches_a_loop():
+    rng = np.random.default_rng(1)
+    b = rng.random((200, 37)) < 0.6
+    b[0] = False
+    b[1] = True
+    length, end = D.longest_run(b)
+    for row, n, e in zip(b, length, end, strict=True):
+        best = cur = 0
+        best_end = 0
+        for k, v in enumerate(row):
+            cur = cur + 1 if v else 0
+            if cur > best:
+                best, best_end = cur, k
+        assert n == best and (best == 0 or e == best_end)
+    assert length[0] == 0 and length[1] == 37 and end[1] == 36
+
+
+def test_chi2_kf_after_an_r_step_locks_out(r_step):
+    ex = D.explain(r_step)
+    lock = [e for e in ex if e.kind == "lockout"]
+    assert [e.filter for e in lock] == ["chi2-kf"]
+    e = lock[0]
+    assert e.value >= D.LOCKOUT_MIN_EPOCHS and e.unit == "epochs" and 1 <= e.runs <= 20 and e.of_runs == 20
+    # the sentence carries the numbers: the run length, the variance growth, the error reached
+    assert f"{int(e.value)} consecutive epochs" in e.sentence
+    assert "lock-out" in e.sentence and "variance" in e.sentence and "error in that run reached" in e.sentence
+    # … and they are right: that run's streak really is all-rejected epochs
+    fr = r_step.runs["chi2-kf"]
+    rej = (fr.flags[:, 1:] == REJECTED).all(axis=2)
+    assert D.longest_run(rej)[0].max() == e.value
+    q = parse_qs(urlparse(e.learn).query)
+    assert e.learn.startswith("Learn?") and q["filter"] == ["chi2-kf"]
+    assert f"]({e.learn})" in e.markdown()
+
+
+def test_filters_that_do_not_lock_out_get_no_sentence(r_step, quiet):
+    assert not [e for e in D.explain(r_step) if e.filter in ("kf", "oracle-kf")]
+    assert D.explain(quiet, kinds=("lockout", "runaway", "divergence")) == []
+    # the only thing said about the quiet case: Sage–Husa's R̂ really is clamped in its first epochs
+    assert {(e.filter, e.kind) for e in D.explain(quiet)} <= {("sage-husa", "numerical_fix")}
+
+
+def _lockout_case(quiet, length):
+    """chi2-kf of run 0 rejecting epochs 10 … 10+length−1 while its P grows 3-fold."""
+    fr = quiet.runs["chi2-kf"]
+    flags = np.zeros_like(fr.flags)
+    flags[0, 10 : 10 + length] = REJECTED
+    P = fr.P_diag.copy()
+    P[0, 10 : 10 + length] *= np.linspace(1.0, 3.0, length)[:, None]
+    return _with(quiet, "chi2-kf", flags=flags, P_diag=P)
+
+
+def test_lockout_threshold(quiet):
+    n = D.LOCKOUT_MIN_EPOCHS
+    assert not [e for e in D.explain(_lockout_case(quiet, n - 1)) if e.kind == "lockout"]
+    e = [e for e in D.explain(_lockout_case(quiet, n)) if e.kind == "lockout"]
+    assert len(e) == 1 and e[0].value == n and e[0].runs == 1 and e[0].filter == "chi2-kf"
+    assert "t = 10–19 s" in e[0].sentence
+
+
+def test_rejections_without_growing_p_are_no_lockout(quiet):
+    fr = quiet.runs["chi2-kf"]
+    flags = np.zeros_like(fr.flags)
+    flags[0, 10:30] = REJECTED
+    P = fr.P_diag.copy()
+    P[0, 9:30] = P[0, 9]  # flat P: not a lock-out
+    r = _with(quiet, "chi2-kf", flags=flags, P_diag=P)
+    assert not [e for e in D.explain(r) if e.kind == "lockout"]
+
+
+def test_numerical_fix_rate(quiet):
+    fr = quiet.runs["sage-husa"]
+    K, m = quiet.data.K, quiet.data.z.shape[2]
+    total = quiet.data.B * K * m
+    for share, found in ((0.005, False), (0.02, True)):
+        flags = np.zeros_like(fr.flags)
+        count = round(share * total)
+        idx = np.unravel_index(np.arange(count), (quiet.data.B, K, m))
+        flags[idx[0], idx[1] + 1, idx[2]] = NUMERICAL_FIX
+        ex = [e for e in D.explain(_with(quiet, "sage-husa", flags=flags)) if e.kind == "numerical_fix"]
+        assert bool(ex) is found
+        if found:
+            assert ex[0].value == pytest.approx(100 * count / total) and ex[0].unit == "%"
+            assert "positive-definiteness" in ex[0].sentence and "not outlier detections" in ex[0].sentence
+            assert parse_qs(urlparse(ex[0].learn).query)["filter"] == ["sage-husa"]
+    # outside the Sage–Husa family: the generic sentence
+    flags = np.zeros_like(quiet.runs["kf"].flags)
+    flags[:, 1:5] = NUMERICAL_FIX
+    (e,) = [e for e in D.explain(_with(quiet, "kf", flags=flags)) if e.filter == "kf"]
+    assert "covariance repaired" in e.sentence and "Sage–Husa" not in e.sentence
+
+
+def test_replacement_runaway_threshold(quiet):
+    fr = quiet.runs["kf"]
+    n = D.REPLACEMENT_CHAIN_MIN
+    for length, found in ((n - 1, False), (n, True)):
+        flags = np.zeros_like(fr.flags)
+        flags[1, 20 : 20 + length, 0] = REPLACED
+        ex = [e for e in D.explain(_with(quiet, "kf", flags=flags)) if e.kind == "runaway"]
+        assert bool(ex) is found
+        if found:
+            assert ex[0].value == n and ex[0].runs == 1 and "random walk" in ex[0].sentence
+
+
+def test_nnmfukf_runs_away_and_its_guarded_variant_does_not():
+    r = run_experiment(
+        ExperimentSpec(scenario="gps-ins-rtk", filters=("nnmfukf", "nnmfukf-guarded"), runs=2, seed=1)
+    )
+    ex = D.explain(r, kinds=("runaway",))
+    assert [e.filter for e in ex] == ["nnmfukf"]
+    assert ex[0].value >= D.REPLACEMENT_CHAIN_MIN and "`nnmfukf-guarded` caps the chain" in ex[0].sentence
+
+
+def test_divergence(quiet):
+    fr = quiet.runs["kf"]
+    at = fr.diverged_at.copy()
+    at[[0, 2]] = [30, 17]
+    x = fr.x.copy()
+    x[0, 30:] = np.nan
+    x[2, 17:] = np.nan
+    (e,) = [e for e in D.explain(_with(quiet, "kf", diverged_at=at, x=x)) if e.kind == "divergence"]
+    assert e.value == 2 and "2 of 4 runs diverged (the first at epoch 17" in e.sentence
+
+
+def test_kinds_filter_and_dicts(r_step):
+    assert D.explain(r_step, kinds=("divergence",)) == []
+    d = D.explain(r_step)[0].to_dict()
+    assert set(d) == {"filter", "label", "kind", "value", "unit", "runs", "of_runs", "sentence", "learn"}
+    with pytest.raises(ValueError, match="unknown kinds"):
+        D.explain(r_step, kinds=("nope",))
+
+
+def test_the_library_does_not_import_streamlit():
+    import ast
+    from pathlib import Path
+
+    tree = ast.parse(Path(D.__file__).read_text())
+    names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
+    mods = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert "streamlit" not in names and "streamlit" not in mods
