@@ -254,3 +254,146 @@ def test_stop_keeps_partial_results_and_run_resumes(page: Page):
     expect(page.get_by_text("3000/3000 runs (complete)")).to_be_visible(timeout=3 * T)
     settle(page)
     assert_no_exception(page)
+
+
+# ------------------------------------------------------------------ readable charts (#11 item 5)
+# Every page that draws charts, at a desktop and a phone width: no legend box may intersect a
+# title (the figure's or a subplot's), the plot area, an axis title or a tick label; the R̂ chart
+# is on a log axis. Per-chart screenshots go to _artifacts/charts-<page>-<width>-<i>.png.
+WIDTHS = (1440, 390)
+CHART_PAGES = [
+    # (name, path?query, button to press or None, charts expected once drawn)
+    ("compare", f"Compare?{SMALL}", "Run", 3),
+    ("noise", "Noise?runs=6&flt=kf&flt=oracle-kf&flt=sage-husa&sc.cv2d.epochs=60", "Run", 2),
+    ("sweep", "Sweep?runs=4&flt=kf&flt=chi2-kf&swn=3&sc.cv2d.epochs=40", "Run sweep", 2),
+    ("reproduce", "Reproduce?rep=vbekf&rep_runs=3", "Run", 4),  # 2 curve tabs
+    ("learn", "Learn?filter=chi2-kf&ex_epochs=20&ex_noise=3", None, 1),
+    ("realdata", "Real_data?rd_ep_drive0708=30", "Run", 4),
+]
+GEOMETRY_JS = r"""
+() => Array.from(document.querySelectorAll('.js-plotly-plot')).map((gd, i) => {
+  const boxes = sel => Array.from(gd.querySelectorAll(sel)).map(e => e.getBoundingClientRect())
+    .filter(b => b.width > 0 && b.height > 0).map(b => [b.left, b.top, b.right, b.bottom]);
+  const fl = gd._fullLayout || {};
+  return {
+    i, title: (fl.title && fl.title.text) || (fl.annotations || []).map(a => a.text).join(' | '),
+    visible: gd.getBoundingClientRect().width > 0,
+    yaxis: fl.yaxis ? fl.yaxis.type : null,
+    legend: boxes('.legend > .bg'),
+    others: {
+      title: boxes('.g-gtitle text').concat(boxes('.annotation')),
+      'plot area': boxes('.nsewdrag'),
+      'axis title': boxes('[class^="g-x"][class$="title"] text, [class^="g-y"][class$="title"] text'),
+      'tick label': boxes('.xtick text, .ytick text'),
+    },
+  };
+})
+"""
+
+
+def _intersect(a, b, tol: float = 1.0) -> bool:
+    return a[0] < b[2] - tol and b[0] < a[2] - tol and a[1] < b[3] - tol and b[1] < a[3] - tol
+
+
+def legend_overlaps(charts: list[dict]) -> list[str]:
+    """'chart i (title): legend overlaps <what>' for every legend box touching anything."""
+    out = []
+    for c in charts:
+        for box in c["legend"]:
+            for what, others in c["others"].items():
+                if any(_intersect(box, o) for o in others):
+                    out.append(f"chart {c['i']} ({c['title'][:60]!r}): legend overlaps the {what}")
+    return out
+
+
+def open_charts(browser: Browser, base_url: str, width: int, path: str, button_label, n: int):
+    """A page at ``width`` px with its charts drawn (``button_label`` pressed first, if any)."""
+    ctx = browser.new_context(base_url=base_url, viewport={"width": width, "height": 1000})
+    page = ctx.new_page()
+    page.goto(f"/{path}")
+    settle(page)
+    if button_label:
+        button(page, button_label).click()
+    expect(page.locator(CHART)).to_have_count(n, timeout=T)
+    page.wait_for_function(
+        f"document.querySelectorAll('.js-plotly-plot .legend, .js-plotly-plot .g-gtitle').length >= {n}",
+        timeout=T,
+    )
+    settle(page)
+    assert_no_exception(page)
+    return ctx, page
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+@pytest.mark.parametrize(("name", "path", "button_label", "n"), CHART_PAGES, ids=[p[0] for p in CHART_PAGES])
+def test_no_legend_covers_a_title_or_the_data(
+    browser: Browser, base_url: str, artifacts_dir: Path, name, path, button_label, n, width
+):
+    if name == "realdata":
+        from navlab.data import data_root
+        from navlab.data.loaders import RTKX_DIR
+
+        if not (data_root() / RTKX_DIR).is_dir():
+            pytest.skip(f"real data not found under {data_root()} (set NAVLAB_DATA)")
+    ctx, page = open_charts(browser, base_url, width, path, button_label, n)
+    try:
+        charts = [c for c in page.evaluate(GEOMETRY_JS) if c["visible"]]
+        assert charts
+        for i, loc in enumerate(page.locator(f"{CHART}:visible").all()):
+            loc.screenshot(path=str(artifacts_dir / f"charts-{name}-{width}-{i}.png"), timeout=T)
+        assert legend_overlaps(charts) == []
+    finally:
+        ctx.close()
+
+
+def _rhat_axis(page: Page, title_part: str) -> str:
+    charts = page.evaluate(GEOMETRY_JS)
+    (c,) = [c for c in charts if title_part in c["title"]]
+    return c["yaxis"]
+
+
+@pytest.mark.parametrize(
+    ("path", "button_label", "toggle", "n"),
+    [
+        (f"Compare?{SMALL}&noise=step", "Run", "log R", 3),
+        ("Noise?runs=6&flt=kf&flt=oracle-kf&flt=sage-husa&sc.cv2d.epochs=60", "Run", "log scale", 2),
+    ],
+    ids=["compare", "noise"],
+)
+def test_rhat_chart_is_on_a_log_axis(browser: Browser, base_url: str, path, button_label, toggle, n):
+    """The R̂ chart follows its page toggle both ways, and is on a log axis by default."""
+    ctx, page = open_charts(browser, base_url, 1440, path, button_label, n)
+    try:
+        switch = page.get_by_label(toggle, exact=True)
+        default_on = switch.is_checked()
+        assert _rhat_axis(page, "true R(t)") == ("log" if default_on else "linear")
+        page.get_by_text(toggle, exact=True).click()
+        expect(switch).to_be_checked(checked=not default_on, timeout=T)
+        settle(page)
+        page.wait_for_function(
+            "want => Array.from(document.querySelectorAll('.js-plotly-plot')).some(gd => gd._fullLayout"
+            " && gd._fullLayout.title && gd._fullLayout.title.text.includes('true R(t)')"
+            " && gd._fullLayout.yaxis.type === want)",
+            arg="linear" if default_on else "log",
+            timeout=T,
+        )
+        if not default_on:
+            pytest.xfail(
+                f"figures.r_vs_rhat is log by default, but the page's '{toggle}' toggle still "
+                "defaults to off (views.py: the lead flips it)"
+            )
+    finally:
+        ctx.close()
+
+
+def test_real_data_rhat_chart_is_log_by_default(browser: Browser, base_url: str):
+    from navlab.data import data_root
+    from navlab.data.loaders import RTKX_DIR
+
+    if not (data_root() / RTKX_DIR).is_dir():
+        pytest.skip(f"real data not found under {data_root()} (set NAVLAB_DATA)")
+    ctx, page = open_charts(browser, base_url, 1440, "Real_data?rd_ep_drive0708=30", "Run", 4)
+    try:
+        assert _rhat_axis(page, "√R̂") == "log"
+    finally:
+        ctx.close()
