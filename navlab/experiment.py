@@ -23,6 +23,7 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
 from navlab.filters.linalg import Array, diag, quad
+from navlab.metrics import NEES_BOUND, divergence_bound
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
 from navlab.scenarios.base import Scenario, ScenarioData, get_scenario_class
 
@@ -203,7 +204,8 @@ class FilterRun:
     flags: Array
     stats: dict[str, Array]
     runtime_s: float
-    diverged_at: Array  # (B,) first epoch with a non-finite state, −1 if never
+    diverged_at: Array  # (B,) first epoch the run diverged (navlab.metrics rule), −1 if never
+    diverged_why: Array  # (B,) int8: 0 no, 1 non-finite state, 2 error bound, 3 NEES bound
 
     @property
     def diverged(self) -> Array:
@@ -229,6 +231,7 @@ class FilterRun:
             stats={k: np.concatenate([p.stats[k] for p in parts]) for k in first.stats},
             runtime_s=sum(p.runtime_s for p in parts),
             diverged_at=cat("diverged_at"),
+            diverged_why=cat("diverged_why"),
         )
 
 
@@ -261,61 +264,49 @@ def _quad_lapack(v: Array, S: Array) -> Array:
 
 
 def _quad_ldl(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (N, d), S (N, d, d) by symmetric elimination S = L D Lᵀ, batch axis last.
+    """vᵀ S⁻¹ v by symmetric elimination S = L D Lᵀ (no pivoting: stable for positive-definite S).
 
-    q = Σᵢ yᵢ²/Dᵢ with L y = v. Without pivoting, which is stable for positive-definite S; for
-    many small matrices it is several times faster than one LAPACK call per matrix.
+    ``S`` is (d, d, *s) and ``v`` (d, *t) with the batch axes last and ``s`` broadcastable to
+    ``t``: a covariance shared by many runs is factored once, and every run's value is computed
+    with exactly the arithmetic it would get alone, so batching never changes a value's round-off.
+    q = Σᵢ yᵢ²/Dᵢ with L y = v.
     """
-    d = S.shape[-1]
-    A = np.empty((d, d + 1, S.shape[0]))
-    A[:, :d] = np.moveaxis(S, 0, -1)
-    A[:, d] = v.T
-    q = np.zeros(S.shape[0])
+    d = S.shape[0]
+    A = np.array(S, dtype=float)  # the elimination works in place
+    y = np.array(v, dtype=float)
+    q = np.zeros(np.broadcast_shapes(S.shape[2:], v.shape[1:]))
     for i in range(d):
         piv = A[i, i]
-        q += A[i, d] ** 2 / piv
+        q += y[i] ** 2 / piv
         if i + 1 < d:
-            A[i + 1 :, i:] -= (A[i + 1 :, i] / piv)[:, None] * A[i, i:][None]
+            f = A[i + 1 :, i] / piv
+            A[i + 1 :, i:] -= f[:, None] * A[i, i:][None]
+            y[i + 1 :] = y[i + 1 :] - f * y[i]
     return q
 
 
-def _quad_chol(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v = |L⁻¹ v|² for v (N, d), S (N, d, d) = L Lᵀ, by batched Cholesky and a forward
-    substitution with the batch axis last (≈ 25 % faster than LU at d = 15); LU where any S is
-    not positive definite.
-    """
-    try:
-        L = np.moveaxis(np.linalg.cholesky(S), 0, -1)  # (d, d, N)
-    except np.linalg.LinAlgError:
-        return _quad_lapack(v, S)
-    vt = v.T
-    y = np.empty_like(vt)
-    for i in range(vt.shape[0]):
-        y[i] = (vt[i] - (L[i, :i] * y[:i]).sum(axis=0) if i else vt[i]) / L[i, i]
-    return (y * y).sum(axis=0)
-
-
 def _quad_stack(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (L, B, d), S (L, B, d, d) -> (L, B); NaN where S is singular or not finite."""
-    shape, d = v.shape[:2], v.shape[-1]
-    if S.shape[1] > 1 and S.strides[1] == 0:  # one S per epoch shared by every run (the KF's P)
-        with np.errstate(all="ignore"), contextlib.suppress(np.linalg.LinAlgError):
-            X = np.linalg.solve(S[:, 0], v.swapaxes(1, 2))  # (L, d, B): one solve per epoch
-            return np.einsum("lbi,lib->lb", v, X)
-    v, S = v.reshape(-1, d), S.reshape(-1, d, d)
+    """vᵀ S⁻¹ v for v (L, B, d), S (L, B, d, d) -> (L, B); NaN where S is singular or not finite.
+
+    One kernel whatever the batch: the 2×2 closed form (linalg.quad) or the elimination above, a
+    covariance shared by every run (the KF's P: stride 0 over the runs) factored once per epoch;
+    LU with pivoting decides only entries the elimination could not (a zero pivot of a singular
+    or indefinite S), one matrix at a time. So a value depends on its own run only, never on the
+    chunk of runs it was computed with.
+    """
+    d = v.shape[-1]
+    shared = S.shape[1] > 1 and S.strides[1] == 0
     with np.errstate(all="ignore"):
-        if d == 2:  # linalg.quad's closed form (a singular S gives inf/NaN: redone by LU below)
-            q = quad(v, S)
-        elif v.shape[0] < 512:
-            return _quad_lapack(v, S).reshape(shape)
-        elif d > 8:
-            return _quad_chol(v, S).reshape(shape)
+        if d == 2:
+            q = quad(v.reshape(-1, 2), np.broadcast_to(S, (*v.shape, 2)).reshape(-1, 2, 2))
+            q = q.reshape(v.shape[:-1])
         else:
-            q = _quad_ldl(v, S)
-        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=1) & np.isfinite(S).all(axis=(1, 2))
-        if redo.any():  # a zero pivot of an indefinite or singular S: LU with pivoting decides
-            q[redo] = _quad_lapack(v[redo], S[redo])
-        return q.reshape(shape)
+            Sm = S[:, :1] if shared else S  # (L, 1 or B, d, d)
+            q = _quad_ldl(np.moveaxis(v, -1, 0), np.moveaxis(Sm, (-2, -1), (0, 1)))
+        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(S).all(axis=(-2, -1))
+        if redo.any():
+            q[redo] = _quad_lapack(v[redo], np.broadcast_to(S, (*v.shape, d))[redo])
+        return q
 
 
 class _Recorder:
@@ -342,6 +333,13 @@ class _Recorder:
         self.stats: dict[str, Array] = {}
         self.runtime = 0.0
         self.diverged_at = np.full(B, -1)
+        self.diverged_why = np.zeros(B, dtype=np.int8)
+        self.window = np.asarray(data.window, dtype=bool)
+        bound = divergence_bound(data) if data.has_truth else None
+        self.bound = None
+        if bound is not None:
+            g = data.groups[bound[0]]
+            self.bound = (list(g.idx), g.scale, bound[1] ** 2)
         self._pending: list[tuple[int, Any]] = []
         self.x_true = data.x_true if data.has_truth else None
         self._block = int(np.clip(4e6 / (8 * B * (n * n + m * m)), 1, 32))
@@ -406,14 +404,23 @@ class _Recorder:
         if no_nis:
             inn = np.stack([outs[j].innov for j in no_nis])
             self.nis[:, [items[j][0] for j in no_nis]] = _quad_stack(inn, S[no_nis]).T
+        why = np.where(np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2), 0, 1)  # (B, L)
         if self.x_true is not None:
             dx = (x - self.x_true[:, ks]).swapaxes(0, 1)
-            self.nees[:, ks] = _quad_stack(dx, P).T
-        ok = np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2)  # (B, L)
-        bad = ~ok.all(axis=1) & (self.diverged_at < 0)
+            nees = _quad_stack(dx, P).T
+            self.nees[:, ks] = nees
+            win = self.window[ks]  # the error and NEES bounds apply inside the analysis window
+            with np.errstate(over="ignore", invalid="ignore"):  # a run-away's error is inf
+                if self.bound is not None:
+                    idx, scale, b2 = self.bound
+                    err2 = ((dx[..., idx] * scale) ** 2).sum(axis=-1).T
+                    why = np.where((why == 0) & win & (err2 > b2), 2, why)
+                why = np.where((why == 0) & win & (nees > NEES_BOUND), 3, why)
+        bad = (why != 0).any(axis=1) & (self.diverged_at < 0)
         if bad.any():
-            first = np.argmin(ok[bad], axis=1)
+            first = np.argmax(why[bad] != 0, axis=1)
             self.diverged_at[bad] = np.asarray([k for k, _ in items])[first]
+            self.diverged_why[bad] = why[bad, first]
 
     def result(self) -> FilterRun:
         self._flush()
@@ -434,6 +441,7 @@ class _Recorder:
             stats=self.stats,
             runtime_s=self.runtime,
             diverged_at=self.diverged_at,
+            diverged_why=self.diverged_why,
         )
 
 

@@ -62,6 +62,9 @@ class ScenarioData:
     Q_extra: Array | None = None  # (K+1, n, n) process-noise anomaly known to the oracle
     has_truth: bool = True
     extras: dict[str, Any] = field(default_factory=dict)
+    # position-error bound (m, on the "pos" group) of the divergence rule; None: 100 × the
+    # largest nominal measurement σ (navlab.metrics.divergence_bound)
+    divergence_bound: float | None = None
 
     @property
     def B(self) -> int:
