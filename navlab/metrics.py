@@ -492,12 +492,12 @@ def _consistency_curves(res: Results, key: str, runs: Array) -> dict[str, tuple[
     return out
 
 
-def summarize(res: Results, compare_to: str | None = None) -> pd.DataFrame:
-    """Tidy table: one row per filter and metric (:data:`COLUMNS`), every interval computed,
-    with the paired ``_diff`` rows of :func:`compare` appended when ``compare_to`` names a
-    reference filter.
+def summarize(res: Results, compare_to: str | None = None, metrics: list[str] | None = None) -> pd.DataFrame:
+    """Tidy table: one row per filter and metric (:data:`COLUMNS`) with the intervals of
+    ``metrics`` (default: every metric), and the paired ``_diff`` rows of :func:`compare`
+    appended when ``compare_to`` names a reference filter.
     """
-    df = summary(res).rows()
+    df = summary(res).rows(metrics)
     if compare_to is None:
         return df
     return pd.concat([df, compare(res, compare_to)], ignore_index=True)
