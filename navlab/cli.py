@@ -142,7 +142,12 @@ def _run(a: argparse.Namespace) -> int:
 
     # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
     chunk = max(1, spec.runs // 10) if progress is not None else None
-    res = run_experiment(spec, on_progress=progress, chunk_runs=chunk)
+    if a.summary:
+        from navlab.experiment import run_summary
+
+        res = run_summary(spec, on_progress=progress, budget=a.memory_budget)
+    else:
+        res = run_experiment(spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget)
     if a.compare_to is not None and a.compare_to not in spec.filters:
         raise NavlabError(
             f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
@@ -224,6 +229,18 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument(
+        "--summary",
+        action="store_true",
+        help="keep only per-run statistics (metrics with intervals, no per-epoch arrays): for "
+        "very large runs (up to 10 000 000 runs, computed in chunks that fit the memory budget)",
+    )
+    pr.add_argument(
+        "--memory-budget",
+        metavar="SIZE",
+        help="refuse a run expected to hold more than this (e.g. 8GB; default: NAVLAB_MEMORY_BUDGET "
+        "or half of the available memory)",
+    )
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     pp = sub.add_parser("reproduce", help="reproduce a paper's experiment (paper vs navlab)")

@@ -30,6 +30,7 @@ differences against a reference filter.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -199,6 +200,35 @@ class RunStats:
     samples: dict[str, Array] = field(default_factory=dict)  # quantile metric -> (B, Kw)
     estimates_R: bool = False
 
+    @staticmethod
+    def concat(parts: list[RunStats]) -> RunStats:
+        """The statistics of consecutive chunks of runs as one (a summary run)."""
+        first = parts[0]
+        cat = lambda d: {k: np.concatenate([getattr(p, d)[k] for p in parts]) for k in getattr(first, d)}  # noqa: E731
+        return RunStats(
+            key=first.key,
+            label=first.label,
+            diverged=np.concatenate([p.diverged for p in parts]),
+            runtime_s=sum(p.runtime_s for p in parts),
+            epochs=first.epochs,
+            sse=cat("sse"),
+            sq=cat("sq"),
+            sums=cat("sums"),
+            samples=cat("samples"),
+            estimates_R=first.estimates_R,
+        )
+
+    def compact(self, keep_epochs: bool) -> RunStats:
+        """For a summary run: float32 per-run numbers, and the per-epoch arrays only if kept."""
+        f32 = lambda d: {k: v.astype(np.float32) for k, v in d.items()}  # noqa: E731
+        return dataclasses.replace(
+            self,
+            sse=f32(self.sse),
+            sums=f32(self.sums),
+            sq=f32(self.sq) if keep_epochs else {},
+            samples=f32(self.samples) if keep_epochs else {},
+        )
+
 
 def run_stats(data: Any, fr: FilterRun) -> RunStats:
     """The per-run statistics of filter run ``fr`` on ``data`` (window ``data.window``)."""
@@ -299,8 +329,9 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
     n_ep = np.full(int(runs.sum()), float(st.epochs))
     for g, group in data.groups.items() if data.has_truth else ():
         out[f"rmse_{g}"] = (S.Ratio(st.sse[g][runs], n_ep, sqrt=True), group.unit)
-        sq = st.sq[g][runs]
-        out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(sq, np.ones_like(sq)), group.unit)
+        if g in st.sq:  # per-epoch errors (not kept by a large summary run)
+            sq = st.sq[g][runs]
+            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(sq, np.ones_like(sq)), group.unit)
     for name, extra in data.extras.get("metrics", {}).items():
         if isinstance(extra, QuantileMetric) and name in st.samples:
             out[name] = (S.Quantile(st.samples[name][runs], extra.q), extra.unit)
@@ -314,11 +345,17 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
                 S.Ratio(s["rhat_cont_sum"], s["rhat_cont_cnt"], scale=100.0),
                 "%",
             )
-    if data.outlier_mask.any():
+    if any_outliers(data):
         out["detected_pct"] = (S.Ratio(s["detected"], s["contaminated"], scale=100.0), "%")
         out["false_alarm_pct"] = (S.Ratio(s["false_alarm"], s["clean"], scale=100.0), "%")
     out["numfix_pct"] = (S.Ratio(s["numfix"], s["entries"], scale=100.0), "%")
     return out
+
+
+def any_outliers(data: Any) -> bool:
+    """Whether any measurement of the experiment is contaminated."""
+    known = getattr(data, "any_outliers", None)
+    return bool(data.outlier_mask.any()) if known is None else bool(known)
 
 
 def direction(metric: str) -> int:
@@ -367,12 +404,15 @@ class Summary:
     the paired comparisons reuse each filter's resample replicates.
     """
 
-    def __init__(self, res: Results) -> None:
+    def __init__(self, res: Results | Any) -> None:
         self.res = res
         data = res.data
         self.data = data
         self.seed = int(res.spec.seed)
-        self.stats = {k: run_stats(data, fr) for k, fr in res.runs.items()}
+        # a summary run (navlab.experiment.SummaryResults) brings its per-run statistics and
+        # has no per-epoch arrays; full results have both
+        self.arrays = not hasattr(res, "stats")
+        self.stats = res.stats if not self.arrays else {k: run_stats(data, fr) for k, fr in res.runs.items()}
         self.judgement = judge({k: st.diverged for k, st in self.stats.items()})
         self.rule = rule_text(data)
         self.window = window_text(data)
@@ -441,14 +481,19 @@ class Summary:
             if st.estimates_R:
                 skip = st.sums["rhat_skip"][runs].sum()
                 rows.append(_row(key, fr.label, "rhat_skipped", skip, "entries"))
-            for name, (avg, dof) in _consistency_curves(res, key, runs).items():
+            dofs = {"anees": _n_states(data), "anis": _n_channels(data)} if data.has_truth else {}
+            dofs.setdefault("anis", _n_channels(data))
+            curves = _consistency_curves(res, key, runs) if self.arrays else {}
+            for name, dof in dofs.items():
                 lo, hi = chi2_band(dof, n)
-                fin = np.isfinite(avg)
-                inside = float(np.mean((avg[fin] >= lo) & (avg[fin] <= hi))) if fin.any() else np.nan
                 rows.append(_row(key, fr.label, f"{name}_band_lo", lo))
                 rows.append(_row(key, fr.label, f"{name}_band_hi", hi))
-                rows.append(_row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
-            for name, extra in data.extras.get("metrics", {}).items():
+                if name in curves:  # needs the per-epoch averages (not in a summary run)
+                    avg = curves[name]
+                    fin = np.isfinite(avg)
+                    inside = float(np.mean((avg[fin] >= lo) & (avg[fin] <= hi))) if fin.any() else np.nan
+                    rows.append(_row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
+            for name, extra in data.extras.get("metrics", {}).items() if self.arrays else ():
                 if not isinstance(extra, QuantileMetric):  # a plain function: point value only
                     fn, unit = extra
                     v = fn(fr.x, data, runs) if n else float("nan")
@@ -481,14 +526,22 @@ def _lost_note(jd: Judgement, key: str) -> str:
     return f"diverges in {lost} of {n} runs: ranks below every filter that does not"
 
 
-def _consistency_curves(res: Results, key: str, runs: Array) -> dict[str, tuple[Array, int]]:
-    """Per-epoch ANEES/ANIS over the judged runs in the window, with their dof."""
+def _n_states(data: Any) -> int:
+    return int(getattr(data, "n", None) or data.x0.shape[1])
+
+
+def _n_channels(data: Any) -> int:
+    return int(getattr(data, "m", None) or data.z.shape[2])
+
+
+def _consistency_curves(res: Results, key: str, runs: Array) -> dict[str, Array]:
+    """Per-epoch ANEES/ANIS over the judged runs in the window."""
     fr, data = res.runs[key], res.data
     W = np.asarray(data.window, dtype=bool)
     out = {}
     if data.has_truth:
-        out["anees"] = (average_over_runs(fr.nees[runs][:, W]), data.x0.shape[1])
-    out["anis"] = (average_over_runs(fr.nis[runs][:, W]), data.z.shape[2])
+        out["anees"] = average_over_runs(fr.nees[runs][:, W])
+    out["anis"] = average_over_runs(fr.nis[runs][:, W])
     return out
 
 

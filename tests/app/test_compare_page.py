@@ -122,3 +122,13 @@ def test_run_without_live_updates(open_page, monkeypatch):
     assert_clean(at)
     assert sizes == [6]  # one batch
     assert len(plotly_figs(at)) == 3
+
+
+def test_a_link_that_would_exhaust_memory_is_refused_with_a_message(open_page):
+    """/Compare?flt=kf&runs=5000&sc.cv2d.epochs=100000 once grew the server to 9.9 GB in 21 s."""
+    at = open_page(PAGE, flt=["kf"], runs="5000", **{"sc.cv2d.epochs": "100000"})
+    at.button(key="run_compare").click().run()
+    assert not at.exception
+    (err,) = [e.value for e in at.error]
+    assert "would hold about" in err and "memory budget" in err and "fewer runs or epochs" in err
+    assert runner.ledger().in_use == 0  # nothing left reserved
