@@ -14,13 +14,15 @@ Kinds (the rule each one applies; thresholds are stated here and were not tuned 
     its covariance of the headline error group grew at least ``LOCKOUT_P_GROWTH``-fold. Each
     rejection skips the update, P only grows by prediction, the error drifts, and the next
     innovation is even less plausible (ALGORITHMS.md §1.5). Ten chance rejections in a row have
-    probability α¹⁰ = 1e-20 under the model at α = 0.01.
+    probability α¹⁰ = 1e-20 under the model at α = 0.01. Every run counts, diverged ones too (a
+    lock-out is often why a run crosses the divergence bound), up to a non-finite state.
 ``runaway``
     Replacement run-away (NNMFUKF, ALGORITHMS.md §6.4 pitfall): in at least one run the measurement
     was replaced by a prediction (flag 4) on ``REPLACEMENT_CHAIN_MIN`` or more consecutive epochs;
     chained predictions integrate their errors like a random walk.
 ``numerical_fix``
-    Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements.
+    Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements of
+    the runs the filter is judged on (:func:`navlab.metrics.judge`, as the tables).
     For the Sage–Husa family (``navlab.filters.sage_husa``) the fix is the clamp of an R̂ that lost
     positive-definiteness (ALGORITHMS.md §4.1 step 4): R̂ there is the clamp's bound, not an
     estimate. A numerical fix is never an outlier detection.
@@ -150,14 +152,15 @@ def _runs(n: int, of: int) -> str:
     return f"{n} of {of} run" + ("" if of == 1 else "s")
 
 
-def _lockout(res: Results, fr: FilterRun, group: str) -> Explanation | None:
+def _lockout(res: Results, fr: FilterRun, group: str, judged: np.ndarray) -> Explanation | None:
     d = res.data
     present = np.isfinite(d.z[:, 1:])  # (B, K, m)
     fl = fr.flags[:, 1:]
     rejected = (fl == REJECTED) | (fl == REJECTED_AUX) | ~present
     rej_epoch = rejected.all(axis=2) & present.any(axis=2)  # (B, K): nothing used at epoch k+1
-    ok = ~np.asarray(fr.diverged)
-    length, end = longest_run(rej_epoch & ok[:, None])
+    # every run counts (a lock-out is often why a run diverges), up to a non-finite state
+    rej_epoch &= np.isfinite(fr.x[:, 1:]).all(axis=2)
+    length, end = longest_run(rej_epoch)
     start = end - length + 1  # in epochs 1…K: epoch = index + 1
     idx = list(d.groups[group].idx)
     P = fr.P_diag[..., idx].sum(axis=-1)  # (B, K+1)
@@ -166,7 +169,7 @@ def _lockout(res: Results, fr: FilterRun, group: str) -> Explanation | None:
     p_end = P[b, end + 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         growth = p_end / p_before
-    locked = ok & (length >= LOCKOUT_MIN_EPOCHS) & (growth >= LOCKOUT_P_GROWTH)
+    locked = (length >= LOCKOUT_MIN_EPOCHS) & (growth >= LOCKOUT_P_GROWTH)
     if not locked.any():
         return None
     r = int(np.argmax(np.where(locked, length, -1)))  # the longest lock-out
@@ -179,15 +182,14 @@ def _lockout(res: Results, fr: FilterRun, group: str) -> Explanation | None:
         f"{g.label} variance (trace of P) grew from {_g(p_before[r])} to {_g(p_end[r])} {g.unit}²"
     )
     err = _error_norm(res, fr, group, r, slice(e0, None))  # that run, from the lock-out on
-    if err is not None:
+    if err is not None and np.isfinite(err).any():
         k = e0 + int(np.nanargmax(err))
-        at_k = _error_norm(res, fr, group, ok, k)  # every valid run at that epoch
-        with np.errstate(invalid="ignore"):
-            rmse = float(np.sqrt(np.nanmean(at_k**2)))
-        s += (
-            f", so the error in that run reached {_g(err[k - e0])} {g.unit} "
-            f"(RMSE over all runs at t = {_g(d.t[k])} s: {_g(rmse)} {g.unit})"
-        )
+        s += f", so the error in that run reached {_g(err[k - e0])} {g.unit}"
+        if judged.any():  # the RMSE curve is drawn over the judged runs
+            at_k = _error_norm(res, fr, group, judged, k)
+            with np.errstate(invalid="ignore"):
+                rmse = float(np.sqrt(np.nanmean(at_k**2)))
+            s += f" (the RMSE curve at t = {_g(d.t[k])} s: {_g(rmse)} {g.unit})"
     return Explanation(
         fr.key,
         fr.label,
@@ -240,11 +242,10 @@ def _runaway(res: Results, fr: FilterRun, group: str) -> Explanation | None:
     )
 
 
-def _numerical_fix(res: Results, fr: FilterRun) -> Explanation | None:
+def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
     from navlab.filters import registry
 
     d = res.data
-    ok = ~np.asarray(fr.diverged)
     present = np.isfinite(d.z[ok, 1:])
     if not present.any():
         return None
@@ -297,13 +298,16 @@ def explain(res: Results, kinds: tuple[str, ...] = KINDS) -> list[Explanation]:
         raise ValueError(f"unknown kinds {sorted(unknown)}; known: {', '.join(KINDS)}")
     if res.data.K == 0:
         return []
+    from navlab.metrics import judge
+
     group = _headline(res)
+    jd = judge({k: fr.diverged for k, fr in res.runs.items()})  # the runs the curves and tables use
     out: list[Explanation] = []
     for fr in res.runs.values():
         found = {
-            "lockout": lambda fr=fr: _lockout(res, fr, group),
+            "lockout": lambda fr=fr: _lockout(res, fr, group, jd.judged[fr.key]),
             "runaway": lambda fr=fr: _runaway(res, fr, group),
-            "numerical_fix": lambda fr=fr: _numerical_fix(res, fr),
+            "numerical_fix": lambda fr=fr: _numerical_fix(res, fr, jd.judged[fr.key]),
             "divergence": lambda fr=fr: _divergence(res, fr),
         }
         for kind in KINDS:

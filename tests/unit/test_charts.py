@@ -41,6 +41,14 @@ def small():
     return run_experiment(ExperimentSpec(runs=6, epochs=40, seed=3))
 
 
+@pytest.fixture(scope="module")
+def outcome():
+    """A tiny reproduction outcome (vbekf: 1 seed × 3 runs) for the Reproduce figures."""
+    from navlab.reproduce import REPRODUCTIONS
+
+    return REPRODUCTIONS["vbekf"].evaluate(runs=3, seeds=1, seed=1)
+
+
 def _d(fig):
     return fig.to_dict()["layout"]
 
@@ -175,7 +183,7 @@ def test_nan_quantiles_equal_numpy():
 
 
 # -------------------------------------------------------------------- legends and titles
-def _all_figures(small, mixture):
+def _all_figures(small, mixture, outcome):
     """One of every figure builder of every page (Compare, Noise, Sweep, Reproduce, Learn, Real data)."""
     figs = {
         "error_vs_time": F.error_vs_time(small, "pos"),
@@ -189,22 +197,8 @@ def _all_figures(small, mixture):
     )
     df["metric_value"] = [1.0, 2.0, 1.5, 1.7]
     figs["sweep_lines"] = F.sweep_lines(df, "contamination", "RMSE (m)")
-    table = pd.DataFrame(
-        {
-            "experiment": ["e", "e"],
-            "filter": ["KF", "HKF"],
-            "metric": ["rmse", "rmse"],
-            "value": [1.0, 2.0],
-            "paper": [1.1, 1.9],
-            "rel_diff": [-0.1, 0.05],
-            "unit": ["m", "m"],
-            "note": ["", ""],
-        }
-    )
-    figs["repro_bar"] = RP.bar_figure(table, "e", "rmse")
-    figs["repro_reldiff"] = RP.reldiff_figure(table)
-    curves = pd.DataFrame({"epoch": [0, 1], "kf_rmse_x_pos_m": [1.0, 2.0], "irakf_rmse_x_pos_m": [1.0, 1.5]})
-    figs["repro_curve"] = RP.curve_figure(curves, "c.csv")
+    figs["repro_claims"] = RP.claims_figure(outcome)
+    figs["repro_curve"] = RP.curve_figure(outcome, next(iter(outcome.curves)))
     figs["learn"] = overview_figure(step_through("chi2-kf", TinySpec(epochs=12)), 3)
     figs["real_track"] = RD.track_figure(mixture)
     figs["real_rhat"] = RD.rhat_figure(mixture, 0)
@@ -212,8 +206,8 @@ def _all_figures(small, mixture):
     return figs
 
 
-def test_every_legend_sits_below_the_plot_and_titles_push_the_margin(small, mixture):
-    for name, fig in _all_figures(small, mixture).items():
+def test_every_legend_sits_below_the_plot_and_titles_push_the_margin(small, mixture, outcome):
+    for name, fig in _all_figures(small, mixture, outcome).items():
         assert_legend_below(fig), name
         lay = _d(fig)
         t = lay.get("title", {})
@@ -224,81 +218,43 @@ def test_every_legend_sits_below_the_plot_and_titles_push_the_margin(small, mixt
                 assert ax.get("automargin") is True, (name, k)
 
 
-def test_every_axis_is_titled(small, mixture):
-    for name, fig in _all_figures(small, mixture).items():
+def test_every_axis_is_titled(small, mixture, outcome):
+    for name, fig in _all_figures(small, mixture, outcome).items():
         lay = _d(fig)
         for k, ax in lay.items():
             if k[:5] in ("xaxis", "yaxis") and not ax.get("matches") and ax.get("type") != "category":
                 if name == "learn" and k.startswith("xaxis") and k != "xaxis4":
                     continue  # shared x axis: titled once, under the bottom panel
-                if name in ("real_flags", "repro_reldiff") and k == "yaxis":
-                    continue  # the tick labels are the names (filters; compared numbers)
+                if name in ("real_flags", "repro_claims") and k == "yaxis":
+                    continue  # the tick labels are the names (filters; the paper's claims)
                 assert ax.get("title", {}).get("text"), (name, k)
 
 
 # ------------------------------------------------------------------ one colour per filter
-def test_reproduce_bars_take_the_compare_colour_of_the_filter_the_paper_name_stands_for():
-    """hakf's table says KF, HKF, AKF, HAKF (its PAPER_NAMES): the bars must be coloured like kf,
-    huber-kf, vb-akf and hakf on Compare, not by their position in the table."""
-    from navlab.reproduce.hakf import PAPER_NAMES
-
-    keys = ["kf", "huber-kf", "vb-akf", "hakf", "oracle-kf"]
-    table = pd.DataFrame(
-        {
-            "experiment": "case1",
-            "filter": [PAPER_NAMES[k] for k in keys],
-            "metric": "rmse_att",
-            "value": [1.0, 2.0, 3.0, 4.0, 5.0],
-            "paper": [1.0, 2.0, 3.0, 4.0, 5.0],
-            "rel_diff": 0.0,
-            "unit": "arcmin",
-            "note": "",
+def test_reproduce_curves_take_the_compare_colour_and_label_of_each_filter(outcome):
+    for name, df in outcome.curves.items():
+        fig = RP.curve_figure(outcome, name)
+        keys = [c.partition("_rmse_")[0] for c in df.columns if c != "t_s"]
+        compare = {
+            t.legendgroup: (t.line.color, t.name)
+            for t in F.error_vs_time(run_experiment(ExperimentSpec(runs=2, epochs=5)), "pos").data
+            if t.showlegend is not False
         }
-    )
-    fig = RP.bar_figure(table, "case1", "rmse_att")
-    compare = {
-        t.legendgroup: t.line.color
-        for t in F.error_vs_time(
-            run_experiment(ExperimentSpec(runs=2, epochs=5, filters=tuple(keys))), "pos"
-        ).data
-        if t.showlegend is not False
-    }
-    assert list(fig.data[1].marker.color) == [compare[k] for k in keys]
-    # a table that already carries registry keys (and a readable label) is coloured the same way
-    keyed = table.assign(filter=keys, label=[PAPER_NAMES[k] for k in keys])
-    fig2 = RP.bar_figure(keyed, "case1", "rmse_att")
-    assert list(fig2.data[1].marker.color) == list(fig.data[1].marker.color)
-    assert list(fig2.data[1].x) == [PAPER_NAMES[k] for k in keys]
+        colours = filter_colors()
+        assert [t.line.color for t in fig.data] == [colours[k] for k in keys]
+        for k, t in zip(keys, fig.data, strict=True):
+            if k in compare:  # the same colour as on Compare
+                assert t.line.color == compare[k][0]
+        lay = _d(fig)
+        assert lay["yaxis"]["title"]["text"] == "RMSE (m)" and lay["xaxis"]["title"]["text"] == "time (s)"
+        assert_legend_below(fig)
 
 
-def test_filter_key_of_reproduction_names():
-    assert RP.filter_key("HKF") == "huber-kf"
-    assert RP.filter_key("SKF") == "kf"  # irakf's NAMES
-    assert RP.filter_key("oracle KF") == "oracle-kf"
-    assert RP.filter_key("vb-ekf (τ_P=3)") == "vb-ekf"
-    assert RP.filter_key("nnmfukf-guarded_rmse_pos") == "nnmfukf-guarded"
-    assert RP.filter_key("ekf/vb-ekf") is None or RP.filter_key("ekf/vb-ekf") == "ekf"
-    assert RP.filter_key("all") is None
-
-
-def test_reproduce_curves_name_filters_by_label_colour_by_key_truth_last():
-    df = pd.DataFrame(
-        {
-            "epoch": [0, 1, 2],
-            "true_sigma_x_m": [1.0, 1.0, 3.0],
-            "irakf_sigma_hat_x_m": [1.0, 1.2, 2.5],
-            "rrae_sigma_hat_x_m": [1.0, 1.1, 2.0],
-        }
-    )
-    fig = RP.curve_figure(df, "irakf_isolated_sigma_x.csv")
-    colours = filter_colors()
-    assert fig.data[-1].line.color == TRUTH_COLOR and "true" in fig.data[-1].name
-    by_name = {t.name: t.line.color for t in fig.data[:-1]}
-    assert by_name == {"IRAKF": colours["irakf"], "RRAE (reconstruction)": colours["rrae"]}
-    lay = _d(fig)
-    assert lay["yaxis"]["title"]["text"] == "σ̂ x (m)" and lay["xaxis"]["title"]["text"] == "epoch"
-    wide = pd.DataFrame({"k": [0, 1], "kf_rmse_vel_mps": [1.0, 2.0], "hakf_rmse_vel_mps": [1.0, 1.5]})
-    assert _d(RP.curve_figure(wide, "c.csv"))["yaxis"]["title"]["text"] == "RMSE velocity (m/s)"
+def test_reproduce_claims_title_fits_on_a_phone(outcome):
+    """The claims chart's title was one 110-character line, cut off at 390 px."""
+    title = _d(RP.claims_figure(outcome))["title"]["text"]
+    first = title.split("<br>")[0]
+    assert len(first) <= 45
 
 
 # -------------------------------------------------------------------------- Learn, Real data
