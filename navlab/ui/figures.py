@@ -240,7 +240,8 @@ SUBTITLE_FONT: dict = {"size": 12, "color": "#555555"}
 
 
 def title_layout(text: str, subtitle: str = "") -> dict:
-    """A title left-aligned above the plot area that pushes the top margin (never overlapped).
+    """A title at the figure's left edge, above the plot area, pushing the top margin (so the
+    legend, below, and the data never meet it).
 
     ``subtitle`` (lines separated by ``<br>``) is written under it in smaller grey type, inside
     the title's text: plotly's own ``title.subtitle`` is left out of the title's automargin and
@@ -252,13 +253,13 @@ def title_layout(text: str, subtitle: str = "") -> dict:
     t = {
         "text": text,
         "x": 0,
-        "xref": "paper",
+        "xref": "container",  # from the figure's left edge: long y tick labels leave it room
         "xanchor": "left",
         "y": 1,
         "yref": "paper",
         "yanchor": "bottom",
         "automargin": True,
-        "pad": {"b": 14},
+        "pad": {"b": 14, "l": 8},
         "font": {"size": 15},
     }
     return t

@@ -397,3 +397,22 @@ def test_real_data_rhat_chart_is_log_by_default(browser: Browser, base_url: str)
         assert _rhat_axis(page, "√R̂") == "log"
     finally:
         ctx.close()
+
+
+def test_lockout_is_explained_with_a_link_to_learn(page: Page, base_url: str):
+    """#11 item 6: after an R step the χ²-gated KF's gate locks out; one sentence says so, with the
+    number, next to the table, and links to the Learn page stepping through the mechanism."""
+    page.goto("/Compare?runs=20&seed=1&flt=kf&flt=chi2-kf&noise=step&out=none")
+    settle(page)
+    run_and_wait(page)
+    note = page.get_by_text(re.compile(r"gate lock-out in \d+ of 20 runs"))
+    expect(note).to_be_visible(timeout=T)
+    assert re.search(r"for \d+ consecutive epochs", note.inner_text())
+    link = page.get_by_role("link", name="see how on Learn").first
+    href = link.get_attribute("href")
+    assert href and href.startswith("Learn?") and "filter=chi2-kf" in href
+    page.goto(f"{base_url}/{href}")
+    settle(page)
+    assert_no_exception(page)
+    expect(page.locator("h1").first).to_have_text(re.compile("Learn"), timeout=T)
+    expect(page.get_by_role("heading", name="χ²-gated KF").first).to_be_visible(timeout=T)
