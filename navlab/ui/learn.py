@@ -44,7 +44,7 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
         vertical_spacing=0.05,
         subplot_titles=(
             "measurement z, prediction ẑ⁻ and truth",
-            "NIS (bars: filter's own S; ◇: nominal S₀) vs χ² threshold",
+            "NIS vs the χ² threshold (◇: with nominal R₀)",
             "R used in the gain, R̂ and true R",
             "weights (1 = untouched)",
         ),

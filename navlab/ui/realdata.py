@@ -23,7 +23,7 @@ from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filt
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
 from navlab.ui.colors import TRUTH_COLOR, filter_colors
-from navlab.ui.figures import readable, truth_line, value_range, y_range_layout
+from navlab.ui.figures import readable, title_layout, truth_line, value_range, y_range_layout
 
 RECORDINGS = {
     "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
@@ -258,8 +258,7 @@ def rhat_figure(res: Results, channel: int, run: int = 0, *, log_y: bool = True)
             sub = "y range from epochs without an injected outlier: values above it are cut off"
     fig = go.Figure(data=traces)
     fig.update_layout(
-        title=f"Estimated noise √R̂ — channel {d.channel_names[channel]}"
-        + (f"<br><span style='font-size:12px;color:#555555'>{sub}</span>" if sub else ""),
+        title=title_layout(f"Estimated noise √R̂ — channel {d.channel_names[channel]}", sub),
         height=380,
         xaxis_title="time (s)",
         yaxis=yaxis,
@@ -294,7 +293,9 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
                     )
                 )
     fig.update_layout(
-        title=f"Epochs a filter rejected (×) or down-weighted (○) channels (run {run})",
+        title=title_layout(
+            f"Rejected (×) or down-weighted (○), run {run}", "epochs at which a filter did so on any channel"
+        ),
         height=140 + 30 * len(labels),
         xaxis_title="time (s)",
         yaxis={"tickvals": list(range(len(labels))), "ticktext": labels, "range": [-0.6, len(labels) - 0.4]},
