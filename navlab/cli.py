@@ -87,10 +87,9 @@ def _spec_from_args(a: argparse.Namespace):
 
     base: dict[str, Any] = {}
     if a.config:
-        try:
-            text = Path(a.config).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise NavlabError(f"cannot read --config {a.config}: {exc.strerror}") from None
+        from navlab.io import MAX_JSON_BYTES, read_text
+
+        text = read_text(a.config, f"--config {a.config}", max_bytes=MAX_JSON_BYTES)
         base = ExperimentSpec.from_json(text).to_dict()
     overrides = {
         "scenario": a.scenario,

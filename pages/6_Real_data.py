@@ -8,6 +8,7 @@ from navlab.scenarios.base import get_scenario_class
 from navlab.ui import realdata as R
 from navlab.ui.frame import frame
 from navlab.ui.runner import result_store, show_error
+from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.widgets import BIND
 
 frame(
@@ -16,6 +17,8 @@ frame(
     "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
     "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.",
 )
+
+sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
@@ -81,7 +84,10 @@ if rec == "upload":
         st.stop()
     try:
         folder = R.save_upload(
-            f_imu.getvalue(), f_gnss.getvalue(), f_truth.getvalue() if f_truth is not None else None
+            f_imu.getvalue(),
+            f_gnss.getvalue(),
+            f_truth.getvalue() if f_truth is not None else None,
+            uploads=session_uploads(),
         )
     except NavlabError as exc:
         st.error(str(exc))

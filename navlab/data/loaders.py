@@ -28,7 +28,7 @@ import calendar
 import math
 import os
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +38,7 @@ import pandas as pd
 from navlab.errors import NavlabError
 from navlab.ins.align import RTKX_NOMINAL_C_BV, body_to_vehicle
 from navlab.ins.earth import G0_MPS2
+from navlab.io import read_text
 
 #: Environment variable naming the data directory (overrides ../shared/data).
 ENV_VAR = "NAVLAB_DATA"
@@ -94,26 +95,49 @@ def _recording_dir(name: str, path: str | os.PathLike | None) -> Path:
     )
 
 
+def is_offered(data_dir: str | os.PathLike, offered: Sequence[str | os.PathLike] = ()) -> bool:
+    """Whether ``data_dir`` lies inside the data root or one of the ``offered`` folders.
+
+    Symbolic links and ``..`` are resolved first, so a link inside the data root that points
+    elsewhere is not offered.
+    """
+    try:
+        p = Path(data_dir).expanduser().resolve()
+        roots = [data_root().resolve(), *(Path(o).resolve() for o in offered)]
+    except (OSError, RuntimeError, ValueError, TypeError):
+        return False
+    return any(p == r or r in p.parents for r in roots)
+
+
+def check_offered(data_dir: str | os.PathLike | None, offered: Sequence[str | os.PathLike] = ()) -> None:
+    """Refuse a ``data_dir`` from outside (a browser) that the deployment does not offer.
+
+    A configuration loaded in the app may name only the deployment's data root (``NAVLAB_DATA`` or
+    ``../shared/data``; an empty ``data_dir`` means it) and the session's own uploads
+    (``offered``). The message names neither the folder nor anything in it. The CLI, run by a
+    local user, does not call this: it may name any folder.
+    """
+    if data_dir in (None, "") or is_offered(str(data_dir), offered):
+        return
+    raise NavlabError(
+        "scenario_params.data_dir names a folder this server does not offer: in the app a "
+        "configuration can use only the recordings the deployment provides (leave data_dir "
+        "empty) or files uploaded in this session (Real data page, 'Upload your own drive'); "
+        "run other folders with the command line: python -m navlab run --config FILE"
+    )
+
+
 # ---------------------------------------------------------------------------- parsing helpers
 Range = tuple[float, float, str]
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
+    """The file's text through navlab's one decoding path (:func:`navlab.io.read_text`)."""
+    if not path.exists():
         raise NavlabError(
             f"{path}: file not found; check the data directory ({ENV_VAR} or --set scenario.data_dir=...)"
         )
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise NavlabError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        try:
-            text = raw.decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes everything
-            raise NavlabError(f"{path}: not a text file") from None
+    text = read_text(path)
     if not text.strip():
         raise NavlabError(f"{path}: the file is empty; give a file with data rows")
     return text
@@ -419,7 +443,12 @@ def _read_header_csv(
         raise NavlabError(
             f"{path}: no header line; the first line must name the columns ({', '.join(required)})"
         )
-    header = [h.strip() for h in lines[hdr_i].split(",")]
+    if ";" in lines[hdr_i] and "," not in lines[hdr_i]:
+        raise NavlabError(
+            f"{path}: line {hdr_i + 1} (header) separates columns with ';'; save the file with "
+            "commas between columns and '.' as the decimal point"
+        )
+    header = [h.strip().strip('"').strip() for h in lines[hdr_i].split(",")]
     missing = [c for c in required if c not in header]
     if missing:
         raise NavlabError(

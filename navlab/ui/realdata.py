@@ -6,8 +6,7 @@ works offline). Everything but :func:`run_with_progress` is a pure function of i
 
 from __future__ import annotations
 
-import hashlib
-import tempfile
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -23,6 +22,7 @@ from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filt
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
 from navlab.ui.colors import filter_colors
+from navlab.ui.uploads import SessionUploads, sweep
 
 RECORDINGS = {
     "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
@@ -32,7 +32,10 @@ RECORDINGS = {
 LICENCES = {
     "drive0708": RTKX_SOURCE,
     "smartloc-berlin": SMARTLOC_SOURCE,
-    "upload": "Your own files (generic navlab CSV format); nothing is stored beyond this session.",
+    "upload": (
+        "Your own files (generic navlab CSV format). They are kept in a temporary folder of this "
+        "session only and deleted when the session ends (at the latest one hour after its last use)."
+    ),
 }
 TABLE_METRICS = (
     ("h_err_median", "median horizontal error (m)"),
@@ -84,14 +87,15 @@ def build_spec(
     )
 
 
-def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
-    """Write uploaded generic-format files to a content-addressed temp folder and validate them.
+def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None, *, uploads: SessionUploads) -> Path:
+    """Write uploaded generic-format files into this session's upload folder and validate them.
 
-    Raises NavlabError (naming the file, line and column) if a file is malformed.
+    Raises NavlabError (naming the file, line and column) if a file is malformed; the broken
+    files are removed at once. ``uploads`` owns the folder: it is removed when the session ends
+    (:mod:`navlab.ui.uploads`).
     """
-    h = hashlib.sha256(imu + b"|" + gnss + b"|" + (truth or b"")).hexdigest()[:16]
-    d = Path(tempfile.gettempdir()) / f"navlab-upload-{h}"
-    d.mkdir(exist_ok=True)
+    sweep()
+    d = uploads.folder(imu, gnss, truth)
     (d / "imu.csv").write_bytes(imu)
     (d / "gnss.csv").write_bytes(gnss)
     if truth:
@@ -101,6 +105,7 @@ def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
     try:
         load_generic(d / "imu.csv", d / "gnss.csv", (d / "truth.csv") if truth else None, name="upload")
     except NavlabError as exc:  # the user sees the uploaded names, not the temp paths
+        shutil.rmtree(d, ignore_errors=True)
         raise NavlabError(str(exc).replace(str(d) + "/", "uploaded ")) from None
     return d
 
