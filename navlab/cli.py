@@ -150,6 +150,10 @@ def _run(a: argparse.Namespace) -> int:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
         except OSError as exc:
             raise NavlabError(f"cannot write --save-spec {a.save_spec}: {exc.strerror}") from None
+    from navlab.data.checks import run_messages  # real data: what was fed, checks, can it be trusted
+
+    for finding in run_messages(res):
+        print(f"navlab: {finding}", file=sys.stderr)
     return 0
 
 

@@ -419,7 +419,8 @@ def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
             "vu_mps": pos.vu_mps,
         }
     )
-    truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m"]].reset_index(drop=True)
+    truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m", "vn_mps", "ve_mps", "vu_mps"]]
+    truth = truth.reset_index(drop=True)
     if len(truth) < 2:
         raise NavlabError(f"{d / 'gnss_1934_sf.pos'}: fewer than 2 RTK-fixed (Q=1) epochs")
     return DriveRecording(
@@ -502,11 +503,11 @@ def load_generic(
     imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges)
     if len(imu) < 100:
         raise NavlabError(f"{imu_csv}: only {len(imu)} IMU rows; give at least 100 samples")
-    fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy()[:50].mean(axis=0))
+    fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy().mean(axis=0))
     if not 5.0 < fz < 15.0:
         raise NavlabError(
-            f"{imu_csv}: the first samples' specific force has magnitude {fz:.3g}, not ≈ 9.8 m/s²; "
-            "give f_*_mps2 in m/s² (multiply g by 9.80665) and start with the vehicle at rest"
+            f"{imu_csv}: the mean specific force has magnitude {fz:.3g}, not ≈ 9.8 m/s² (gravity); "
+            "give f_*_mps2 in m/s² (multiply g by 9.80665)"
         )
     imu["repeated"] = np.r_[False, np.all(np.diff(imu[list(IMU_COLS)].to_numpy(), axis=0) == 0, axis=1)]
     opt = ("sigma_n_m", "sigma_e_m", "sigma_u_m", "vn_mps", "ve_mps", "vu_mps")
@@ -520,7 +521,9 @@ def load_generic(
     gnss = gnss[list(GNSS_COLS)]
     truth = None
     if truth_csv is not None:
-        truth = _read_header_csv(Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), (), _POS_RANGES)
+        truth = _read_header_csv(
+            Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), ("vn_mps", "ve_mps", "vu_mps"), _POS_RANGES
+        )
     if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
         raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
     return DriveRecording(

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
+from navlab.data.checks import Finding, run_messages
 from navlab.data.loaders import RTKX_SOURCE, SMARTLOC_SOURCE, load_generic
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
@@ -49,13 +50,13 @@ MAX_POINTS = 4000
 
 
 def scenario_of(recording: str) -> str:
-    return "drive0708" if recording in ("drive0708", "upload") else recording
+    return "own-drive" if recording == "upload" else recording
 
 
 def usable_filters(scenario: str) -> list[str]:
     """Registered filters that can run on real data (no oracle: it needs simulator truth)."""
     out = [k for k, c in registry().items() if c.family != "oracle"]
-    if scenario == "drive0708":
+    if scenario in ("drive0708", "own-drive"):
         # the INS model's F is exact only through f(x); a model-free per-epoch solve still works
         out = [k for k in out if not getattr(registry()[k], "linear_only", False)]
     return out
@@ -110,6 +111,31 @@ def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None, *, uploads:
     return d
 
 
+def prerun_findings(spec: ExperimentSpec) -> list[Finding]:
+    """What the filters will be fed and the checks of the recording, before a run (own drives)."""
+    from navlab.data.checks import check_drive
+
+    scen = plan(spec).scenario
+    rec, setup, _ = scen._setup()
+    return [Finding("note", n) for n in setup.notes] + check_drive(rec, setup)
+
+
+def run_findings(res: Results) -> list[Finding]:
+    """Notes, pre-run checks and the trust check of a finished run (navlab.data.checks)."""
+    return run_messages(res)
+
+
+def show_findings(st: Any, findings: Sequence[Finding], expanded: bool = False) -> None:
+    """Warnings as warnings (likely causes as a list), notes in one expander; ``st`` = streamlit."""
+    for f in findings:
+        if f.level == "warning":
+            st.warning(f.text + "".join(f"\n- {c}" for c in f.causes))
+    notes = [f.text for f in findings if f.level != "warning"]
+    if notes:
+        with st.expander("What the filters are fed, and the checks", expanded=expanded):
+            st.markdown("\n".join(f"- {n}" for n in notes))
+
+
 def run_with_progress(
     spec: ExperimentSpec, on_progress: Callable[[float, str], None] | None = None
 ) -> Results:
@@ -152,8 +178,8 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
                 line={"color": "black", "width": 3},
             )
         )
-    if d.scenario == "drive0708":
-        z = d.z[run]
+    if "gnss_fixes" in d.extras:
+        z = d.extras["gnss_fixes"][run]  # metres, also when the channels are whitened
         fig.add_trace(
             go.Scattergl(
                 x=z[sl, 1].astype(np.float32),

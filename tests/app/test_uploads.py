@@ -53,13 +53,13 @@ def test_config_naming_a_server_folder_is_refused_without_leaking_it(open_page, 
     assert at.selectbox(key="scn").value != "drive0708"  # nothing was loaded
 
 
-def _imu(n=400, bom=False) -> bytes:
+def _imu(n=1000, bom=False) -> bytes:
     rows = "\n".join(f"{0.01 * i:.2f},0.0,0.0,9.80,0.0,0.0,0.0" for i in range(n))
     text = "t_s,f_x_mps2,f_y_mps2,f_z_mps2,w_x_radps,w_y_radps,w_z_radps\n" + rows + "\n"
     return (b"\xef\xbb\xbf" if bom else b"") + text.encode()
 
 
-GNSS = b"t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n1,40,-105,1600\n2,40,-105,1600\n3,40,-105,1600\n"
+GNSS = ("t_s,lat_deg,lon_deg,h_m\n" + "".join(f"{i},40,-105,1600\n" for i in range(11))).encode()
 
 
 def _open_upload(open_page, tmp_path, monkeypatch, imu: bytes, gnss: bytes = GNSS):
