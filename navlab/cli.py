@@ -55,6 +55,7 @@ def _list(what: str) -> pd.DataFrame:
 
 
 def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
+    """A tidy table as JSON records (NaN → null), CSV (NaN → empty) or text (NaN → empty)."""
     if fmt == "json":
         records = json.loads(df.to_json(orient="records", double_precision=15))
         text = json.dumps(records, indent=1, ensure_ascii=False) + "\n"
@@ -71,7 +72,11 @@ def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
             "display.max_rows",
             10000,
         ):
-            text = df.to_string(index=False) + "\n"
+            text = df.astype(object).where(df.notna(), "").to_string(index=False) + "\n"
+    _write(text, out)
+
+
+def _write(text: str, out: str | None) -> None:
     if out:
         try:
             Path(out).write_text(text, encoding="utf-8")
@@ -136,15 +141,24 @@ def _run(a: argparse.Namespace) -> int:
 
     # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
     chunk = max(1, spec.runs // 10) if progress is not None else None
-    res = run_experiment(spec, on_progress=progress, chunk_runs=chunk)
-    df = res.metrics()
-    if a.format == "table":
-        from navlab.metrics import headline_table
+    if a.summary:
+        from navlab.experiment import run_summary
 
-        wide = headline_table(res).reset_index().rename(columns={"label": "filter"})
-        _emit(wide.round(4), "table", a.out)
+        res = run_summary(spec, on_progress=progress, budget=a.memory_budget)
     else:
-        _emit(df, a.format, a.out)
+        res = run_experiment(spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget)
+    if a.compare_to is not None and a.compare_to not in spec.filters:
+        raise NavlabError(
+            f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
+        )
+    if a.format == "table":
+        from navlab.tables import headline
+
+        _write(headline(res, compare_to=a.compare_to).text(), a.out)
+    else:
+        from navlab.metrics import summarize
+
+        _emit(summarize(res, compare_to=a.compare_to), a.format, a.out)
     if a.save_spec:
         try:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
@@ -209,9 +223,27 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="GROUP.NAME=VALUE",
         help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V",
     )
+    pr.add_argument(
+        "--compare-to",
+        metavar="FILTER",
+        help="reference filter: add each other filter's paired difference (95 %% interval, "
+        "p-value, verdict) per headline metric",
+    )
     pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument(
+        "--summary",
+        action="store_true",
+        help="keep only per-run statistics (metrics with intervals, no per-epoch arrays): for "
+        "very large runs (up to 10 000 000 runs, computed in chunks that fit the memory budget)",
+    )
+    pr.add_argument(
+        "--memory-budget",
+        metavar="SIZE",
+        help="refuse a run expected to hold more than this (e.g. 8GB; default: NAVLAB_MEMORY_BUDGET "
+        "or half of the available memory)",
+    )
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     pp = sub.add_parser("reproduce", help="reproduce a paper's experiment (paper vs navlab)")
