@@ -783,6 +783,10 @@ class InsGnssModel:
         """Measurements (B, K+1, m) in the model's units (divided by :attr:`scale`)."""
         return z / self.scale[None]
 
+    def fixes(self, z: Array) -> Array:
+        """The GNSS positions N, E, U [m] (B, K+1, 3) in measurements ``z`` of this model."""
+        return z[..., :3] * self.scale[None, : z.shape[1], :3]
+
     def F(self, k: int) -> Array:
         return self.Phi[k]
 

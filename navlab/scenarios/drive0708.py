@@ -384,8 +384,14 @@ class Drive0708(Scenario):
                 f"eval_from_s = {p.eval_from_s:g} s leaves no epoch to judge (the epochs run from "
                 f"{setup.t[0]:.1f} to {setup.t[-1]:.1f} s on the recording's time base)"
             )
+        bound = None  # whitened channels: the error bound of the divergence rule in metres
+        if model.whitened:
+            from navlab.metrics import BOUND_SIGMAS
+
+            bound = BOUND_SIGMAS * float(np.median(np.max(model.scale[1:, :3], axis=1)))
         data = ScenarioData(
             scenario=self.key,
+            divergence_bound=bound,
             t=setup.t - setup.t[0],
             model=model,
             x_true=x_true,
@@ -420,7 +426,6 @@ class Drive0708(Scenario):
                 ),
                 "xy_idx": (7, 6),  # east, north columns of the state for plots
                 "gnss_track": setup.gnss_pos,
-                "gnss_fixes": fixes,  # (B, K+1, 3) antenna N, E, U [m] as fed (raw-GNSS reference)
                 "p_true_antenna": setup.p_true,
                 "fix_sigma_m": (rx_sigma if rx_sigma is not None else np.broadcast_to(sigma, (K + 1, 3))),
                 "t_abs_s": setup.t,

@@ -178,8 +178,8 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
                 line={"color": "black", "width": 3},
             )
         )
-    if "gnss_fixes" in d.extras:
-        z = d.extras["gnss_fixes"][run]  # metres, also when the channels are whitened
+    if hasattr(d.model, "fixes"):
+        z = d.model.fixes(d.z)[run]  # metres, also when the channels are whitened
         fig.add_trace(
             go.Scattergl(
                 x=z[sl, 1].astype(np.float32),

@@ -127,16 +127,17 @@ def test_recorded_fixes_are_fed_unchanged_and_receiver_sigmas_set_R(moving):
     model = d.model
     assert model.whitened and d.channel_units[:3] == ("σ", "σ", "σ")
     np.testing.assert_allclose(model.R0[:3, :3], np.eye(3))
-    fixes = d.extras["gnss_fixes"][0]
-    zk = d.z[0, 1:, :3] * model.scale[1:, :3]
-    ok = np.isfinite(zk).all(axis=1)
-    np.testing.assert_allclose(zk[ok], fixes[1:][ok], rtol=0, atol=1e-9)  # exactly the recorded fixes
-    np.testing.assert_allclose(model.scale[1:, :3][ok], 3.0)  # the file's sigma_* columns
+    fixes = model.fixes(d.z)[0]
+    g = pd.read_csv(moving / "gnss.csv", comment="#")
+    ok = np.isfinite(fixes).all(axis=1)
+    rec = model.setup.to_local(np.radians(g.lat_deg), np.radians(g.lon_deg), g.h_m.to_numpy())
+    np.testing.assert_allclose(fixes[ok], rec[np.isin(g.t_s, d.extras["t_abs_s"][ok])], atol=1e-6)
+    np.testing.assert_allclose(model.scale[:, :3][ok], 3.0)  # the file's sigma_* columns
     plain = _run(moving, use_receiver_sigmas=False, sigma_m=4.0)
     assert not plain.data.model.whitened and plain.data.channel_units[0] == "m"
     np.testing.assert_allclose(np.diag(plain.data.model.R0)[:3], 16.0)
     noisy = _run(moving, add_noise=True)
-    assert not np.allclose(noisy.data.extras["gnss_fixes"][0][1:], fixes[1:], equal_nan=True)
+    assert not np.allclose(noisy.data.model.fixes(noisy.data.z)[0][1:], fixes[1:], equal_nan=True)
     assert any("synthetic noise" in n for n in noisy.data.extras["notes"])
 
 
@@ -244,13 +245,15 @@ def _fake(err_filter: float, err_gnss: float, truth: bool = True):
     fixes = x_true[..., 6:9] + err_gnss / np.sqrt(3) * rng.standard_normal((1, K + 1, 3))
     x = x_true.copy()
     x[..., 6:9] += err_filter / np.sqrt(3) * rng.standard_normal((1, K + 1, 3))
+    fixes[:, 0] = np.nan  # epoch 0 carries no measurement
     data = SimpleNamespace(
+        model=SimpleNamespace(fixes=lambda z: z),
+        z=fixes,
         groups={"pos": SimpleNamespace(idx=(6, 7, 8))},
         window=np.arange(K + 1) >= 1,
         has_truth=truth,
         x_true=x_true,
         extras={
-            "gnss_fixes": fixes,
             "p_true_antenna": x_true[0, :, 6:9],
             "fix_sigma_m": np.full((K + 1, 3), err_gnss / np.sqrt(3)),
             "start": "moving",
