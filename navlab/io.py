@@ -59,7 +59,7 @@ def decode_text(raw: bytes, name: str) -> str:
             if enc is None:
                 raw = raw[len(bom) :]
                 break
-            raise NavlabError(f"{name}: the file is {enc} text; {_SAVE_AS}")
+            raise NavlabError(f"{name}: the file is {enc} text, not UTF-8; {_SAVE_AS}")
     if b"\x00" in raw[:65536]:
         raise NavlabError(
             f"{name}: this is a binary file, not text; give the text (CSV/JSON) file itself, not a "

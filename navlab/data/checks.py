@@ -362,13 +362,13 @@ def trust_check(res: Results) -> list[Finding]:
     elif "wls" in res.runs and d.has_truth:
         fr = res.runs["wls"]
         raw = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[:, W])
-        basis = "against the truth; the raw GNSS is the per-epoch least-squares fix (wls)"
+        basis = "against the truth"
         for key, fr in res.runs.items():
             if key != "wls":
                 ok = ~fr.diverged
                 errs[key] = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[ok][:, W]) if ok.any() else np.inf
         causes = _PR_CAUSES
-        raw_label = "the per-epoch fix (wls)"
+        raw_label = "the per-epoch least-squares fix (wls)"
     else:
         return []
     errs = {k: v for k, v in errs.items() if k != "wls" or fixes is None}

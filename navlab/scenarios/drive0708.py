@@ -150,7 +150,7 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
     return rec, setup, reference_solution(setup)
 
 
-def _fill(x: Array) -> Array:
+def fill_rows(x: Array) -> Array:
     """(K+1, d) with NaN rows filled by linear interpolation over the epochs (edges held)."""
     ok = np.isfinite(x).all(axis=1)
     if ok.all() or not ok.any():
@@ -365,8 +365,8 @@ class Drive0708(Scenario):
         has_truth = bool(truth_ok.mean() > 0.5)
         # truth of the IMU point: the antenna truth minus the lever arm (reference attitude)
         lever_neu = (ref.C_bn[0] @ (setup.C_bv.T @ setup.lever_arm_v))[:, [1, 0, 2]]
-        p_true = _fill(setup.p_true) - lever_neu
-        v_true = _fill(setup.v_true)
+        p_true = fill_rows(setup.p_true) - lever_neu
+        v_true = fill_rows(setup.v_true)
         x_true = np.concatenate([np.zeros((K + 1, 3)), v_true, p_true, ref.bias_g[0], ref.bias_a[0]], axis=1)
         x_true = np.broadcast_to(x_true, (B, K + 1, 15)).copy()
         x0 = np.broadcast_to(setup.x0, (B, 15)).copy()
@@ -451,3 +451,6 @@ class OwnDrive(Drive0708):
     outlier_defaults: ClassVar[dict] = {"mixture": {"contamination": 0.0}}
     default_runs = 1
     own = True
+    #: needs a folder of the user's files (data_dir): the Real data page uploads one; pages without
+    #: an upload (Compare, Sweep) should not offer it
+    user_data: ClassVar[bool] = True
