@@ -49,7 +49,7 @@ def test_quoted_header_loads_and_semicolons_are_explained(tmp_path):
 @pytest.mark.parametrize(
     ("raw", "words"),
     [
-        ("t_s,f_x\n1,2\n".encode("utf-16"), "UTF-16 text; save it as UTF-8"),
+        ("t_s,f_x\n1,2\n".encode("utf-16"), "UTF-16 text, not UTF-8; save it as UTF-8"),
         (b"PK\x03\x04\x14\x00\x00\x00\x08\x00", "binary file, not text"),
         ("t_s,h_m\n# Höhe\n".encode("latin-1"), "line 2 is not UTF-8 text (byte 0xf6"),
     ],
