@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import gc
 import os
+import sys
 import time
 
+import pandas as pd
 import pytest
-from apphelpers import assert_clean
+from apphelpers import ROOT, assert_clean
 
+from navlab.data import data_root
 from navlab.experiment import ExperimentSpec
 from navlab.ui import uploads as U
 
@@ -128,3 +131,48 @@ def test_upload_error_names_the_uploaded_file_not_the_temp_path(tmp_path, bom):
     with pytest.raises(NavlabError) as e:
         R.save_upload(_imu(bom=bom)[:60], GNSS, uploads=up)
     assert str(tmp_path) not in str(e.value) and "uploaded imu.csv" in str(e.value)
+
+
+needs_rtkx = pytest.mark.skipif(
+    not (data_root() / "rtkx_drive_0708").is_dir(), reason="real data not found (set NAVLAB_DATA)"
+)
+
+
+@needs_rtkx
+def test_own_drive_with_an_imu_gap_runs_on_the_page_with_its_notes(open_page, tmp_path, monkeypatch):
+    """Issue 12 item 5 on the Real data page: a 2 s IMU gap is a note, not IndexError; the drive
+    starts in motion and the page says what the filters were fed, before and after the run."""
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        import convert_drive0708
+    finally:
+        sys.path.pop(0)
+    src = tmp_path / "src"
+    assert convert_drive0708.main(["--out", str(src), "--seconds", "50"]) == 0
+    imu = pd.read_csv(src / "imu.csv", comment="#")
+    t0 = imu.t_s.iloc[0]
+    imu = imu[~imu.t_s.between(t0 + 20.0, t0 + 22.0)]
+    up = tmp_path / "up"
+    up.mkdir()
+    monkeypatch.setattr(U, "upload_root", lambda: up)
+    at = open_page(
+        REAL,
+        rd_rec="upload",
+        rd_mroll="-6.8",
+        rd_myaw="95.4",
+        **{"rd_ep_own-drive": "40", "rd_flt_own-drive": ["kf", "huber-kf"]},
+    )
+    at.file_uploader(key="rd_up_imu").set_value(("imu.csv", imu.to_csv(index=False).encode(), "text/csv"))
+    at.file_uploader(key="rd_up_gnss").set_value(("gnss.csv", (src / "gnss.csv").read_bytes(), "text/csv"))
+    at.file_uploader(key="rd_up_truth").set_value(("truth.csv", (src / "truth.csv").read_bytes(), "text/csv"))
+    at.run()
+    assert_clean(at)
+    before = " ".join(m.value for m in at.markdown)
+    assert "time gap(s) bridged" in before and "gravity" in before
+    at.button(key="rd_run").click().run()
+    assert_clean(at)
+    after = " ".join(m.value for m in at.markdown)
+    assert "as recorded" in after and "start: moving" in after and "position RMS against the truth" in after
+    table = at.dataframe[0].value
+    assert list(table.index) == ["KF", "HKF (Huber)"]
+    assert (table["RMSE 3-D (m)"] < 5.0).all()
