@@ -171,17 +171,45 @@ def _run(a: argparse.Namespace) -> int:
     return 0
 
 
+def _progress(quiet: bool, what: str = "runs"):
+    """A one-line progress counter on stderr (a terminal only), or None."""
+    if quiet or not sys.stderr.isatty():
+        return None
+
+    def show(done: int, total: int) -> None:
+        print(f"\r{done}/{total} {what}", end="" if done < total else "\n", file=sys.stderr, flush=True)
+
+    return show
+
+
 def _reproduce(a: argparse.Namespace) -> int:
     from navlab.reproduce import REPRODUCTIONS
+    from navlab.reproduce import report as R
 
     if a.name not in REPRODUCTIONS:
         raise NavlabError(
             f"unknown reproduction '{a.name}'; known: {', '.join(REPRODUCTIONS) or '(none yet)'}"
         )
     rep = REPRODUCTIONS[a.name]
-    outdir = Path(a.outdir) if a.outdir else None
-    df = rep.run(runs=a.runs, seed=a.seed, outdir=outdir)
-    _emit(df, a.format, a.out)
+    o = rep.evaluate(runs=a.runs, seeds=a.seeds, seed=a.seed, on_progress=_progress(a.quiet))
+    table = o.readings if a.details else o.verdicts
+    if a.format == "table":
+        _write(table.to_string(index=False) + "\n" if a.details else R.text(o), a.out)
+    elif a.format == "markdown":
+        _write(R.markdown(o), a.out)
+    else:
+        _emit(table, a.format, a.out)
+    if a.outdir:
+        out = Path(a.outdir)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            o.verdicts.to_csv(out / f"{rep.key}_verdicts.csv", index=False)
+            o.readings.to_csv(out / f"{rep.key}_readings.csv", index=False)
+            for name, df in o.curves.items():
+                df.to_csv(out / name, index=False)
+        except OSError as exc:
+            raise NavlabError(f"cannot write --outdir {a.outdir}: {exc.strerror}") from None
+        print(f"wrote {len(o.curves) + 2} CSV files to {out}", file=sys.stderr)
     return 0
 
 
@@ -246,13 +274,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
-    pp = sub.add_parser("reproduce", help="reproduce a paper's experiment (paper vs navlab)")
+    pp = sub.add_parser("reproduce", help="judge a paper's claims over many Monte Carlo seeds")
     pp.add_argument("name", help="hakf, irakf, nnmfukf or vbekf")
-    pp.add_argument("--runs", type=int, default=None, help="Monte Carlo runs (default: the paper's)")
-    pp.add_argument("--seed", type=int, default=1)
-    pp.add_argument("--format", choices=["table", "json", "csv"], default="table")
-    pp.add_argument("--out", help="write the table to this file")
-    pp.add_argument("--outdir", help="directory for per-epoch RMSE curves (CSV)")
+    pp.add_argument(
+        "--seeds",
+        type=int,
+        default=20,
+        help="Monte Carlo sets ('seeds' in the papers' sense) of --runs runs each (default 20)",
+    )
+    pp.add_argument("--runs", type=int, default=None, help="runs per seed (default: the paper's)")
+    pp.add_argument("--seed", type=int, default=1, help="base seed")
+    pp.add_argument("--format", choices=["table", "json", "csv", "markdown"], default="table")
+    pp.add_argument(
+        "--details",
+        action="store_true",
+        help="print the detailed readings (every quantity of every filter) instead of the verdicts",
+    )
+    pp.add_argument("--out", help="write the output to this file")
+    pp.add_argument("--outdir", help="directory for the verdicts, readings and RMSE curves (CSV)")
+    pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     pa = sub.add_parser("app", help="start the Streamlit app")
     pa.add_argument("streamlit_args", nargs=argparse.REMAINDER)

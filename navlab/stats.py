@@ -193,6 +193,22 @@ class MeanSqrtRatio(Estimator):
         return self.scale * (lin / (2.0 * np.sqrt(R))).mean(axis=1)
 
 
+class MaxSqrtRatio(MeanSqrtRatio):
+    """``scale · max_k √(Σ_r num_rk / Σ_r den_rk)``: the peak of the per-epoch Monte Carlo RMSE.
+
+    Not smooth (the epoch of the peak can change between resamples): bootstrap only.
+    """
+
+    def _f(self, N: Array, D: Array) -> Array:
+        r = np.sqrt(_safe_div(N, D))
+        r = np.where(np.isfinite(r), r, -np.inf)
+        out = r.max(axis=-1)
+        return self.scale * np.where(np.isfinite(out), out, np.nan)
+
+    def influence(self) -> Array | None:
+        return None
+
+
 class Quantile(Estimator):
     """The ``q``-quantile of every finite value of every run pooled (values (N, K), NaN = none).
 

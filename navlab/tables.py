@@ -82,6 +82,26 @@ def verdict_cell(row: pd.Series, ref_label: str) -> str:
     return f"{d}" if row["ci_method"] else f"{d}; no test"
 
 
+def text_table(df: pd.DataFrame, index: bool = True) -> str:
+    """A plain-text table with left-aligned text and right-aligned numbers-first cells."""
+    t = df.reset_index() if index and df.index.name else df
+    cols = [str(c) for c in t.columns]
+    cells = [[("" if v is None else str(v)) for v in row] for row in t.itertuples(index=False)]
+    widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
+
+    def numeric(v: str) -> bool:
+        head = v.split(" ")[0].replace("-", "", 1).replace(".", "", 1)
+        return bool(head) and head.isdigit()
+
+    right = [
+        all(numeric(r[i]) or not r[i] for r in cells) and any(r[i] for r in cells) for i in range(len(cols))
+    ]
+    fmt = lambda vals: "  ".join(  # noqa: E731
+        (v.rjust(w) if r else v.ljust(w)) for v, w, r in zip(vals, widths, right, strict=True)
+    ).rstrip()
+    return "\n".join([fmt(cols)] + [fmt(r) for r in cells])
+
+
 @dataclass
 class Table:
     """A display table (text cells, one row per filter) and its footnotes."""
@@ -91,7 +111,7 @@ class Table:
     help: dict[str, str] = field(default_factory=dict)  # column -> tooltip
 
     def text(self) -> str:
-        body = self.cells.reset_index().to_string(index=False) if len(self.cells) else "(no filters)"
+        body = text_table(self.cells) if len(self.cells) else "(no filters)"
         return body + "\n" + "\n".join(f"  {n}" for n in self.notes) + "\n"
 
 
