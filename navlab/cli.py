@@ -92,10 +92,9 @@ def _spec_from_args(a: argparse.Namespace):
 
     base: dict[str, Any] = {}
     if a.config:
-        try:
-            text = Path(a.config).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise NavlabError(f"cannot read --config {a.config}: {exc.strerror}") from None
+        from navlab.io import MAX_JSON_BYTES, read_text
+
+        text = read_text(a.config, f"--config {a.config}", max_bytes=MAX_JSON_BYTES)
         base = ExperimentSpec.from_json(text).to_dict()
     overrides = {
         "scenario": a.scenario,
@@ -165,6 +164,10 @@ def _run(a: argparse.Namespace) -> int:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
         except OSError as exc:
             raise NavlabError(f"cannot write --save-spec {a.save_spec}: {exc.strerror}") from None
+    from navlab.data.checks import run_messages  # real data: what was fed, checks, can it be trusted
+
+    for finding in run_messages(res):
+        print(f"navlab: {finding}", file=sys.stderr)
     return 0
 
 
