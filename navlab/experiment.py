@@ -739,7 +739,7 @@ def run_summary(
         groups=first.groups,
         window=first.window,
         has_truth=first.has_truth,
-        extras={k: v for k, v in first.extras.items() if k == "metrics"},
+        extras={k: v for k, v in first.extras.items() if k in ("metrics", "notes", "findings")},
         divergence_bound=first.divergence_bound,
         B=spec.runs,
         K=first.K,

@@ -50,6 +50,7 @@ from typing import ClassVar
 import numpy as np
 
 from navlab.filters.linalg import Array
+from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param
 from navlab.scenarios.base import (
@@ -62,23 +63,18 @@ from navlab.scenarios.base import (
 )
 
 
-def h_err_median(x_hat, data: ScenarioData, ok_runs) -> float:
-    """Median horizontal position error [m] over the window's epochs and the non-diverged runs."""
+def horizontal_error(x_hat, data: ScenarioData):
+    """Horizontal position error [m] per run and epoch (B, K+1)."""
     idx = list(data.groups["hpos"].idx)
-    e = np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)[ok_runs][:, data.window]
-    e = e[np.isfinite(e)]
-    return float(np.median(e)) if e.size else float("nan")
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)
 
 
-def h_err_p90(x_hat, data: ScenarioData, ok_runs) -> float:
-    """90th percentile of the horizontal position error [m]."""
-    idx = list(data.groups["hpos"].idx)
-    e = np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)[ok_runs][:, data.window]
-    e = e[np.isfinite(e)]
-    return float(np.quantile(e, 0.9)) if e.size else float("nan")
-
-
-REAL_METRICS = {"h_err_median": (h_err_median, "m"), "h_err_p90": (h_err_p90, "m")}
+# median and 90 % of the horizontal error, pooled over the window's epochs and the judged runs
+REAL_METRICS = {
+    "h_err_median": QuantileMetric(horizontal_error, 0.5, "m", "median horizontal error"),
+    "h_err_p90": QuantileMetric(horizontal_error, 0.9, "m", "90 % horizontal error"),
+}
 
 
 def _fingerprint(data_dir: str) -> tuple:
