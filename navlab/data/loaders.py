@@ -91,7 +91,7 @@ def _recording_dir(name: str, path: str | os.PathLike | None) -> Path:
         return root
     raise NavlabError(
         f"recording folder '{name}' not found under {root}; set {ENV_VAR}=/path/to/data (the "
-        f"directory holding {name}/) or pass the data directory explicitly"
+        f"directory holding {name}/) or pass it: --set scenario.data_dir=/path/to/data"
     )
 
 
