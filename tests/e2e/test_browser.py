@@ -190,6 +190,8 @@ def test_five_sessions_run_at_once(browser: Browser, base_url: str, artifacts_di
         browser.new_context(base_url=base_url, viewport={"width": 1300, "height": 900}) for _ in range(5)
     ]
     try:
+        for c in contexts:
+            c.set_default_timeout(T)
         pages = [c.new_page() for c in contexts]
         for i, p in enumerate(pages):
             p.goto(f"/Compare?runs=30&seed={100 + i}")
@@ -309,6 +311,7 @@ def legend_overlaps(charts: list[dict]) -> list[str]:
 def open_charts(browser: Browser, base_url: str, width: int, path: str, button_label, n: int):
     """A page at ``width`` px with its charts drawn (``button_label`` pressed first, if any)."""
     ctx = browser.new_context(base_url=base_url, viewport={"width": width, "height": 1000})
+    ctx.set_default_timeout(T)  # every wait, clicks and reads included, gets the suite's long timeout
     page = ctx.new_page()
     page.goto(f"/{path}")
     settle(page)
@@ -402,6 +405,7 @@ def test_real_data_rhat_chart_is_log_by_default(browser: Browser, base_url: str)
 def test_lockout_is_explained_with_a_link_to_learn(page: Page, base_url: str):
     """#11 item 6: after an R step the χ²-gated KF's gate locks out; one sentence says so, with the
     number, next to the table, and links to the Learn page stepping through the mechanism."""
+    page.set_default_timeout(T)
     page.goto("/Compare?runs=20&seed=1&flt=kf&flt=chi2-kf&noise=step&out=none")
     settle(page)
     run_and_wait(page)
