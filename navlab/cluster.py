@@ -35,6 +35,10 @@ POLL_S = 0.2  # while waiting on a cluster, call tick() this often (the app proc
 Done = Callable[[Any, Any], None]
 
 
+class ClusterError(NavlabError):
+    """The embedded cluster could not start (the app then runs the tasks in its own process)."""
+
+
 class SerialExecutor:
     """Every task in this process, one after the other."""
 
@@ -160,7 +164,7 @@ def local_client(n_workers: int | None = None) -> Any:
         try:
             from distributed import Client, LocalCluster
         except ImportError:
-            raise NavlabError(
+            raise ClusterError(
                 "Dask is not installed: pip install 'dask[distributed]' (or use --scheduler serial)"
             ) from None
         logging.getLogger("distributed").setLevel(logging.ERROR)
@@ -175,7 +179,7 @@ def local_client(n_workers: int | None = None) -> Any:
             )
             client = Client(cluster, set_as_default=False)
         except Exception as exc:
-            raise NavlabError(
+            raise ClusterError(
                 f"could not start the embedded Dask cluster ({type(exc).__name__}: {exc}); run with "
                 "--scheduler serial, or start one yourself (dask scheduler; dask worker tcp://…) "
                 "and pass --scheduler tcp://HOST:8786"

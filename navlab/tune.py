@@ -414,6 +414,7 @@ class TuneResult:
     train_objective: dict[str, tuple[float, float]]  # filter -> (default, tuned) on the last rung
     cached: int = 0
     computed: int = 0
+    failed: list[str] = field(default_factory=list)  # every candidate diverged: default kept
     rows: pd.DataFrame = field(default_factory=pd.DataFrame)
 
     def tuned_spec(self, key: str | None = None) -> ExperimentSpec:
@@ -578,12 +579,9 @@ def tune(
             math.nan,
         )
         train_obj[k] = (d0, last[k][best])
-    if any(math.isinf(v[1]) for v in train_obj.values()):
-        bad = [k for k, v in train_obj.items() if math.isinf(v[1])]
-        raise NavlabError(
-            f"no candidate of {', '.join(bad)} gave a finite objective on the training runs "
-            "(every one diverged or was invalid): change the search ranges (--range) or the experiment"
-        )
+    failed = sorted(k for k, v in train_obj.items() if math.isinf(v[1]))
+    for k in failed:  # nothing to choose from: keep the default, and say so
+        tuned[k] = dict(cands[k][0])
     # ---- the test seeds: default and tuned variants of every filter, paired run by run
     parts_tasks: dict[str, list[T.Task]] = {}
     for k in st.spec.filters:
@@ -600,7 +598,7 @@ def tune(
     test = T.summary_results(
         test_spec, {n: [got[t.key] for t in ts] for n, ts in parts_tasks.items()}, labels, st.split[1]
     )
-    out = TuneResult(st, tuned, trials, test, train_obj, run.cached, run.computed)
+    out = TuneResult(st, tuned, trials, test, train_obj, run.cached, run.computed, failed)
     out.rows = rows(out)
     return out
 
@@ -820,7 +818,9 @@ def report(r: TuneResult) -> Any:
         for variant_name, n in (("default", k), ("tuned", k + TEST_SUFFIX)):
             e = sm.estimate(n, metric) if metric in sm.metrics_of(n) else None
             row[f"test {name}, {variant_name}"] = tables.cell(e.value, e.lo, e.hi) if e else ""
-        if k in diff.index and changed(r, k):
+        if k in r.failed:
+            row["tuned − default (paired, test)"] = "tuned = default (every candidate diverged in training)"
+        elif k in diff.index and changed(r, k):
             row["tuned − default (paired, test)"] = tables.verdict_cell(diff.loc[k], "default")
         elif r.tuned.get(k):
             row["tuned − default (paired, test)"] = "tuned = default (the default won on the training seeds)"
@@ -855,6 +855,12 @@ def report(r: TuneResult) -> Any:
         notes.append(
             "At an end of its search range (the range, not the filter, may limit it; widen it with "
             "--range FILTER.NAME=LO:HI): " + ", ".join(edge) + "."
+        )
+    if r.failed:
+        names = ", ".join(registry()[k].label for k in r.failed)
+        notes.append(
+            f"{names}: every candidate diverged in more than 5 % of the training runs (or was "
+            "invalid), so the default is kept; the search range may not hold a working value."
         )
     notes.append(f"Tasks: {r.computed} computed, {r.cached} from the results store.")
     notes += tables.footnotes(res, sm)
