@@ -770,6 +770,14 @@ def trials_frame(r: TuneResult) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _fmt(d: Dim, v: float) -> str:
+    """Three significant figures; of 1 − v for a forgetting factor near 1 (0.9999, not 1.00)."""
+    if d.scale == "log1m" and v < 1:
+        digits = max(3, 2 - math.floor(math.log10(1 - v)))
+        return f"{v:.{digits}f}"
+    return S.sig3(v)
+
+
 def _values_text(r: TuneResult, key: str) -> str:
     dims = r.setup.dims.get(key, ())
     if not dims:
@@ -777,7 +785,7 @@ def _values_text(r: TuneResult, key: str) -> str:
     parts = []
     for d in dims:
         v = r.tuned[key][d.name]
-        txt = f"{d.name} = {S.sig3(v)} (default {S.sig3(d.default)}"
+        txt = f"{d.name} = {_fmt(d, v)} (default {_fmt(d, d.default)}"
         b = boundary(d, v)
         if b:
             txt += f"; at the {'lower' if b == 'lo' else 'upper'} end of {S.sig3(d.lo)}–{S.sig3(d.hi)}"
@@ -812,8 +820,9 @@ def report(r: TuneResult) -> Any:
     for k in st.spec.filters:
         d_tr, t_tr = r.train_objective.get(k, (math.nan, math.nan))
         row = {"filter": registry()[k].label, "tuned parameters": _values_text(r, k)}
+        show = lambda v: S.sig3(v) if math.isfinite(v) else "diverged"  # noqa: E731
         row[f"train {st.objective.name}: default → tuned"] = (
-            f"{S.sig3(d_tr)} → {S.sig3(t_tr)}" if r.tuned.get(k) else ""
+            f"{show(d_tr)} → {show(t_tr)}" if r.tuned.get(k) else ""
         )
         for variant_name, n in (("default", k), ("tuned", k + TEST_SUFFIX)):
             e = sm.estimate(n, metric) if metric in sm.metrics_of(n) else None
@@ -835,6 +844,8 @@ def report(r: TuneResult) -> Any:
                 row["tuned, against the best tuned"] = tables.verdict_cell(
                     vs.loc[k], res.runs[cand + TEST_SUFFIX].label
                 )
+            else:
+                row["tuned, against the best tuned"] = "no test (no run to judge)"
         rows.append(row)
     cells = pd.DataFrame(rows).set_index("filter")
     notes = st.describe()

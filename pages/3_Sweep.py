@@ -125,8 +125,14 @@ elif U.requested(PAGE, sweep_id):
 else:  # what the store already holds of this sweep (nothing is computed)
     out = U.run_sweep(sw, store=U.app_store(), should_stop=U.stored_only)
     if out.done_points == 0:
+        if out.tasks_done:
+            lines_ph.info(
+                f"{out.tasks_done} of {out.tasks_total} tasks finished and kept (no point complete "
+                "yet): press **Run sweep** to resume."
+            )
+        else:
+            lines_ph.info("Press **Run sweep** to compute the grid.")
         out = None
-        lines_ph.info("Press **Run sweep** to compute the grid.")
 if out is not None:
     if out.complete:
         st.session_state[RESULT_KEY] = (sweep_id, out)
