@@ -302,7 +302,7 @@ def _sweep(a: argparse.Namespace) -> int:
         for label, g in d.groupby("label", sort=False):
             wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
             wide.index.name = f"{p1.cli} \\ {p2.cli}"
-            wide.columns = [f"{c:g}" for c in wide.columns]
+            wide.columns = [f"{c:.4g}" for c in wide.columns]
             lines += ["", str(label), tables.text_table(wide)]
     lines.append(
         f"  {out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
