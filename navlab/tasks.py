@@ -301,7 +301,7 @@ def _probe(spec_json: str, window: Window) -> DataInfo:
         groups=d.groups,
         window=_windowed(d.window, window),
         has_truth=d.has_truth,
-        extras={k: v for k, v in d.extras.items() if k == "metrics"},
+        extras={k: v for k, v in d.extras.items() if k in ("metrics", "notes", "findings")},
         divergence_bound=d.divergence_bound,
         B=0,
         K=d.K,
