@@ -27,6 +27,7 @@ from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     MAX_POINTS,
     Axis,
     Sweepable,
+    apply,
     default_range,
     grid,
     make_sweep,
