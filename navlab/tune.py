@@ -788,7 +788,7 @@ def _values_text(r: TuneResult, key: str) -> str:
         txt = f"{d.name} = {_fmt(d, v)} (default {_fmt(d, d.default)}"
         b = boundary(d, v)
         if b:
-            txt += f"; at the {'lower' if b == 'lo' else 'upper'} end of {S.sig3(d.lo)}–{S.sig3(d.hi)}"
+            txt += f"; at the {'lower' if b == 'lo' else 'upper'} end of {_fmt(d, d.lo)}–{_fmt(d, d.hi)}"
         parts.append(txt + ")")
     return ", ".join(parts)
 
