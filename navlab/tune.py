@@ -658,6 +658,11 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
                 row["note"] = "; ".join(
                     x for x in (row["note"], "no tunable parameter: tuned = default") if x
                 )
+            elif k in r.failed or not changed(r, k):
+                why = (
+                    "every candidate diverged in training" if k in r.failed else "the default won in training"
+                )
+                row["note"] = "; ".join(x for x in (row["note"], f"{why}: tuned = default") if x)
             else:
                 pvals[k] = c.p_value
             part.append(row)
