@@ -779,7 +779,7 @@ def _fmt(d: Dim, v: float) -> str:
     """Three significant figures; of 1 − v for a forgetting factor near 1 (0.9999, not 1.00)."""
     if d.scale == "log1m" and v < 1:
         digits = max(3, 2 - math.floor(math.log10(1 - v)))
-        return f"{v:.{digits}f}"
+        return f"{v:.{digits}f}".rstrip("0")
     return S.sig3(v)
 
 
