@@ -384,7 +384,7 @@ def window_text(data: Any) -> str:
     return f"{span}, t = {t[k0]:.4g}–{t[k1]:.4g} s, {idx.size} epochs"
 
 
-def _row(key, label, metric, value, unit="", est: S.Estimate | None = None, runs_used=None, note=""):
+def row(key, label, metric, value, unit="", est: S.Estimate | None = None, runs_used=None, note=""):
     r = dict(filter=key, label=label, metric=metric, value=float(value), unit=unit)
     has = est is not None and est.has_ci
     r["ci_lo"] = est.lo if has else np.nan
@@ -474,39 +474,39 @@ class Summary:
                     e = self.estimate(key, metric)
                 else:
                     e = S.Estimate(est.point() if n else float("nan"), note="")
-                rows.append(_row(key, fr.label, metric, e.value, unit, e, n, label_note))
+                rows.append(row(key, fr.label, metric, e.value, unit, e, n, label_note))
             for name, skipped in (("nees_skipped", "nees_skip"), ("nis_skipped", "nis_skip")):
                 if skipped in st.sums:
-                    rows.append(_row(key, fr.label, name, st.sums[skipped][runs].sum(), "entries"))
+                    rows.append(row(key, fr.label, name, st.sums[skipped][runs].sum(), "entries"))
             if st.estimates_R:
                 skip = st.sums["rhat_skip"][runs].sum()
-                rows.append(_row(key, fr.label, "rhat_skipped", skip, "entries"))
+                rows.append(row(key, fr.label, "rhat_skipped", skip, "entries"))
             dofs = {"anees": _n_states(data), "anis": _n_channels(data)} if data.has_truth else {}
             dofs.setdefault("anis", _n_channels(data))
             curves = _consistency_curves(res, key, runs) if self.arrays else {}
             for name, dof in dofs.items():
                 lo, hi = chi2_band(dof, n)
-                rows.append(_row(key, fr.label, f"{name}_band_lo", lo))
-                rows.append(_row(key, fr.label, f"{name}_band_hi", hi))
+                rows.append(row(key, fr.label, f"{name}_band_lo", lo))
+                rows.append(row(key, fr.label, f"{name}_band_hi", hi))
                 if name in curves:  # needs the per-epoch averages (not in a summary run)
                     avg = curves[name]
                     fin = np.isfinite(avg)
                     inside = float(np.mean((avg[fin] >= lo) & (avg[fin] <= hi))) if fin.any() else np.nan
-                    rows.append(_row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
+                    rows.append(row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
             for name, extra in data.extras.get("metrics", {}).items() if self.arrays else ():
                 if not isinstance(extra, QuantileMetric):  # a plain function: point value only
                     fn, unit = extra
                     v = fn(fr.x, data, runs) if n else float("nan")
-                    rows.append(_row(key, fr.label, name, v, unit, None, n, "no interval (point metric)"))
+                    rows.append(row(key, fr.label, name, v, unit, None, n, "no interval (point metric)"))
             note = "" if lost == 0 else _lost_note(jd, key)
-            rows.append(_row(key, fr.label, "diverged", lost, "runs", note=note))
-            rows.append(_row(key, fr.label, "runs", data.B, "runs"))
-            rows.append(_row(key, fr.label, "runs_judged", n, "runs"))
+            rows.append(row(key, fr.label, "diverged", lost, "runs", note=note))
+            rows.append(row(key, fr.label, "runs", data.B, "runs"))
+            rows.append(row(key, fr.label, "runs_judged", n, "runs"))
             B, K = data.B, data.K
             us = 1e6 * st.runtime_s / max(B * K, 1)
-            rows.append(_row(key, fr.label, "us_per_run_step", us, "µs"))
+            rows.append(row(key, fr.label, "us_per_run_step", us, "µs"))
             rate = B * K / st.runtime_s if st.runtime_s > 0 else np.nan
-            rows.append(_row(key, fr.label, "steps_per_s", rate, "1/s"))
+            rows.append(row(key, fr.label, "steps_per_s", rate, "1/s"))
         return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -589,21 +589,21 @@ def compare(res: Results, ref: str, metrics: list[str] | None = None) -> pd.Data
                 continue
             c, unit = got
             pvals[key] = c.p_value
-            r = _row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
+            r = row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
             r.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs=ref, p_value=c.p_value)
             part.append(r)
         adj = S.holm(pvals)
         for r in part:
             key = r["filter"]
             r["p_holm"] = adj.get(key, np.nan)
-            r["verdict"], extra = _verdict(metric, r, jd, key, ref)
+            r["verdict"], extra = verdict(metric, r, jd, key, ref)
             if extra:
                 r["note"] = "; ".join(x for x in (r["note"], extra) if x)
         rows += part
     return pd.DataFrame(rows, columns=COLUMNS + DIFF_COLUMNS)
 
 
-def _verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
+def verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
     if jd.reliable[ref] and not jd.reliable[key]:
         return "worse", f"{key} diverges in {jd.lost(key)} of {jd.n_runs} runs"
     if jd.reliable[key] and not jd.reliable[ref]:

@@ -650,7 +650,7 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
             if got is None:
                 continue
             c, unit = got
-            row = M._row(
+            row = M.row(
                 k, res.runs[k + TEST_SUFFIX].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note
             )
             row.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs="default", p_value=c.p_value)
@@ -670,7 +670,7 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
         for row in part:
             k = row["filter"]
             row["p_holm"] = adj.get(k, np.nan)
-            verdict, extra = M._verdict(metric, row, jd, k + TEST_SUFFIX, k)
+            verdict, extra = M.verdict(metric, row, jd, k + TEST_SUFFIX, k)
             row["verdict"] = verdict if k in pvals else ""
             if extra and k in pvals:
                 row["note"] = "; ".join(x for x in (row["note"], extra) if x)
