@@ -197,7 +197,7 @@ class Drive0708(Scenario):
             float(p.vib_gyro_factor),
         )
         model = InsGnssModel(setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps)
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         std = schedule.std(sigma, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)

@@ -514,7 +514,7 @@ class SmartlocBerlin(Scenario):
             else (p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s),
         )
         m = model.m
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         # extra injected noise (schedule/outliers) in whitened units: the real errors stay
         std = schedule.std(np.ones(m), K)
