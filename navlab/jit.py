@@ -19,19 +19,21 @@ up front (the Docker image runs it at build time, so the app's first click does 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
-__all__ = ["Kernel", "enabled", "warm"]
+__all__ = ["Kernel", "enabled", "numpy_paths", "warm"]
 
 
 _OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
 _numba: Any = None
 _tried = False
 _lock = threading.Lock()
+_force_numpy = False
 
 
 def _load_numba() -> Any:
@@ -71,12 +73,28 @@ class Kernel:
 
     def get(self) -> Callable | None:
         """The compiled kernel, or None (use the numpy path)."""
+        if _force_numpy:
+            return None
         if self._dispatcher is None:
             numba = _load_numba()
             if numba is None:
                 return None
             self._dispatcher = numba.njit(cache=True, nogil=True)(self.fn)
         return self._dispatcher
+
+
+@contextlib.contextmanager
+def numpy_paths() -> Iterator[None]:
+    """Within the block every kernel runs its numpy path (tests and benchmarks compare them).
+
+    Process-wide (not per thread): for tests and benchmarks, not for concurrent app sessions.
+    """
+    global _force_numpy
+    before, _force_numpy = _force_numpy, True
+    try:
+        yield
+    finally:
+        _force_numpy = before
 
 
 def warm() -> dict[str, float]:
@@ -88,7 +106,7 @@ def warm() -> dict[str, float]:
         return {}
     import numpy as np
 
-    from navlab.ins import strapdown
+    from navlab.ins import earth, strapdown
     from navlab.scenarios import base
 
     times = {}
@@ -103,11 +121,16 @@ def warm() -> dict[str, float]:
     base.propagate(np.zeros(2), np.eye(2), e, np.eye(2), np.zeros((2, 3, 2)))
     base.propagate(np.zeros(2), np.tile(np.eye(2), (4, 1, 1)), e, np.tile(np.eye(2), (4, 1, 1)))
     times["scenarios.base.propagate"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))
+    times["earth rotation conversions"] = time.perf_counter() - t0
     return times
 
 
-if __name__ == "__main__":
-    took = warm()
+if __name__ == "__main__":  # python -m navlab.jit: compile (or load) every kernel, print the times
+    from navlab import jit as _jit  # the module the kernels use, not this __main__ copy
+
+    took = _jit.warm()
     if not took:
         print("numba not available (or NAVLAB_NUMBA=0): navlab uses its numpy paths")
     for name, sec in took.items():
