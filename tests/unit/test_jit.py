@@ -97,6 +97,20 @@ def test_compiled_rotation_conversions_equal_the_numpy_reference():
     assert dcm_to_rotvec(np.eye(3)).shape == (3,)
 
 
+def _python(code: str, *args: str, **env: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter from the checkout (NAVLAB_NUMBA from ``env`` only)."""
+    base = {k: v for k, v in os.environ.items() if k != "NAVLAB_NUMBA"}
+    return subprocess.run(
+        [sys.executable, "-c", code, *args],
+        cwd=ROOT,
+        env={**base, **env},
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+
+
 def test_navlab_runs_without_numba():
     """With numba unimportable, navlab runs its numpy paths (a broken or missing install)."""
     code = (
@@ -134,16 +148,7 @@ def test_without_numba_the_numbers_are_the_same_to_round_off(tmp_path):
     outs = []
     for flag, name in (("0", "numpy"), ("1", "compiled")):
         path = tmp_path / f"{name}.npy"
-        env = {**os.environ, "NAVLAB_NUMBA": flag}
-        proc = subprocess.run(
-            [sys.executable, "-c", code, str(path)],
-            cwd=ROOT,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=300,
-            check=False,
-        )
+        proc = _python(code, str(path), NAVLAB_NUMBA=flag)
         assert proc.returncode == 0, proc.stderr
         outs.append(np.load(path))
     np.testing.assert_allclose(outs[0], outs[1], rtol=1e-12, atol=1e-12 * np.abs(outs[0]).max())
