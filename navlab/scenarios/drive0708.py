@@ -7,7 +7,7 @@ schedule (nominal σ, default 3 m per axis), its outlier model (default: 10 % of
 and optional outages.
 
 Monte Carlo on real data: run r is an independent noise/outlier injection on the SAME real IMU
-and trajectory (SeedSequence([seed, r]) as for the simulations); the truth is identical in every
+and trajectory (run r's streams as for the simulations, ``run_streams``); the truth is identical in every
 run. The filters are navlab's registered filters on the total-state closed-loop model of
 :class:`navlab.ins.lc.InsGnssModel`; only the GNSS update strategy differs between them.
 
