@@ -5,7 +5,7 @@ import pytest
 
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios import base, make_scenario
-from navlab.scenarios.base import BLOCK_RUNS, propagate, run_streams
+from navlab.scenarios.base import BLOCK_RUNS, ScenarioData, propagate, run_streams
 
 SIMULATED = {
     "cv2d": {"epochs": 30},
@@ -19,7 +19,7 @@ OUTLIERS = {
     "isolated": {"start": 3, "stop": 20, "every": 4},
     "student-t": {"dof": 3.0},
 }
-PER_RUN = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0")
+PER_RUN = ScenarioData.PER_RUN
 
 
 def test_a_run_draws_the_same_numbers_alone_in_a_chunk_or_in_a_batch():
