@@ -26,7 +26,9 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-__all__ = ["Kernel", "enabled", "numpy_paths", "warm"]
+import numpy as np
+
+__all__ = ["Kernel", "carray", "enabled", "numpy_paths", "warm"]
 
 
 _OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
@@ -83,6 +85,15 @@ class Kernel:
         return self._dispatcher
 
 
+def carray(a: Any) -> np.ndarray:
+    """``a`` as a C-contiguous, writeable float64 array, copied only if needed.
+
+    Keeps one compiled signature per kernel: a read-only or strided argument would compile
+    another (seconds).
+    """
+    return np.require(a, dtype=np.float64, requirements=["C", "W"])
+
+
 @contextlib.contextmanager
 def numpy_paths() -> Iterator[None]:
     """Within the block every kernel runs its numpy path (tests and benchmarks compare them).
@@ -104,8 +115,6 @@ def warm() -> dict[str, float]:
     """
     if not enabled():
         return {}
-    import numpy as np
-
     from navlab.ins import earth, strapdown
     from navlab.scenarios import base
 
@@ -116,10 +125,8 @@ def warm() -> dict[str, float]:
     strapdown.propagate_block(s, t, np.tile([0.0, 0.0, 9.8], (3, 1)), np.zeros((3, 3)), t_end_s=0.03)
     times["strapdown.propagate_block"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    e = np.zeros((2, 3, 2))
-    base.propagate(np.zeros(2), np.eye(2), e)
-    base.propagate(np.zeros(2), np.eye(2), e, np.eye(2), np.zeros((2, 3, 2)))
-    base.propagate(np.zeros(2), np.tile(np.eye(2), (4, 1, 1)), e, np.tile(np.eye(2), (4, 1, 1)))
+    e = np.zeros((1, 250, 15))  # long enough a recursion for the compiled path
+    base.propagate(np.zeros(15), np.eye(15), e, np.eye(15), e)
     times["scenarios.base.propagate"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from navlab.jit import Kernel
+from navlab.jit import Kernel, carray
 
 #: WGS-84 semi-major axis [m].
 WGS84_A_M = 6378137.0
@@ -328,7 +328,7 @@ def rotvec_to_dcm(phi_rad):
     if kernel is None:
         return _rotvec_to_dcm_numpy(phi)
     E = np.empty((*phi.shape[:-1], 3, 3))
-    kernel(np.ascontiguousarray(phi).reshape(-1, 3), E.reshape(-1, 3, 3))
+    kernel(carray(phi).reshape(-1, 3), E.reshape(-1, 3, 3))
     return E
 
 
@@ -368,7 +368,7 @@ def dcm_to_rotvec(C):
     if kernel is None:
         return _dcm_to_rotvec_numpy(C)
     phi = np.empty(C.shape[:-1])
-    kernel(np.ascontiguousarray(C).reshape(-1, 3, 3), phi.reshape(-1, 3))
+    kernel(carray(C).reshape(-1, 3, 3), phi.reshape(-1, 3))
     return phi
 
 

@@ -71,7 +71,7 @@ from navlab.ins.earth import (
     skew,
     transport_rate_enu,
 )
-from navlab.jit import Kernel
+from navlab.jit import Kernel, carray
 
 __all__ = [
     "ImuBlock",
@@ -444,10 +444,10 @@ def propagate_block(
     Ts = T if T > 0 else 1.0
     kernel = _MECHANISE.get()
     if kernel is not None:  # compiled, one run at a time (navlab.jit)
-        lat, lon, h = state.lat_rad.astype(float), state.lon_rad.astype(float), state.h_m.astype(float)
-        v, C = state.v_enu_mps.astype(float), state.C_bn.astype(float)
+        lat, lon, h = (np.array(a, dtype=float, order="C") for a in (state.lat_rad, state.lon_rad, state.h_m))
+        v, C = np.array(state.v_enu_mps, dtype=float, order="C"), np.array(state.C_bn, dtype=float, order="C")
         sums = np.zeros((B, 3, 3))  # Σ f^n dt, Σ f^b dt, Σ ω^b dt
-        c = np.ascontiguousarray
+        c = carray
         kernel(
             lat,
             lon,
@@ -456,9 +456,9 @@ def propagate_block(
             C,
             c(f_all),
             c(w_all),
-            c(state.bias_a_mps2, dtype=float),
-            c(state.bias_g_radps, dtype=float),
-            dts,
+            c(state.bias_a_mps2),
+            c(state.bias_g_radps),
+            c(dts),
             reorthonormalise,
             sums,
         )

@@ -21,7 +21,7 @@ from navlab import params as P_
 from navlab.errors import NavlabError
 from navlab.filters.base import Model, SideInfo
 from navlab.filters.linalg import Array
-from navlab.jit import Kernel
+from navlab.jit import Kernel, carray
 from navlab.noise import OutlierModel, Schedule
 
 
@@ -230,60 +230,69 @@ def run_streams(seed: int, runs: Sequence[int] | Array) -> RunStreams:
 
 
 def _propagate_runs(x0, Phi, e, L, u, has_u, x):  # pragma: no cover - compiled by numba
-    """x_k = Φ_k x_{k−1} + L_k e_k (+ u_k) for each run r, written for one run (textbook loops).
+    """x_k = Φ_k x_{k−1} + L_k e_k (+ u_k) for every run (textbook loops, one run at a time).
 
-    Phi (1 or K+1, n, n), L (1 or K+1, n, n_e): one matrix for every epoch, or one per epoch.
-    Each sum runs over j in order, from the first product: the numpy path adds in the same order.
+    Epoch-major arrays: x (K+1, B, n), e (K, B, n_e), u (K, B, n); Phi (1 or K+1, n, n) and
+    L (1 or K+1, n, n_e): one matrix for every epoch, or one per epoch. Each sum runs over j in
+    order from the first product, then (Φx) + (Le) + u: the numpy path makes the same operations
+    in the same order.
     """
-    B, K, ne = e.shape
+    K, B, ne = e.shape
     n = x0.shape[1]
     for r in range(B):
         for i in range(n):
-            x[r, 0, i] = x0[r, i]
-        for k in range(1, K + 1):
-            F = Phi[k] if Phi.shape[0] > 1 else Phi[0]
-            G = L[k] if L.shape[0] > 1 else L[0]
+            x[0, r, i] = x0[r, i]
+    for k in range(1, K + 1):
+        F = Phi[k] if Phi.shape[0] > 1 else Phi[0]
+        G = L[k] if L.shape[0] > 1 else L[0]
+        for r in range(B):
             for i in range(n):
                 a = 0.0
                 for j in range(n):
-                    a += F[i, j] * x[r, k - 1, j]
+                    a += F[i, j] * x[k - 1, r, j]
                 b = 0.0
                 for j in range(ne):
-                    b += G[i, j] * e[r, k - 1, j]
-                x[r, k, i] = a + b + u[r, k - 1, i] if has_u else a + b
+                    b += G[i, j] * e[k - 1, r, j]
+                x[k, r, i] = a + b + u[k - 1, r, i] if has_u else a + b
 
 
 _PROPAGATE = Kernel(_propagate_runs)
 
+#: per-run multiply-adds K·n·(n + n_e) from which the compiled path is used (the 15-state INS
+#: models: ≈ 4·10⁵); below it, numpy in the same order of operations is as fast and needs no numba
+COMPILED_FROM_MACS = 100_000
+
 
 def _matvec_in_order(A: Array, X: Array) -> Array:
-    """Rows X[r] ↦ A X[r], (B, n_in) → (B, n), each sum over j in order from the first product.
-
-    Elementwise numpy (no BLAS), so run r's result does not depend on the other rows.
+    """Columns X[:, r] ↦ A X[:, r], (n_in, B) → (n, B); each sum over j in order from the first
+    product, elementwise (no BLAS), so run r's result does not depend on the other columns.
     """
-    y = X[:, 0:1] * A[:, 0]
+    y = A[:, 0:1] * X[0]
     for j in range(1, A.shape[1]):
-        y += X[:, j : j + 1] * A[:, j]
+        y += A[:, j : j + 1] * X[j]
     return y
 
 
 def _propagate_numpy(x0, Phi, e, L, u, has_u, x) -> None:
-    """The numpy path of :func:`_propagate_runs` (batched over runs, the same additions)."""
-    K = e.shape[1]
-    x[:, 0] = x0
+    """The numpy path of :func:`_propagate_runs` (same arrays), every run at once per epoch."""
+    K = e.shape[0]
+    x[0] = x0
     for k in range(1, K + 1):
         F = Phi[k] if Phi.shape[0] > 1 else Phi[0]
         G = L[k] if L.shape[0] > 1 else L[0]
-        xk = _matvec_in_order(F, x[:, k - 1]) + _matvec_in_order(G, e[:, k - 1])
-        x[:, k] = xk + u[:, k - 1] if has_u else xk
+        y = _matvec_in_order(F, x[k - 1].T)
+        y += _matvec_in_order(G, e[k - 1].T)
+        x[k] = y.T + u[k - 1] if has_u else y.T
 
 
 def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array | None = None) -> Array:
     """The truth of a linear model in every run: x_k = Φ_k x_{k−1} + L_k e_k (+ u_k), k = 1 … K.
 
-    Run r's result is the same bits whatever the other runs of the batch (fixed order of every
-    sum, no BLAS), so chunked Monte Carlo is invisible. Compiled (:mod:`navlab.jit`) when numba
-    is available, else batched numpy in the same order of operations.
+    Run r's result is the same bits whatever the other runs of the batch (a fixed order of every
+    sum, no BLAS), so chunked Monte Carlo is invisible. Long recursions (≥
+    :data:`COMPILED_FROM_MACS` multiply-adds per run) run compiled (:mod:`navlab.jit`) when numba
+    is available; otherwise numpy, batched over the runs, makes the same operations in the same
+    order (the same bits, tested).
 
     Parameters
     ----------
@@ -297,19 +306,20 @@ def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array 
     -------
     x : (B, K+1, n), x[:, 0] = x0.
     """
-    e = np.ascontiguousarray(e, dtype=float)
-    B, K = e.shape[:2]
+    B, K, ne = np.shape(e)
+    et = carray(np.asarray(e, dtype=float).transpose(1, 0, 2))  # epoch-major
     Phi = np.asarray(Phi, dtype=float)
     n = Phi.shape[-1]
     L = np.eye(n) if L is None else np.asarray(L, dtype=float)
-    Phi3 = np.ascontiguousarray(Phi if Phi.ndim == 3 else Phi[None])
-    L3 = np.ascontiguousarray(L if L.ndim == 3 else L[None])
-    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=float), (B, n)))
+    Phi3 = carray(Phi if Phi.ndim == 3 else Phi[None])
+    L3 = carray(L if L.ndim == 3 else L[None])
+    x0 = carray(np.broadcast_to(np.asarray(x0, dtype=float), (B, n)))
     has_u = u is not None
-    u = np.ascontiguousarray(u, dtype=float) if has_u else np.zeros((B, 1, n))
-    x = np.empty((B, K + 1, n))
-    (_PROPAGATE.get() or _propagate_numpy)(x0, Phi3, e, L3, u, has_u, x)
-    return x
+    ut = carray(np.asarray(u, dtype=float).transpose(1, 0, 2)) if has_u else np.zeros((1, B, n))
+    xt = np.empty((K + 1, B, n))
+    kernel = _PROPAGATE.get() if K * n * (n + ne) >= COMPILED_FROM_MACS else None
+    (kernel or _propagate_numpy)(x0, Phi3, et, L3, ut, has_u, xt)
+    return np.ascontiguousarray(xt.transpose(1, 0, 2))
 
 
 def draw_measurement_noise(

@@ -164,3 +164,17 @@ def test_warm_compiles_every_kernel():
         "scenarios.base.propagate",
         "earth rotation conversions",
     }
+
+
+@needs_numba
+def test_one_compiled_signature_per_kernel_whatever_the_arguments():
+    """Read-only, strided or integer inputs must not compile another specialisation (seconds)."""
+    from navlab.ins import earth
+
+    phi = np.broadcast_to(np.array([0.1, 0.2, 0.3]), (4, 3))  # read-only view
+    C = earth.rotvec_to_dcm(phi)
+    earth.rotvec_to_dcm(np.zeros((3, 6))[:, ::2])  # strided
+    earth.rotvec_to_dcm(np.array([[1, 0, 0]]))  # integers
+    earth.dcm_to_rotvec(np.broadcast_to(C[0], (2, 3, 3)))
+    assert len(earth._ROTVEC_TO_DCM.get().signatures) == 1
+    assert len(earth._DCM_TO_ROTVEC.get().signatures) == 1
