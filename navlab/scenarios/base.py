@@ -273,16 +273,25 @@ def _matvec_in_order(A: Array, X: Array) -> Array:
     return y
 
 
-def _propagate_numpy(x0, Phi, e, L, u, has_u, x) -> None:
-    """The numpy path of :func:`_propagate_runs` (same arrays), every run at once per epoch."""
-    K = e.shape[0]
-    x[0] = x0
+def _propagate_numpy(x0: Array, Phi: Array, e: Array, L: Array, u: Array | None) -> Array:
+    """The numpy path of :func:`_propagate_runs`: the same operations, every run at once per
+    epoch in a (K+1, n, B) layout (contiguous rows of B runs).
+    """
+    B, K = e.shape[:2]
+    n = x0.shape[1]
+    xt = np.empty((K + 1, n, B))
+    xt[0] = x0.T
+    et = np.ascontiguousarray(e.transpose(1, 2, 0))  # (K, n_e, B)
+    ut = None if u is None else np.ascontiguousarray(u.transpose(1, 2, 0))
     for k in range(1, K + 1):
         F = Phi[k] if Phi.shape[0] > 1 else Phi[0]
         G = L[k] if L.shape[0] > 1 else L[0]
-        y = _matvec_in_order(F, x[k - 1].T)
-        y += _matvec_in_order(G, e[k - 1].T)
-        x[k] = y.T + u[k - 1] if has_u else y.T
+        y = _matvec_in_order(F, xt[k - 1])
+        y += _matvec_in_order(G, et[k - 1])
+        if ut is not None:
+            y += ut[k - 1]
+        xt[k] = y
+    return np.ascontiguousarray(xt.transpose(2, 0, 1))
 
 
 def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array | None = None) -> Array:
@@ -306,19 +315,21 @@ def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array 
     -------
     x : (B, K+1, n), x[:, 0] = x0.
     """
-    B, K, ne = np.shape(e)
-    et = carray(np.asarray(e, dtype=float).transpose(1, 0, 2))  # epoch-major
+    e = np.asarray(e, dtype=float)
+    B, K, ne = e.shape
     Phi = np.asarray(Phi, dtype=float)
     n = Phi.shape[-1]
     L = np.eye(n) if L is None else np.asarray(L, dtype=float)
     Phi3 = carray(Phi if Phi.ndim == 3 else Phi[None])
     L3 = carray(L if L.ndim == 3 else L[None])
     x0 = carray(np.broadcast_to(np.asarray(x0, dtype=float), (B, n)))
-    has_u = u is not None
-    ut = carray(np.asarray(u, dtype=float).transpose(1, 0, 2)) if has_u else np.zeros((1, B, n))
-    xt = np.empty((K + 1, B, n))
+    u = None if u is None else np.asarray(u, dtype=float)
     kernel = _PROPAGATE.get() if K * n * (n + ne) >= COMPILED_FROM_MACS else None
-    (kernel or _propagate_numpy)(x0, Phi3, et, L3, ut, has_u, xt)
+    if kernel is None:
+        return _propagate_numpy(x0, Phi3, e, L3, u)
+    xt = np.empty((K + 1, B, n))  # epoch-major: Φ_k, L_k and x_{k−1} of every run in cache
+    ut = np.zeros((1, B, n)) if u is None else carray(u.transpose(1, 0, 2))
+    kernel(x0, Phi3, carray(e.transpose(1, 0, 2)), L3, ut, u is not None, xt)
     return np.ascontiguousarray(xt.transpose(1, 0, 2))
 
 
