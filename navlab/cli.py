@@ -10,7 +10,6 @@ import argparse
 import json
 import logging
 import os
-import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -92,10 +91,9 @@ def _spec_from_args(a: argparse.Namespace):
 
     base: dict[str, Any] = {}
     if a.config:
-        try:
-            text = Path(a.config).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise NavlabError(f"cannot read --config {a.config}: {exc.strerror}") from None
+        from navlab.io import MAX_JSON_BYTES, read_text
+
+        text = read_text(a.config, f"--config {a.config}", max_bytes=MAX_JSON_BYTES)
         base = ExperimentSpec.from_json(text).to_dict()
     overrides = {
         "scenario": a.scenario,
@@ -111,7 +109,10 @@ def _spec_from_args(a: argparse.Namespace):
     base.update({k: v for k, v in overrides.items() if v is not None})
     for item in a.set or []:
         if "=" not in item or "." not in item.split("=", 1)[0]:
-            raise NavlabError(f"--set takes GROUP.NAME=VALUE (e.g. kf.alpha=0.05), got {item!r}")
+            raise NavlabError(
+                f"--set takes GROUP.NAME=VALUE (e.g. chi2-kf.alpha=0.05 or outliers.contamination=0.2), "
+                f"got {item!r}"
+            )
         lhs, rhs = item.split("=", 1)
         group, name = lhs.split(".", 1)
         try:
@@ -165,6 +166,10 @@ def _run(a: argparse.Namespace) -> int:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
         except OSError as exc:
             raise NavlabError(f"cannot write --save-spec {a.save_spec}: {exc.strerror}") from None
+    from navlab.data.checks import run_messages  # real data: what was fed, checks, can it be trusted
+
+    for finding in run_messages(res):
+        print(f"navlab: {finding}", file=sys.stderr)
     return 0
 
 
@@ -210,12 +215,26 @@ def _reproduce(a: argparse.Namespace) -> int:
     return 0
 
 
-def _app(a: argparse.Namespace) -> int:
+def app_command(args: Sequence[str]) -> list[str]:
+    """The ``streamlit run app.py`` command line for ``navlab app ARGS`` (Streamlit's own flags,
+    e.g. ``--server.port 8611``, passed through; a leading ``--`` is dropped).
+    """
     app = Path(__file__).resolve().parent.parent / "app.py"
     if not app.exists():
         raise NavlabError(f"app.py not found next to the navlab package ({app})")
-    cmd = [sys.executable, "-m", "streamlit", "run", str(app), *a.streamlit_args]
-    return subprocess.call(cmd)
+    args = list(args)
+    if args[:1] == ["--"]:
+        args = args[1:]
+    return [sys.executable, "-m", "streamlit", "run", str(app), *args]
+
+
+def _app(args: Sequence[str]) -> int:
+    """Become the Streamlit server (exec): stopping ``navlab app`` stops the server."""
+    cmd = app_command(args)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(cmd[0], cmd)
+    return 0  # not reached
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -291,8 +310,11 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--outdir", help="directory for the verdicts, readings and RMSE curves (CSV)")
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
-    pa = sub.add_parser("app", help="start the Streamlit app")
-    pa.add_argument("streamlit_args", nargs=argparse.REMAINDER)
+    sub.add_parser(
+        "app",
+        help="start the Streamlit app (Streamlit's flags pass through, e.g. --server.port 8611)",
+        add_help=False,
+    )
     return p
 
 
@@ -301,6 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = "--debug" in argv
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        rest = [x for x in argv if x != "--debug"]
+        if rest[:1] == ["app"]:  # everything after "app" is Streamlit's
+            return _app(rest[1:])
         a = build_parser().parse_args(argv)
         if a.cmd == "list":
             _emit(_list(a.what), a.format, None)
@@ -309,8 +334,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run(a)
         if a.cmd == "reproduce":
             return _reproduce(a)
-        if a.cmd == "app":
-            return _app(a)
         return 2
     except NavlabError as exc:
         print(f"navlab: error: {exc}", file=sys.stderr)

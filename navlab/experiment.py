@@ -116,11 +116,9 @@ class ExperimentSpec:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> ExperimentSpec:
-        try:
-            d = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise NavlabError(f"the configuration is not valid JSON ({exc})") from None
-        return cls.from_dict(d)
+        from navlab.io import parse_json
+
+        return cls.from_dict(parse_json(text, "the configuration"))
 
     def replace(self, **changes: Any) -> ExperimentSpec:
         return dataclasses.replace(self, **changes)
@@ -741,7 +739,7 @@ def run_summary(
         groups=first.groups,
         window=first.window,
         has_truth=first.has_truth,
-        extras={k: v for k, v in first.extras.items() if k == "metrics"},
+        extras={k: v for k, v in first.extras.items() if k in ("metrics", "notes", "findings")},
         divergence_bound=first.divergence_bound,
         B=spec.runs,
         K=first.K,

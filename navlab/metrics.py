@@ -42,10 +42,10 @@ from scipy.stats import chi2
 from navlab import stats as S
 from navlab.errors import NavlabError
 from navlab.filters.linalg import Array
-from navlab.scenarios.base import MetricGroup
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results
+    from navlab.scenarios.base import MetricGroup
 
 RELIABLE_SHARE = 0.05  # a filter diverging in more runs than this share is "unreliable"
 NEES_BOUND = 1e6  # NEES above this at any window epoch: diverged

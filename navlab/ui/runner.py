@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 import time
 from collections import OrderedDict
@@ -31,6 +32,7 @@ from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan, run_size
 from navlab.metrics import summarize
 
+log = logging.getLogger(__name__)
 PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
 PENDING_KEY = "_navlab_pending"  # session: {page: spec_json} — a run the user asked for
 
@@ -256,11 +258,17 @@ def run_requested(page: str, spec: ExperimentSpec) -> bool:
 
 
 def show_error(exc: BaseException) -> None:
-    """A user error as a message; anything else as a short error naming the exception."""
+    """A user error as its message; anything else as a short error naming only the exception's
+    type (its message can name server paths): the traceback goes to the server log.
+    """
     if isinstance(exc, NavlabError):
         st.error(str(exc))
     else:
-        st.error(f"The run failed: {type(exc).__name__}: {exc}")
+        log.error("a run failed", exc_info=exc)
+        st.error(
+            f"The run failed with an internal error ({type(exc).__name__}); the server log has the "
+            "details. Try fewer runs or other settings, and report it if it persists."
+        )
 
 
 def run_live(
