@@ -230,48 +230,73 @@ class RunStats:
         )
 
 
+def _window_masks(data: Any) -> dict[str, Array]:
+    """What every filter's statistics share: the window's truth and measurement masks (made once
+    per data object).
+    """
+    cache = data.__dict__.get("_window_masks")
+    if cache is None:
+        W = np.asarray(data.window, dtype=bool)
+        idx = np.flatnonzero(W)
+        if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # contiguous: a slice (views, no copies)
+            W = slice(int(idx[0]), int(idx[-1]) + 1)
+        present = np.isfinite(data.z[:, W])  # (B, Kw, m): a measurement exists
+        mask = np.asarray(data.outlier_mask[:, W], dtype=bool) & present
+        cache = {
+            "W": W,
+            "present": present,
+            "measured": present.any(axis=2),  # (B, Kw)
+            "mask": mask,
+            "clean": present & ~mask,
+            "x_true": data.x_true[:, W] if data.has_truth else None,
+        }
+        data.__dict__["_window_masks"] = cache
+    return cache
+
+
 def run_stats(data: Any, fr: FilterRun) -> RunStats:
     """The per-run statistics of filter run ``fr`` on ``data`` (window ``data.window``)."""
-    W = np.asarray(data.window, dtype=bool)
+    dm = _window_masks(data)
+    W, present, mask, clean = dm["W"], dm["present"], dm["mask"], dm["clean"]
     B = data.B
     st = RunStats(
         key=fr.key,
         label=fr.label,
         diverged=np.asarray(fr.diverged, dtype=bool),
         runtime_s=float(fr.runtime_s),
-        epochs=int(W.sum()),
+        epochs=int(present.shape[1]),
         estimates_R=fr.R_hat is not None,
     )
     s = st.sums
     with np.errstate(over="ignore", invalid="ignore"):  # diverged runs hold inf/NaN: excluded later
         if data.has_truth:
+            e2 = (fr.x[:, W] - dm["x_true"]) ** 2  # (B, Kw, n): every component once
             for g, group in data.groups.items():
-                sq = sq_error(fr.x, data.x_true, group)[:, W]
+                sq = e2[..., group.idx[0]].copy()
+                for i in group.idx[1:]:
+                    sq += e2[..., i]
+                if group.scale != 1.0:
+                    sq *= group.scale**2
                 st.sq[g] = sq
                 st.sse[g] = sq.sum(axis=1)
-        present = np.isfinite(data.z[:, W])  # (B, Kw, m): a measurement exists
-        measured = present.any(axis=2)  # (B, Kw)
-        for name, v, where in (("nees", fr.nees, None), ("nis", fr.nis, measured)):
+        for name, v, where in (("nees", fr.nees, None), ("nis", fr.nis, dm["measured"])):
             if name == "nees" and not data.has_truth:
                 continue
             v = v[:, W]
             fin = np.isfinite(v)
             s[f"{name}_sum"] = np.where(fin, v, 0.0).sum(axis=1)
             s[f"{name}_cnt"] = fin.sum(axis=1).astype(float)
-            expected = np.ones_like(fin) if where is None else where
-            s[f"{name}_skip"] = (expected & ~fin).sum(axis=1).astype(float)
-        mask = np.asarray(data.outlier_mask[:, W], dtype=bool) & present
-        clean = present & ~mask
+            missing = ~fin if where is None else where & ~fin
+            s[f"{name}_skip"] = missing.sum(axis=1).astype(float)
         if fr.R_hat is not None:
-            ratio = np.sqrt(fr.R_hat[:, W] / data.R_true[:, W])
-            err = np.abs(ratio - 1.0)
+            err = np.abs(np.sqrt(fr.R_hat[:, W] / data.R_true[:, W]) - 1.0)
             fin = np.isfinite(err)
             for part, sel in (("clean", clean), ("cont", mask)):
                 s[f"rhat_{part}_sum"] = np.where(sel & fin, err, 0.0).sum(axis=(1, 2))
                 s[f"rhat_{part}_cnt"] = (sel & fin).sum(axis=(1, 2)).astype(float)
             s["rhat_skip"] = (present & ~fin).sum(axis=(1, 2)).astype(float)
         flags = fr.flags[:, W]
-        decided = np.isin(flags, OUTLIER_CODES)
+        decided = (flags >= OUTLIER_CODES[0]) & (flags <= OUTLIER_CODES[-1])  # codes 1–5
         s["detected"] = (decided & mask).sum(axis=(1, 2)).astype(float)
         s["false_alarm"] = (decided & clean).sum(axis=(1, 2)).astype(float)
         s["numfix"] = ((flags == NUMFIX_CODE) & present).sum(axis=(1, 2)).astype(float)
@@ -330,8 +355,7 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
     for g, group in data.groups.items() if data.has_truth else ():
         out[f"rmse_{g}"] = (S.Ratio(st.sse[g][runs], n_ep, sqrt=True), group.unit)
         if g in st.sq:  # per-epoch errors (not kept by a large summary run)
-            sq = st.sq[g][runs]
-            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(sq, np.ones_like(sq)), group.unit)
+            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(st.sq[g][runs]), group.unit)
     for name, extra in data.extras.get("metrics", {}).items():
         if isinstance(extra, QuantileMetric) and name in st.samples:
             out[name] = (S.Quantile(st.samples[name][runs], extra.q), extra.unit)
