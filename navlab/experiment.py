@@ -46,7 +46,8 @@ class ExperimentSpec:
     ----------
     scenario : registry key of the scenario.
     filters : registry keys of the filters, in display order.
-    runs, seed : Monte Carlo size and base seed (run r uses SeedSequence([seed, r])).
+    runs, seed : Monte Carlo size and base seed (run r draws the same numbers whatever the chunk it
+        is simulated in: navlab.scenarios.base.run_streams).
     epochs : number of epochs K (None: the scenario's default).
     noise_schedule, noise_params : the true R(t) schedule and its parameters.
     outliers, outlier_params : outlier model and its parameters (over the scenario's defaults).

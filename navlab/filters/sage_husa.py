@@ -386,6 +386,7 @@ class SageHusaParams:
         0.98,
         lo=0.5,
         hi=1.0,
+        tune=(0.8, 0.999),
         help="forgetting factor b (memory ≈ 1/(1−b) epochs; 1 = running average)",
     )
     adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")
@@ -497,12 +498,19 @@ class IRAKFParams:
         10,
         lo=1,
         hi=5000,
+        tune=(3, 100),
         help="RAE window M (epochs of residuals averaged; S1 gives none; R̂ = R0 until full)",
     )
-    k0: float = param(1.5, lo=0.1, hi=1e6, help="down-weighting threshold k0 in σ (S1: 0.8–1.5)")
-    k1: float = param(3.0, lo=0.1, hi=1e6, help="rejection threshold k1 in σ (S1: 3.0–5.0)")
+    k0: float = param(
+        1.5, lo=0.1, hi=1e6, tune=(0.5, 3.0), help="down-weighting threshold k0 in σ (S1: 0.8–1.5)"
+    )
+    k1: float = param(3.0, lo=0.1, hi=1e6, tune=(2.0, 10.0), help="rejection threshold k1 in σ (S1: 3.0–5.0)")
     C: float = param(
-        3.0, lo=0.1, hi=1e6, help="threshold factor C of the parallel-SKF detector, in σ (Fig. 1)"
+        3.0,
+        lo=0.1,
+        hi=1e6,
+        tune=(1.5, 10.0),
+        help="threshold factor C of the parallel-SKF detector, in σ (Fig. 1)",
     )
     dual_detection: bool = param(True, help="run the parallel standard KF detector (Fig. 1)")
     improved_rae: str = param(
@@ -695,12 +703,13 @@ class IRAKF(Filter):
 class RRAEParams:
     """RRAE options (ALGORITHMS.md §4.7, RECONSTRUCTION of Ge et al. 2018)."""
 
-    window: int = param(10, lo=1, hi=5000, help="RAE window M (R̂ = R0 until full)")
-    k0: float = param(1.5, lo=0.1, hi=1e6, help="IGG-III down-weighting threshold k0 in σ")
+    window: int = param(10, lo=1, hi=5000, tune=(3, 100), help="RAE window M (R̂ = R0 until full)")
+    k0: float = param(1.5, lo=0.1, hi=1e6, tune=(0.5, 3.0), help="IGG-III down-weighting threshold k0 in σ")
     k1: float = param(
         5.0,
         lo=0.1,
         hi=1e6,
+        tune=(2.0, 10.0),
         help="IGG-III rejection threshold k1 in σ (5 = top of S1's range; 3 locks out, §4.7)",
     )
     form: str = param(
@@ -818,18 +827,20 @@ class RRAE(Filter):
 class RAKFParams:
     """RAKF options (ALGORITHMS.md §4.8, RECONSTRUCTION of Bai, Han, Qi 2012)."""
 
-    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    b: float = param(0.98, lo=0.5, hi=1.0, tune=(0.8, 0.999), help="Sage–Husa forgetting factor b")
     adapt: bool = param(True, help="estimate R by Sage–Husa (off: R̂ stays R0)")
     gamma_s: float = param(
         3.0,
         lo=0.1,
         hi=1e12,
+        tune=(1.0, 20.0),
         help="reserve coefficient γ_s of the divergence test νᵀν > γ_s·tr(S) (large = off)",
     )
     c: float = param(
         2.0,
         lo=0.1,
         hi=1e12,
+        tune=(0.5, 10.0),
         help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
     )
 
@@ -938,10 +949,14 @@ class RAKF(Filter):
 class RSSHAKFParams:
     """RSSHAKF options (ALGORITHMS.md §4.9, RECONSTRUCTION of Narasimhappa et al. 2016)."""
 
-    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    b: float = param(0.98, lo=0.5, hi=1.0, tune=(0.8, 0.999), help="Sage–Husa forgetting factor b")
     adapt: bool = param(True, help="estimate the diagonal R̂ (off: R̂ stays diag R0)")
     c_r: float = param(
-        2.5, lo=0.1, hi=1e12, help="outlier threshold c_r on |ν̃| (variance inflation above it)"
+        2.5,
+        lo=0.1,
+        hi=1e12,
+        tune=(1.0, 10.0),
+        help="outlier threshold c_r on |ν̃| (variance inflation above it)",
     )
     exclude_outliers: bool = param(
         False,

@@ -7,7 +7,7 @@ schedule (nominal σ, default 3 m per axis), its outlier model (default: 10 % of
 and optional outages.
 
 Monte Carlo on real data: run r is an independent noise/outlier injection on the SAME real IMU
-and trajectory (SeedSequence([seed, r]) as for the simulations); the truth is identical in every
+and trajectory (run r's streams as for the simulations, ``run_streams``); the truth is identical in every
 run. The filters are navlab's registered filters on the total-state closed-loop model of
 :class:`navlab.ins.lc.InsGnssModel`; only the GNSS update strategy differs between them.
 
@@ -321,7 +321,7 @@ class Drive0708(Scenario):
         model = InsGnssModel(
             setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma
         )
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         std = schedule.std(sigma, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)

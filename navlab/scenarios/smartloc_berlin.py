@@ -642,7 +642,7 @@ class SmartlocBerlin(Scenario):
             + ("" if ep.has_truth else "; no truth: errors cannot be computed")
         )
         m = model.m
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         # extra injected noise (schedule/outliers) in whitened units: the real errors stay
         std = schedule.std(np.ones(m), K)

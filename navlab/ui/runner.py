@@ -24,13 +24,11 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import streamlit as st
 
 from navlab import memory
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan, run_size
-from navlab.metrics import summarize
 
 log = logging.getLogger(__name__)
 PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
@@ -348,30 +346,3 @@ def run_live(
 
 
 # --------------------------------------------------------------------------- metric cache
-
-
-# the metrics a sweep plots, with intervals (the others are point values: cheaper per point)
-SWEEP_METRICS = ("anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
-
-
-def _sweep_rows(res: Results) -> pd.DataFrame:
-    head = [f"rmse_{g}" for g in res.data.groups] + ["mean_rmse_pos", *SWEEP_METRICS]
-    head += list(res.data.extras.get("metrics", {}))
-    return summarize(res, metrics=head)
-
-
-@st.cache_data(max_entries=512, show_spinner=False)
-def _metrics_json(spec_json: str) -> pd.DataFrame:
-    from navlab.experiment import run_experiment
-
-    return _sweep_rows(run_experiment(ExperimentSpec.from_json(spec_json)))
-
-
-def metrics_cached(spec: ExperimentSpec) -> pd.DataFrame:
-    """Tidy metric table of ``spec`` with the sweep's intervals (cached by its JSON; bounded to
-    512 configurations).
-    """
-    res = result_store().get(spec.to_json())
-    if res is not None:
-        return _sweep_rows(res)
-    return _metrics_json(spec.to_json())
