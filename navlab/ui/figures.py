@@ -809,13 +809,9 @@ def sweep_heatmap_2d(df: pd.DataFrame, x_label: str, y_label: str, z_label: str,
             ),
         )
     )
-    fig.update_layout(
-        title={"text": title, "x": 0, "font": {"size": 15}},
-        height=160 + 36 * len(piv.index),
-        margin={"l": 80, "r": 20, "t": 50, "b": 55},
-    )
-    fig.update_xaxes(title_text=x_label, type="category")
-    fig.update_yaxes(title_text=y_label, type="category")
+    fig.update_layout(title=title_layout(title), height=160 + 36 * len(piv.index), margin=MARGIN)
+    fig.update_xaxes(title_text=x_label, type="category", automargin=True)
+    fig.update_yaxes(title_text=y_label, type="category", automargin=True)
     return fig
 
 
@@ -868,7 +864,7 @@ def tune_landscape(
             )
         fig = _figure(traces, f"{label}: objective over {n}", n, "objective (training seeds)")
         fig.update_xaxes(type="log" if log[n] else "linear", range=None)
-        return fig
+        return clean_log_ticks(fig)
     a, b = names[:2]
     traces = [
         go.Scatter(
@@ -903,7 +899,7 @@ def tune_landscape(
     fig = _figure(traces, f"{label}: objective over {a} × {b}", a, b)
     fig.update_xaxes(type="log" if log[a] else "linear")
     fig.update_yaxes(type="log" if log[b] else "linear")
-    return fig
+    return clean_log_ticks(fig)
 
 
 def schedule_preview(spec, height: int = 220) -> go.Figure:
