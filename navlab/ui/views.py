@@ -101,7 +101,8 @@ class CompareView:
         self.nis = right.empty()
         self._made = False
         self.group = self.channel = self.ref = None
-        self.log_err = self.log_r = False
+        self.log_err = False
+        self.log_r = True
         self.as_std = False
         self.live = False  # set by the page while run_live streams chunks
 
@@ -140,7 +141,9 @@ class CompareView:
         self.as_std = c4.toggle(
             "σ not R", key=f"{self.page}_v_std", help="show standard deviations instead of variances"
         )
-        self.log_r = c5.toggle("log R", key=f"{self.page}_v_logr")
+        self.log_r = c5.toggle(
+            "log R", value=True, key=f"{self.page}_v_logr", help="off: a linear axis for R̂ and the true R(t)"
+        )
 
     def render(self, res: Results) -> None:
         self._controls(res)
@@ -250,7 +253,8 @@ class NoiseView:
         self.channel = 0
         self.stat = None
         self._drawn = 0
-        self.log_r = self.as_std = False
+        self.as_std = False
+        self.log_r = True
         self.show_used = True
 
     def _controls(self, res: Results) -> None:
@@ -265,7 +269,12 @@ class NoiseView:
         self.as_std = c2.toggle(
             "σ not R", key=f"{self.page}_v_std", help="show standard deviations instead of variances"
         )
-        self.log_r = c3.toggle("log scale", key=f"{self.page}_v_log")
+        self.log_r = c3.toggle(
+            "log scale",
+            value=True,
+            key=f"{self.page}_v_log",
+            help="off: a linear axis for R̂ and the true R(t)",
+        )
         self.show_used = c4.toggle("R used by non-adaptive filters", value=True, key=f"{self.page}_v_used")
         stats = F.internal_stats(res)
         if stats:
