@@ -9,7 +9,6 @@ app streams them), :func:`run_experiment` returns the final :class:`Results`.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
@@ -22,7 +21,7 @@ import numpy as np
 
 from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
-from navlab.filters.linalg import Array, diag, quad
+from navlab.linalg import Array, diag, quad
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
 from navlab.scenarios.base import Scenario, ScenarioData, get_scenario_class
 
@@ -248,76 +247,6 @@ def _stack(arrays: Sequence[Any], shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(st, (len(arrays), *shape))
 
 
-def _quad_lapack(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (N, d), S (N, d, d); NaN where S is singular."""
-    try:
-        return np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
-    except np.linalg.LinAlgError:  # a singular S somewhere: NaN only where it is
-        q = np.full(v.shape[0], np.nan)
-        for i in range(q.size):
-            with contextlib.suppress(np.linalg.LinAlgError):
-                q[i] = v[i] @ np.linalg.solve(S[i], v[i])
-        return q
-
-
-def _quad_ldl(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (N, d), S (N, d, d) by symmetric elimination S = L D Lᵀ, batch axis last.
-
-    q = Σᵢ yᵢ²/Dᵢ with L y = v. Without pivoting, which is stable for positive-definite S; for
-    many small matrices it is several times faster than one LAPACK call per matrix.
-    """
-    d = S.shape[-1]
-    A = np.empty((d, d + 1, S.shape[0]))
-    A[:, :d] = np.moveaxis(S, 0, -1)
-    A[:, d] = v.T
-    q = np.zeros(S.shape[0])
-    for i in range(d):
-        piv = A[i, i]
-        q += A[i, d] ** 2 / piv
-        if i + 1 < d:
-            A[i + 1 :, i:] -= (A[i + 1 :, i] / piv)[:, None] * A[i, i:][None]
-    return q
-
-
-def _quad_chol(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v = |L⁻¹ v|² for v (N, d), S (N, d, d) = L Lᵀ, by batched Cholesky and a forward
-    substitution with the batch axis last (≈ 25 % faster than LU at d = 15); LU where any S is
-    not positive definite.
-    """
-    try:
-        L = np.moveaxis(np.linalg.cholesky(S), 0, -1)  # (d, d, N)
-    except np.linalg.LinAlgError:
-        return _quad_lapack(v, S)
-    vt = v.T
-    y = np.empty_like(vt)
-    for i in range(vt.shape[0]):
-        y[i] = (vt[i] - (L[i, :i] * y[:i]).sum(axis=0) if i else vt[i]) / L[i, i]
-    return (y * y).sum(axis=0)
-
-
-def _quad_stack(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (L, B, d), S (L, B, d, d) -> (L, B); NaN where S is singular or not finite."""
-    shape, d = v.shape[:2], v.shape[-1]
-    if S.shape[1] > 1 and S.strides[1] == 0:  # one S per epoch shared by every run (the KF's P)
-        with np.errstate(all="ignore"), contextlib.suppress(np.linalg.LinAlgError):
-            X = np.linalg.solve(S[:, 0], v.swapaxes(1, 2))  # (L, d, B): one solve per epoch
-            return np.einsum("lbi,lib->lb", v, X)
-    v, S = v.reshape(-1, d), S.reshape(-1, d, d)
-    with np.errstate(all="ignore"):
-        if d == 2:  # linalg.quad's closed form (a singular S gives inf/NaN: redone by LU below)
-            q = quad(v, S)
-        elif v.shape[0] < 512:
-            return _quad_lapack(v, S).reshape(shape)
-        elif d > 8:
-            return _quad_chol(v, S).reshape(shape)
-        else:
-            q = _quad_ldl(v, S)
-        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=1) & np.isfinite(S).all(axis=(1, 2))
-        if redo.any():  # a zero pivot of an indefinite or singular S: LU with pivoting decides
-            q[redo] = _quad_lapack(v[redo], S[redo])
-        return q.reshape(shape)
-
-
 class _Recorder:
     """Preallocated (B, K+1, …) arrays for one filter; fields appear on first use.
 
@@ -405,10 +334,10 @@ class _Recorder:
         no_nis = [j for j, o in enumerate(outs) if "nis" not in o.stats]
         if no_nis:
             inn = np.stack([outs[j].innov for j in no_nis])
-            self.nis[:, [items[j][0] for j in no_nis]] = _quad_stack(inn, S[no_nis]).T
+            self.nis[:, [items[j][0] for j in no_nis]] = quad(inn, S[no_nis]).T
         if self.x_true is not None:
             dx = (x - self.x_true[:, ks]).swapaxes(0, 1)
-            self.nees[:, ks] = _quad_stack(dx, P).T
+            self.nees[:, ks] = quad(dx, P).T
         ok = np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2)  # (B, L)
         bad = ~ok.all(axis=1) & (self.diverged_at < 0)
         if bad.any():

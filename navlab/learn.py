@@ -31,7 +31,7 @@ from navlab.filters.base import (
     get_filter_class,
     registry,
 )
-from navlab.filters.linalg import Array, quad
+from navlab.linalg import Array, quad
 
 # ------------------------------------------------------------------------------------ equations
 # One list of LaTeX lines per filter key (ALGORITHMS.md section in the comment). Each string is

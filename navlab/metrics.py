@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.scenarios.base import MetricGroup
 
 if TYPE_CHECKING:

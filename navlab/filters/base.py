@@ -19,7 +19,7 @@ import numpy as np
 
 from navlab import params as P_
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array, mv
+from navlab.linalg import Array, mv
 
 
 class Model(Protocol):
@@ -187,7 +187,7 @@ class Filter:
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         """Time update k−1 → k (default: the KF/EKF prediction)."""
-        from navlab.filters.linalg import predict_cov
+        from navlab.linalg import predict_cov
 
         return state._replace(x=model.f(state.x, k), P=predict_cov(model.F(k), state.P, model.Q(k)))
 

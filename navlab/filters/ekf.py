@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from navlab.filters.base import Filter, KFState, Model, SideInfo, StepOut, register
 from navlab.filters.kalman import kf_update
-from navlab.filters.linalg import Array, mT, sym
+from navlab.linalg import Array, mT, sym
 
 
 def ekf_predict(model: Model, x: Array, P: Array, k: int) -> tuple[Array, Array]:

@@ -53,7 +53,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import (
+from navlab.linalg import (
     Array,
     PHt,
     bcast,

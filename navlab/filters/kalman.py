@@ -25,7 +25,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import (
+from navlab.linalg import (
     Array,
     PHt,
     chi2_threshold,

@@ -40,15 +40,14 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, sym
 from navlab.filters.rbf import RBFNet, train
 from navlab.filters.ukf import (
     MFUKFParams,
     UKFState,
-    _batched,
     _FadingBase,
     mask_channels,
 )
+from navlab.linalg import Array, batched, sym
 from navlab.params import param
 
 
@@ -281,7 +280,7 @@ class NNMFUKF(_FadingBase):
                     Pyy0 = sym(A + R)
                     # runs not replaced keep V, R, Pyy0 bit for bit: re-solve the replaced ones only
                     i = np.flatnonzero(replaced)
-                    _, _, rej2, g2 = self._test(V[i], _batched(Pyy0, B)[i], ok[i], _batched(Pxy, B)[i])
+                    _, _, rej2, g2 = self._test(V[i], batched(Pyy0, B)[i], ok[i], batched(Pxy, B)[i])
                     Kt, fx = gain[0].copy(), gain[1].copy()
                     Kt[i], fx[i] = g2
                     gain = (Kt, fx)

@@ -59,13 +59,15 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import (
+from navlab.linalg import (
     Array,
     PHt,
+    batched,
     bcast,
     diag,
     diag_embed,
     eigh_clamp,
+    forward_subst,
     joseph_from_gain,
     kf_gain,
     mask_missing,
@@ -202,10 +204,6 @@ def _residual_cov(eta: Array, eta_ok: Array, R0: Array) -> Array:
 # ------------------------------------------------------------------------------ helpers
 
 
-def _batched(P: Array, B: int) -> Array:
-    return np.broadcast_to(P, (B, *P.shape[-2:])).copy()
-
-
 def _flag_fix(flags: Array, fixed: Array) -> None:
     """Set flag 9 on still-accepted channels where a numerical fix was applied.
 
@@ -289,19 +287,6 @@ def _sqrt_factor(S: Array) -> tuple[Array, Array]:
         wb = np.maximum(np.nan_to_num(w[bad]), 1e-12 * scale[bad])
         L[bad] = np.nan_to_num(V[bad]) * np.sqrt(wb)[:, None, :]
     return L, bad
-
-
-def _forward_subst(L: Array, v: Array) -> Array:
-    """L⁻¹ v for lower-triangular L (B, m, m), v (B, m), row by row (a LAPACK solve per epoch
-    costs ≈ 10× more; the same solution up to round-off).
-    """
-    e = np.empty_like(v)
-    for i in range(v.shape[-1]):
-        acc = v[:, i]
-        for j in range(i):
-            acc = acc - L[:, i, j] * e[:, j]
-        e[:, i] = acc / L[:, i, i]
-    return e
 
 
 def _zero_columns(K: Array, B: int, reject: Array) -> Array:
@@ -424,11 +409,11 @@ class SageHusa(Filter):
         x0 = np.array(x0, dtype=float)
         B, n = x0.shape
         m = model.m
-        P = _batched(np.asarray(P0, dtype=float), B)
-        R = _batched(np.asarray(model.R0, dtype=float), B)
+        P = batched(np.asarray(P0, dtype=float), B).copy()
+        R = batched(np.asarray(model.R0, dtype=float), B).copy()
         Q = None
         if self.params.full:
-            Q = _batched(np.asarray(model.Q(1), dtype=float), B)
+            Q = batched(np.asarray(model.Q(1), dtype=float), B).copy()
         return SHState(x0, P, R, 0, np.zeros((B, m)), Q, np.zeros((B, n)), x0, P)
 
     def predict(self, model: Model, state: SHState, k: int) -> SHState:
@@ -565,7 +550,7 @@ class IRAKF(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> IRAKFState:
         x0 = np.array(x0, dtype=float)
         B = x0.shape[0]
-        P = _batched(np.asarray(P0, dtype=float), B)
+        P = batched(np.asarray(P0, dtype=float), B).copy()
         win = _Window.empty(B, self.params.window, model.m)
         Ps = np.array(P0, dtype=float)  # the ungated SKF keeps a shared P if P0 is shared
         return IRAKFState(x0, P, P, win, x0.copy(), Ps)
@@ -626,7 +611,7 @@ class IRAKF(Filter):
             R_hat, clamped = _clamp(R_hat, lo, hi)  # (symmetrises R̂)
             _flag_fix(flags, clamped)
         else:
-            R_hat = _batched(np.asarray(model.R0, dtype=float), B)
+            R_hat = batched(np.asarray(model.R0, dtype=float), B).copy()
         # 4 gain from the unmodified R̂
         nu_raw = z - model.h(x_m, k)
         ok, nu, Hm, Rm = mask_missing(z, nu_raw, H, R_hat)
@@ -747,7 +732,7 @@ class RRAE(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> RAEState:
         x0 = np.array(x0, dtype=float)
         B = x0.shape[0]
-        P = _batched(np.asarray(P0, dtype=float), B)
+        P = batched(np.asarray(P0, dtype=float), B).copy()
         return RAEState(x0, P, P, _Window.empty(B, self.params.window, model.m))
 
     def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
@@ -768,7 +753,7 @@ class RRAE(Filter):
             R_hat, clamped = _clamp(R_hat, lo, hi)
             _flag_fix(flags, clamped)
         else:
-            R_hat = _batched(np.asarray(model.R0, dtype=float), B)
+            R_hat = batched(np.asarray(model.R0, dtype=float), B).copy()
         # 2 innovation statistics with R̂
         ok, nu, Hm, Rm = mask_missing(z, z - model.h(x_m, k), H, R_hat)
         U, HPHt = PHt(P_m, Hm)
@@ -867,8 +852,8 @@ class RAKF(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> RAKFState:
         x0 = np.array(x0, dtype=float)
         B = x0.shape[0]
-        P = _batched(np.asarray(P0, dtype=float), B)
-        return RAKFState(x0, P, _batched(np.asarray(model.R0, dtype=float), B), 0)
+        P = batched(np.asarray(P0, dtype=float), B).copy()
+        return RAKFState(x0, P, batched(np.asarray(model.R0, dtype=float), B).copy(), 0)
 
     def update(self, model: Model, state: RAKFState, k: int, z: Array, side: SideInfo):
         p = self.params
@@ -904,7 +889,7 @@ class RAKF(Filter):
         L, sfix = _sqrt_factor(S)
         _flag_fix(flags, sfix)
         # an eigen-factor (sfix) is not triangular: a general solve there
-        e = solve_sym(L, nu[..., None])[0][..., 0] if sfix.any() else _forward_subst(L, nu)
+        e = solve_sym(L, nu[..., None])[0][..., 0] if sfix.any() else forward_subst(L, nu)
         ae = np.abs(e)
         clip = (ae > p.c) & ok
         psi = np.where(clip, p.c * np.sign(e), e)
@@ -973,9 +958,9 @@ class RSSHAKF(Filter):
     def init(self, model: Model, x0: Array, P0: Array) -> RAKFState:
         x0 = np.array(x0, dtype=float)
         B = x0.shape[0]
-        P = _batched(np.asarray(P0, dtype=float), B)
+        P = batched(np.asarray(P0, dtype=float), B).copy()
         R = np.diag(np.diag(np.asarray(model.R0, dtype=float)))  # diagonal R̂ (§4.9)
-        return RAKFState(x0, P, _batched(R, B), 0)
+        return RAKFState(x0, P, batched(R, B).copy(), 0)
 
     def update(self, model: Model, state: RAKFState, k: int, z: Array, side: SideInfo):
         p = self.params

@@ -38,7 +38,19 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, chi2_threshold, diag, mT, mv, solve_sym, sym
+from navlab.linalg import (
+    Array,
+    batched,
+    bcast,
+    chi2_threshold,
+    diag,
+    mT,
+    mv,
+    quad,
+    shared_left,
+    solve_sym,
+    sym,
+)
 from navlab.params import param
 
 # ---------------------------------------------------------------------------------------------
@@ -121,30 +133,6 @@ def linear_sqrt(P: Array, symmetric: bool = False) -> tuple[Array, Array]:
         return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
     except np.linalg.LinAlgError:
         return svd_sqrt(Ps)
-
-
-def left_mul(M: Array, L: Array) -> Array:
-    """M @ L for M (p, n) or (B, p, n) and L (n, n) or (B, n, n).
-
-    A shared M with a stack of L is done as ONE matrix product, (M L_b)ᵀ = L_bᵀ Mᵀ on the stacked
-    (B·n, n) rows of Lᵀ, instead of numpy's loop of B small products (≈ 2× faster for n = 15).
-    """
-    if M.ndim == 2 and L.ndim == 3:
-        B, n, q = L.shape
-        Lt = np.ascontiguousarray(mT(L)).reshape(B * q, n)
-        p = M.shape[0]
-        rows = max(1, _SERIAL_GEMM // (n * p))  # keep each product below BLAS's threading size
-        if B * q <= rows:
-            out = Lt @ M.T
-        else:
-            out = np.concatenate([Lt[s : s + rows] @ M.T for s in range(0, B * q, rows)])
-        return mT(out.reshape(B, q, p))
-    return M @ L
-
-
-# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4, on all CPUs above; on the small shared
-# machine a threaded product can wait many times its cost for a busy CPU (navlab.filters.rbf.mm)
-_SERIAL_GEMM = 65536 * 4
 
 
 def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
@@ -251,7 +239,7 @@ def ukf_time_update(
         F = model.F(k)
         Q = model.Q(k)
         L, neg = linear_sqrt(P, symmetric)
-        G = left_mul(F, L)
+        G = shared_left(F, L)
         P_p = sym(w.c2 * (G @ mT(G)) + Q)
         return UKFState(mv(F, x), P_p, None, bcast(neg, (B,)).copy(), q_is_psd(Q))
     if not keep_sigma and _shared_linear(model, P, lambda: model.F(k)):
@@ -285,13 +273,13 @@ def ukf_measurement_prediction(
             # P⁻ = sym(c2·G Gᵀ + Q), Q ⪰ 0 (ukf_time_update): its eigenvalues are ≥ −O(n·eps·‖P⁻‖),
             # so |P⁻| = P⁻ and L Lᵀ = P⁻ to round-off for ANY square root, and the flag (min eig
             # < −1e-9·trace) cannot be raised: A = c2·H P⁻ Hᵀ, Pxy = c2·P⁻ Hᵀ need no factor
-            PHt = mT(left_mul(H, state.P))  # P Hᵀ = (H P)ᵀ, P symmetric
-            A = w.c2 * left_mul(H, PHt)
+            PHt = mT(shared_left(H, state.P))  # P Hᵀ = (H P)ᵀ, P symmetric
+            A = w.c2 * shared_left(H, PHt)
             Pxy = w.c2 * PHt
             neg = np.zeros(B, dtype=bool)
         else:
             L, neg = linear_sqrt(state.P, symmetric)
-            HL = left_mul(H, L)
+            HL = shared_left(H, L)
             A = w.c2 * (HL @ mT(HL))
             Pxy = w.c2 * (L @ mT(HL))
         neg = bcast(neg, (B,))
@@ -361,7 +349,7 @@ def fading_update(
     """
     if np.all(s == 1.0) and np.all(sig == 1.0):  # no fading: the scalings below are exact no-ops
         B = x.shape[0]
-        P1, A1, Pxy1 = _batched(P, B), _batched(A, B), _batched(Pxy, B)
+        P1, A1, Pxy1 = batched(P, B), batched(A, B), batched(Pxy, B)
     elif form == "literal":
         P1 = s[:, :, None] * P
         A1 = sig[:, :, None] * A
@@ -383,32 +371,6 @@ def apply_gain(x: Array, P: Array, V: Array, Pyy: Array, Kt: Array) -> tuple[Arr
     """§1.3 step 8 with Kᵀ = Pyy⁻¹ Pxyᵀ given: x⁺ = x⁻ + K V, P⁺ = sym(P⁻ − K Pyy Kᵀ)."""
     K = mT(Kt)
     return x + (K @ V[..., None])[..., 0], sym(P - K @ Pyy @ Kt)
-
-
-def _batched(a: Array, B: int, core: int = 2) -> Array:
-    """``a`` with a leading run axis of length B (a shared array is broadcast, not copied)."""
-    return a if a.ndim > core else bcast(a, (B, *a.shape))
-
-
-def bcast(a: Array, shape: tuple[int, ...]) -> Array:
-    """``np.broadcast_to(a, shape)`` (read-only view); a C-contiguous ``a`` that only gains leading
-    axes gets a zero-stride view built directly (≈ 1 µs instead of ≈ 10 µs for broadcast_to).
-    """
-    a = np.asarray(a)
-    if a.shape == shape:
-        return a
-    lead = len(shape) - a.ndim
-    if lead > 0 and shape[lead:] == a.shape and a.flags.c_contiguous and a.size:
-        v = np.ndarray(shape, a.dtype, a, 0, (0,) * lead + a.strides)
-        v.flags.writeable = False
-        return v
-    return np.broadcast_to(a, shape)
-
-
-def quad_batched(V: Array, S: Array) -> Array:
-    """VᵀS⁻¹V for V (B, m), S (B, m, m)."""
-    X, _ = solve_sym(S, V[..., None])
-    return np.einsum("bi,bi->b", V, X[..., 0])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -617,10 +579,10 @@ class _FadingBase(_UKFBase):
         p = self.params
         gain = None
         if Pxy is None:
-            gamma = quad_batched(V, Pyy)
+            gamma = quad(V, Pyy)
         else:
             B = V.shape[0]
-            rhs = np.concatenate([V[..., None], _batched(mT(Pxy), B)], axis=-1)
+            rhs = np.concatenate([V[..., None], batched(mT(Pxy), B)], axis=-1)
             X, fixed = solve_sym(Pyy, rhs)
             gamma = np.einsum("bi,bi->b", V, X[..., 0])
             gain = (X[..., 1:], bcast(fixed, (B,)))
@@ -655,7 +617,7 @@ class _FadingBase(_UKFBase):
             sig = np.ones_like(V)
             if gain is not None and not p.recompute_sigma:
                 x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
-                return x, P, _batched(Pyy0, B), gain[1], sig
+                return x, P, batched(Pyy0, B), gain[1], sig
         sig = fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)
         M, exact = channel_state_map(model, state.x, k, state.x.shape[1])
         s = state_scale(sig, M)
@@ -676,17 +638,17 @@ class _FadingBase(_UKFBase):
             return x, P, Pyy, fixed, sig
         # unfaded runs: the gain of the test's solve; faded runs (a subset): §5 step 4
         x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
-        Pyy = _batched(Pyy0, B).copy()
+        Pyy = batched(Pyy0, B).copy()
         fixed = gain[1].copy()
         if fade.any():
             i = np.flatnonzero(fade)
             xf, Pf, Pyyf, fixf = fading_update(
                 state.x[i],
-                _batched(state.P, B)[i],
+                batched(state.P, B)[i],
                 V[i],
-                _batched(A, B)[i],
-                _batched(Pxy, B)[i],
-                _batched(R, B)[i],
+                batched(A, B)[i],
+                batched(Pxy, B)[i],
+                batched(R, B)[i],
                 s[i],
                 sig[i],
                 p.form,

@@ -53,7 +53,7 @@ import numpy as np
 
 from navlab.filters.base import NUMERICAL_FIX, Filter, Model, SideInfo, StepOut, register
 from navlab.filters.ekf import ekf_predict
-from navlab.filters.linalg import Array, joseph_from_gain, mask_missing, mT, mv, solve_sym, sym
+from navlab.linalg import Array, joseph_from_gain, mask_missing, mT, mv, solve_sym, sym
 from navlab.params import param
 
 

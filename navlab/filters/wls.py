@@ -28,7 +28,7 @@ from navlab.filters.base import (
     StepOut,
     register,
 )
-from navlab.filters.linalg import Array, mask_missing, mT, mv, sym
+from navlab.linalg import Array, mask_missing, mT, mv, sym
 from navlab.params import param
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from navlab import params as P_
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.params import param
 
 

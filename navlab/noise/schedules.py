@@ -16,7 +16,7 @@ import numpy as np
 
 from navlab import params as P_
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.params import param
 
 _CH_HELP = "channel indices that follow the schedule (empty = all channels)"

@@ -19,7 +19,7 @@ import numpy as np
 from navlab import params as P_
 from navlab.errors import NavlabError
 from navlab.filters.base import Model, SideInfo
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
 
 

@@ -9,14 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from navlab.filters.linalg import eigh_clamp, sym
 from navlab.filters.sage_husa import (
     _clamp,
     _eig_inside,
-    _forward_subst,
     igg3_weights,
     irakf_weights,
 )
+from navlab.linalg import eigh_clamp, forward_subst, sym
 
 
 def _random_sym(rng, B, m, scale=1.0):
@@ -70,7 +69,7 @@ def test_forward_substitution_solves_the_triangular_system(m):
     rng = np.random.default_rng(m)
     L = np.linalg.cholesky(_random_sym(rng, 30, m))
     v = rng.standard_normal((30, m))
-    e = _forward_subst(L, v)
+    e = forward_subst(L, v)
     np.testing.assert_allclose((L @ e[..., None])[..., 0], v, rtol=1e-10, atol=1e-12)
 
 
