@@ -18,8 +18,8 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import numpy as np
 
 from navlab import params as P_
-from navlab.errors import NavlabError
 from navlab.linalg import Array, mv
+from navlab.registry import Registry
 
 
 class Model(Protocol):
@@ -196,36 +196,28 @@ class Filter:
         raise NotImplementedError
 
 
-_REGISTRY: dict[str, type[Filter]] = {}
-
-
-def register(cls: type[Filter]) -> type[Filter]:
-    """Class decorator adding a filter to the registry under ``cls.key``."""
-    if not cls.key or cls.key != cls.key.lower() or " " in cls.key or "_" in cls.key:
-        raise ValueError(f"filter key must be kebab-case, got {cls.key!r}")
-    if cls.key in _REGISTRY and _REGISTRY[cls.key] is not cls:
-        raise ValueError(f"filter key {cls.key!r} registered twice")
+def _check_filter(cls: type[Filter]) -> None:
     if not dataclasses.is_dataclass(cls.Params):
         raise TypeError(f"{cls.__name__}.Params must be a dataclass")
-    _REGISTRY[cls.key] = cls
-    return cls
+
+
+#: Every filter, by key; the modules of :mod:`navlab.filters` register theirs with :func:`register`.
+FILTERS: Registry[type[Filter]] = Registry("filter", package="navlab.filters", check=_check_filter)
+
+#: Class decorator adding a filter to :data:`FILTERS` under ``cls.key`` (kebab-case).
+register = FILTERS.register
 
 
 def registry() -> dict[str, type[Filter]]:
-    """All registered filters, by key (importing every filter family first)."""
-    import navlab.filters  # noqa: F401  (registers the families)
-
-    return dict(_REGISTRY)
+    """All registered filters, by key (a copy of :data:`FILTERS`)."""
+    return dict(FILTERS)
 
 
 def get_filter_class(key: str) -> type[Filter]:
     """The filter class registered as ``key``; NavlabError naming the known keys otherwise."""
-    reg = registry()
-    if key not in reg:
-        raise NavlabError(f"unknown filter '{key}'; known filters: {', '.join(sorted(reg))}")
-    return reg[key]
+    return FILTERS.lookup(key)
 
 
 def make_filter(key: str, params: dict[str, Any] | None = None) -> Filter:
     """Instantiate a registered filter with validated parameters."""
-    return get_filter_class(key)(params or {})
+    return FILTERS.make(key, params)
