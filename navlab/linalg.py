@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -192,33 +193,45 @@ def cofactor_index(m: int) -> tuple[Array, Array]:
     return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
 
 
-_ADJ2_SIGN = np.array([[1.0, -1.0], [-1.0, 1.0]])
+def cofactors(Sf: Array, m: int) -> Array:
+    """Cofactor matrix C of each symmetric m×m matrix (m ≤ 3), flattened: (B, m²) -> (B, m²).
+
+    adj(S) = Cᵀ = C for symmetric S, so S⁻¹ = C / det S with det S = Σ_j S_0j C_0j.
+    """
+    if m == 1:
+        return np.ones_like(Sf)
+    idx, sgn = cofactor_index(m)
+    G = Sf[:, idx]
+    return G * sgn if m == 2 else G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]
 
 
 def inv_small(S: Array) -> tuple[Array, Array]:
-    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det.
+    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det (closed form).
 
     Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU);
     an ill run's inverse is not meaningful.
     """
     B, m = S.shape[0], S.shape[-1]
-    if m == 2:  # adj(S) = [[d, −b], [−c, a]] by reversing both axes; elementwise, no gather
-        a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
-        det = a * d - b * c
-        ill = ~(det > 1e-12 * (a * d))
-        inv = 1.0 / np.where(ill, 1.0, det)
-        return S[:, ::-1, ::-1] * _ADJ2_SIGN * inv[:, None, None], ill
-    Sf = S.reshape(B, m * m)
-    if m == 1:
-        cof = np.ones((B, 1))
-    else:
-        idx, sgn = cofactor_index(m)
-        G = Sf[:, idx]
-        cof = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36] if m == 3 else G * sgn
+    Sf = np.ascontiguousarray(S).reshape(B, m * m)
+    cof = cofactors(Sf, m)
     det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
     ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
     inv = 1.0 / np.where(ill, 1.0, det)
     return cof.reshape(B, m, m) * inv[:, None, None], ill
+
+
+def inv_spd(S: Array) -> tuple[Array, Array]:
+    """``S⁻¹`` of symmetric positive-definite S (B, m, m) and the runs that needed a fix.
+
+    The closed form (:func:`inv_small`) for m ≤ 3, the LU solve ``S X = I`` of :func:`solve_sym`
+    otherwise or where any S of the stack is ill-conditioned (``fixed`` marks the runs that
+    needed jitter, flag 9).
+    """
+    if S.shape[-1] <= 3:
+        Sinv, ill = inv_small(S)
+        if not ill.any():
+            return Sinv, ill
+    return solve_sym(S, np.eye(S.shape[-1]))
 
 
 def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
@@ -283,27 +296,49 @@ def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:
     return sym(P - U @ mT(K) + K @ mT(K @ S - U))
 
 
-def mask_missing(z: Array, nu: Array, H: Array, R: Array) -> tuple[Array, Array, Array, Array]:
-    """Drop unavailable channels (NaN in ``z``) exactly.
+class Masked(NamedTuple):
+    """Measurement-update inputs with the unavailable channels dropped (:func:`mask_missing`)."""
 
-    A missing channel i gets a zero innovation, a zero row in H and a unit, uncorrelated R_ii, so
-    its gain column is exactly zero and S stays invertible. With every channel present the inputs
-    come back unchanged (and unbatched).
+    ok: Array  # (B, m) bool: channel available
+    nu: Array  # innovation, 0 on missing channels
+    R: Array | None  # R with a unit, uncorrelated R_ii on missing channels
+    H: Array | None = None  # H with zero rows on missing channels
+    U: Array | None = None  # P Hᵀ (the UKF's Pxy) with zero columns on missing channels
+    M: Array | None = None  # H P Hᵀ (the UKF's A) with zero rows and columns on missing channels
 
-    Returns
-    -------
-    ok : (B, m) bool, channel available.
-    nu, H, R : masked copies (batched where masking was needed).
+
+def mask_missing(
+    z: Array,
+    nu: Array,
+    R: Array | None = None,
+    *,
+    H: Array | None = None,
+    U: Array | None = None,
+    M: Array | None = None,
+) -> Masked:
+    """Drop the unavailable channels (NaN in ``z``) of a measurement update exactly.
+
+    A missing channel i gets ν_i = 0, a zero row i of H (so a zero column i of U = P Hᵀ and a
+    zero row and column i of M = H P Hᵀ) and a unit, uncorrelated R_ii: S = M + R stays
+    invertible, block-diagonal in (i, the rest), so the gain column K[:, i] = (U S⁻¹)[:, i] is
+    exactly zero and the update equals the update with channel i removed. Give whichever of R, H,
+    U, M the filter uses. With every channel present the inputs come back unchanged (unbatched).
     """
     ok = np.isfinite(z)
     if ok.all():
-        return ok, nu, H, R
+        return Masked(ok, nu, R, H, U, M)
     B, m = z.shape
-    nu = np.where(ok, nu, 0.0)
-    H = np.broadcast_to(H, (B, *H.shape[-2:])) * ok[..., None]
     okk = ok[:, :, None] & ok[:, None, :]
-    R = np.where(okk, np.broadcast_to(R, (B, m, m)), 0.0) + np.eye(m) * (~ok)[:, None, :]
-    return ok, nu, H, R
+    nu = np.where(ok, nu, 0.0)
+    if R is not None:
+        R = np.where(okk, bcast(R, (B, m, m)), 0.0) + np.eye(m) * (~ok)[:, None, :]
+    if H is not None:
+        H = bcast(H, (B, *H.shape[-2:])) * ok[..., None]
+    if U is not None:
+        U = bcast(U, (B, *U.shape[-2:])) * ok[:, None, :]
+    if M is not None:
+        M = np.where(okk, bcast(M, (B, m, m)), 0.0)
+    return Masked(ok, nu, R, H, U, M)
 
 
 def eigh_clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:

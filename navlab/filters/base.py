@@ -18,7 +18,7 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import numpy as np
 
 from navlab import params as P_
-from navlab.linalg import Array, mv
+from navlab.linalg import Array, mv, predict_cov
 from navlab.registry import Registry
 
 
@@ -145,6 +145,57 @@ FLAG_NAMES = {
 }
 
 
+@dataclass(frozen=True)
+class Teaching:
+    """What the Learn page teaches about a filter (navlab/learn.py reads it from the class).
+
+    idea : one paragraph in plain words.
+    equations : the key equations, LaTeX, one ``st.latex`` call each (from ALGORITHMS.md).
+    caveat : what the tiny step-through example cannot show for this filter ("" if nothing).
+    """
+
+    idea: str = ""
+    equations: tuple[str, ...] = ()
+    caveat: str = ""
+
+
+@dataclass(frozen=True)
+class KFLimit:
+    """Parameter values under which a filter reduces to the standard KF (§1.1).
+
+    The contract tests (tests/contract) run the filter with ``params`` beside ``kf`` on data with
+    the nominal R and no outliers and require the same estimates.
+
+    params : the filter's parameters in the limit (e.g. a Huber threshold γ → ∞ as 1e12).
+    linear_only : the reduction holds on linear models only (the unscented transform of a linear
+        map is exact; of a nonlinear one it is not the EKF's linearisation).
+    why : one line on why this is the limit.
+    """
+
+    params: dict[str, Any]
+    linear_only: bool = False
+    why: str = ""
+
+
+def flag_fix(flags: Array, fixed: Array, *, overwrite: bool = True) -> Array:
+    """Mark numerical fixes (flag 9, §0.3) in the per-channel ``flags`` (B, m), in place.
+
+    ``fixed`` is () or (B,) (the whole run, e.g. a singular S that needed jitter) or (B, m) (the
+    channels concerned, e.g. an R̂ variance moved by the eigenvalue clamp). ``overwrite``: the fix
+    replaces whatever code the channel had; otherwise only still-accepted channels (code 0) get 9,
+    so a down-weighting or rejection stays visible. Returns ``flags``.
+    """
+    fixed = np.asarray(fixed, dtype=bool)
+    if fixed.any():
+        if fixed.ndim < 2:  # per run
+            fixed = np.broadcast_to(fixed, flags.shape[:1])[:, None]
+        where = np.broadcast_to(fixed, flags.shape)
+        if not overwrite:
+            where = where & (flags == ACCEPTED)
+        flags[where] = NUMERICAL_FIX
+    return flags
+
+
 class Filter:
     """Base class: subclass, set the class attributes, implement init/predict/update, register.
 
@@ -157,6 +208,8 @@ class Filter:
     spec_section : the section of ALGORITHMS.md it follows.
     reconstruction : True where the original could not be retrieved (shown in the app).
     estimates_R : True if it reports an R̂.
+    teaching : :class:`Teaching` — idea, key equations, caveat (the Learn page).
+    kf_limit : :class:`KFLimit` — parameters under which it is the KF (None: it never is).
     linear_only : True if it needs a linear model (uses F, H; ignores f, h).
     Params : frozen dataclass of hyper-parameters declared with :func:`navlab.params.param`.
     """
@@ -171,6 +224,8 @@ class Filter:
     estimates_R: ClassVar[bool] = False
     linear_only: ClassVar[bool] = False
     Params: ClassVar[type] = P_.NoParams
+    teaching: ClassVar[Teaching] = Teaching()
+    kf_limit: ClassVar[KFLimit | None] = None
 
     def __init__(self, params: Any = None, **kwargs: Any) -> None:
         if params is None or isinstance(params, dict):
@@ -187,8 +242,6 @@ class Filter:
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         """Time update k−1 → k (default: the KF/EKF prediction)."""
-        from navlab.linalg import predict_cov
-
         return state._replace(x=model.f(state.x, k), P=predict_cov(model.F(k), state.P, model.Q(k)))
 
     def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> tuple[Any, StepOut]:
