@@ -78,7 +78,7 @@ from navlab.linalg import (
 )
 from navlab.params import param
 
-__all__ = ["HAKF", "VBAKF", "HuberKF", "MeasSpace", "StudentTKF", "huber_weight", "meas_space_step"]
+__all__ = ["HAKF", "VBAKF", "HuberKF", "MeasSpace", "StudentTKF", "huber_weight", "meas_space_step", "whiten"]
 
 _GAMMA_HELP = "Huber threshold γ_H on the normalised residual (1.345: 95 % Gaussian efficiency)"
 _RHO_DEFAULT = 1.0 - math.exp(-4.0)  # ≈ 0.9817, memory 1/(1−ρ) ≈ 55 epochs (§3.1, §10 #8)
@@ -491,6 +491,19 @@ class StudentTParams:
     )
 
 
+def whiten(R: Array, M: Array, nu: Array) -> tuple[Array, Array]:
+    """``L⁻¹ M L⁻ᵀ`` and ``L⁻¹ ν`` with R = L Lᵀ (R (m, m) or per run (B, m, m), e.g. a masked R).
+
+    A diagonal R is a scaling by 1/σ_i, elementwise (a speed trick, ``benchmarks/tricks.py``
+    "whiten-diagonal": the Cholesky, the inverse and two products saved every epoch).
+    """
+    if R.ndim == 2 and np.array_equal(np.diag(np.diagonal(R)), R):
+        li = 1.0 / np.sqrt(np.diagonal(R))
+        return M * (li[:, None] * li), nu * li
+    Li = np.linalg.inv(np.linalg.cholesky(R))
+    return Li @ M @ mT(Li), mv(Li, nu)
+
+
 @register
 class StudentTKF(Filter):
     """VB Student-t KF: R_eff = R0/λ̄ with λ̄ = (ν+m)/(ν + tr(D R0⁻¹)) iterated (§1.6).
@@ -531,14 +544,7 @@ class StudentTKF(Filter):
         R0 = np.asarray(model.R0, dtype=float)
         mk = measurement_prediction(model, x0, P0, k, z, R0)
         dof_m = np.count_nonzero(mk.ok, axis=1).astype(float)
-        # whiten by R0 = L Lᵀ (missing channels: the masked R0, their zero rows stay zero)
-        r0 = np.diagonal(R0)
-        if mk.R is R0 and np.array_equal(np.diag(r0), R0):  # every channel, independent: L⁻¹ = diag(1/σ)
-            li = 1.0 / np.sqrt(r0)
-            Mw, nuw = batched(mk.M, B) * (li[:, None] * li), mk.nu * li
-        else:
-            Li = np.linalg.inv(np.linalg.cholesky(mk.R))
-            Mw, nuw = Li @ mk.M @ mT(Li), mv(Li, mk.nu)
+        Mw, nuw = whiten(mk.R, mk.M, mk.nu)  # by R0 = L Lᵀ: R_eff = I/λ̄ is diagonal
         ms = MeasSpace(batched(Mw, B), nuw)
         lam = np.ones(B)
         fixed = np.zeros(B, dtype=bool)

@@ -147,7 +147,15 @@ class RAKF(Filter):
         abnormal = nn > p.gamma_s * (trHPH + trR)
         lam = np.ones(B)
         if abnormal.any():  # (λ = 1 elsewhere: the products below are exact there)
-            lam[abnormal] = np.maximum(1.0, (nn - trR)[abnormal] / np.maximum(trHPH[abnormal], 1e-300))
+            a = np.flatnonzero(abnormal)
+            lam[a] = np.maximum(1.0, (nn[a] - trR[a]) / np.maximum(trHPH[a], 1e-300))
+            # a diverged run (P⁻ indefinite, so tr H P⁻ Hᵀ ≈ 0 or < 0, and λ P⁻ beyond the float
+            # range) has no usable inflation: it becomes NaN here, silently (flag 9), and the
+            # experiment records the divergence, instead of overflowing to ±inf
+            maxP = np.maximum(np.abs(P_m[a]).max(axis=(-2, -1)), 1.0)
+            broken = lam[a] > 1e300 / maxP
+            lam[a[broken]] = np.nan
+            flag_fix(flags, np.isnan(lam))
             P_m, U, HPHt = (A * lam[:, None, None] for A in (P_m, U, HPHt))  # P⁻ ← λ_k P⁻
         # 4  Huber clipping of the whitened innovation
         S = sym(HPHt + Rm)
