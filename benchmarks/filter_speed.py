@@ -4,7 +4,8 @@ Every filter of a case runs on the same simulated batch through a plain predict/
 shared time loop without the recorder). With ``--against REV`` the revision is unpacked into a
 temporary directory (``git archive``) and the two trees are measured in alternating worker
 processes, round after round, so both see the same machine load; the best round of each filter
-counts. Not a test: read the ratios, the machine is shared.
+counts. Times are CPU time of the worker (``time.process_time``), which a busy machine disturbs
+far less than wall-clock time. Not a test: read the ratios, the machine is shared.
 
     python benchmarks/filter_speed.py [--against REV] [--rounds 3] [--repeat 3] [--case cv2d,...]
 
@@ -85,7 +86,7 @@ CASES: dict[str, tuple] = {
 
 
 def worker(case: str, repeat: int) -> dict[str, float]:
-    """Seconds (best of ``repeat``) of each filter's predict/update loop on the case's batch."""
+    """CPU seconds (best of ``repeat``) of each filter's predict/update loop on the case's batch."""
     import numpy as np
 
     from navlab.experiment import ExperimentSpec, plan
@@ -101,12 +102,12 @@ def worker(case: str, repeat: int) -> dict[str, float]:
             f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
             model = data.model
             st = f.init(model, data.x0, data.P0)
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             with np.errstate(all="ignore"):
                 for k in range(1, data.K + 1):
                     st = f.predict(model, st, k)
                     st, _ = f.update(model, st, k, data.z[:, k], data.side(k))
-            best = min(best, time.perf_counter() - t0)
+            best = min(best, time.process_time() - t0)
         out[key] = best
     out["_steps"] = float(data.B * data.K)
     return out

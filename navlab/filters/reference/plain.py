@@ -58,9 +58,3 @@ def kf_step(x: Array, P: Array, nu: Array, Hk: Array, R: Array) -> tuple[Array, 
 def present(z: Array) -> Array:
     """Indices of the available channels of z (m,)."""
     return np.flatnonzero(np.isfinite(z))
-
-
-def eig_clamp(R: Array, lo: float, hi: float) -> Array:
-    """Eigenvalues of symmetric R clamped into [lo, hi] (§4.1 step 4)."""
-    w, V = np.linalg.eigh(0.5 * (R + R.T))
-    return (V * np.clip(w, lo, hi)) @ V.T

@@ -10,6 +10,7 @@ import numpy as np
 
 from navlab.filters.reference import Trace, plain, reference
 from navlab.filters.sage_husa.kernels import forgetting_weight
+from navlab.linalg import eigh_clamp
 
 
 def _bounds(R0):
@@ -26,7 +27,7 @@ def _sage_husa(R_prev, nu, HPH, o, d, lo, hi, diagonal=False):
         R[o, o] = np.clip(r, lo, hi)
         return R
     R[io] = (1 - d) * R_prev[io] + d * (np.outer(nu, nu) - HPH)
-    return plain.eig_clamp(R, lo, hi)
+    return eigh_clamp(R, lo, hi)[0]
 
 
 @reference("sage-husa", note="R only (full=False)")
@@ -100,7 +101,7 @@ def irakf(model, x0, P0, z, sides, p) -> Trace:
         P_ref = P if {"always": True, "never": False}.get(p.improved_rae, flag_s.any()) else P_post
         R_hat = _rae(window, p.window, R0, Hfull @ P_ref @ Hfull.T)  # 3
         if len(window) >= p.window:
-            R_hat = plain.eig_clamp(R_hat, lo, hi)
+            R_hat = eigh_clamp(R_hat, lo, hi)[0]
         w = np.ones(m)
         fl = np.zeros(m, dtype=np.int8)
         if o.size:
@@ -147,7 +148,7 @@ def rrae(model, x0, P0, z, sides, p) -> Trace:
         Hfull = plain.H(model, x, k)
         R_hat = _rae(window, p.window, R0, Hfull @ P_post @ Hfull.T)  # 1  eq. 3
         if len(window) >= p.window:
-            R_hat = plain.eig_clamp(R_hat, lo, hi)
+            R_hat = eigh_clamp(R_hat, lo, hi)[0]
         o = plain.present(z[k])
         w = np.ones(m)
         fl = np.zeros(m, dtype=np.int8)
