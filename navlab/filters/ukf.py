@@ -351,7 +351,9 @@ def fading_factors(
     a = diag(A)
     r = diag(R)
     good = (a > 0) & ok & reject[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # the division is guarded (A_ii > 0 where used); A_ii → 0⁺ or a diverged run's V may overflow
+    # the ratio to inf, which the clip to σ_max below handles
+    with np.errstate(over="ignore"):
         raw = np.where(good, (V**2 - r) / np.where(good, a, 1.0), 1.0)
     sig = np.clip(raw, 1.0, sigma_max)
     if gate > 0 and Pyy is not None:
