@@ -55,6 +55,7 @@ def _list(what: str) -> pd.DataFrame:
 
 
 def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
+    """A tidy table as JSON records (NaN → null), CSV (NaN → empty) or text (NaN → empty)."""
     if fmt == "json":
         records = json.loads(df.to_json(orient="records", double_precision=15))
         text = json.dumps(records, indent=1, ensure_ascii=False) + "\n"
@@ -71,7 +72,11 @@ def _emit(df: pd.DataFrame, fmt: str, out: str | None) -> None:
             "display.max_rows",
             10000,
         ):
-            text = df.to_string(index=False) + "\n"
+            text = df.astype(object).where(df.notna(), "").to_string(index=False) + "\n"
+    _write(text, out)
+
+
+def _write(text: str, out: str | None) -> None:
     if out:
         try:
             Path(out).write_text(text, encoding="utf-8")
@@ -137,15 +142,24 @@ def _run(a: argparse.Namespace) -> int:
 
     # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
     chunk = max(1, spec.runs // 10) if progress is not None else None
-    res = run_experiment(spec, on_progress=progress, chunk_runs=chunk)
-    df = res.metrics()
-    if a.format == "table":
-        from navlab.metrics import headline_table
+    if a.summary:
+        from navlab.experiment import run_summary
 
-        wide = headline_table(res).reset_index().rename(columns={"label": "filter"})
-        _emit(wide.round(4), "table", a.out)
+        res = run_summary(spec, on_progress=progress, budget=a.memory_budget)
     else:
-        _emit(df, a.format, a.out)
+        res = run_experiment(spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget)
+    if a.compare_to is not None and a.compare_to not in spec.filters:
+        raise NavlabError(
+            f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
+        )
+    if a.format == "table":
+        from navlab.tables import headline
+
+        _write(headline(res, compare_to=a.compare_to).text(), a.out)
+    else:
+        from navlab.metrics import summarize
+
+        _emit(summarize(res, compare_to=a.compare_to), a.format, a.out)
     if a.save_spec:
         try:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
@@ -154,17 +168,45 @@ def _run(a: argparse.Namespace) -> int:
     return 0
 
 
+def _progress(quiet: bool, what: str = "runs"):
+    """A one-line progress counter on stderr (a terminal only), or None."""
+    if quiet or not sys.stderr.isatty():
+        return None
+
+    def show(done: int, total: int) -> None:
+        print(f"\r{done}/{total} {what}", end="" if done < total else "\n", file=sys.stderr, flush=True)
+
+    return show
+
+
 def _reproduce(a: argparse.Namespace) -> int:
     from navlab.reproduce import REPRODUCTIONS
+    from navlab.reproduce import report as R
 
     if a.name not in REPRODUCTIONS:
         raise NavlabError(
             f"unknown reproduction '{a.name}'; known: {', '.join(REPRODUCTIONS) or '(none yet)'}"
         )
     rep = REPRODUCTIONS[a.name]
-    outdir = Path(a.outdir) if a.outdir else None
-    df = rep.run(runs=a.runs, seed=a.seed, outdir=outdir)
-    _emit(df, a.format, a.out)
+    o = rep.evaluate(runs=a.runs, seeds=a.seeds, seed=a.seed, on_progress=_progress(a.quiet))
+    table = o.readings if a.details else o.verdicts
+    if a.format == "table":
+        _write(table.to_string(index=False) + "\n" if a.details else R.text(o), a.out)
+    elif a.format == "markdown":
+        _write(R.markdown(o), a.out)
+    else:
+        _emit(table, a.format, a.out)
+    if a.outdir:
+        out = Path(a.outdir)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            o.verdicts.to_csv(out / f"{rep.key}_verdicts.csv", index=False)
+            o.readings.to_csv(out / f"{rep.key}_readings.csv", index=False)
+            for name, df in o.curves.items():
+                df.to_csv(out / name, index=False)
+        except OSError as exc:
+            raise NavlabError(f"cannot write --outdir {a.outdir}: {exc.strerror}") from None
+        print(f"wrote {len(o.curves) + 2} CSV files to {out}", file=sys.stderr)
     return 0
 
 
@@ -206,18 +248,48 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="GROUP.NAME=VALUE",
         help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V",
     )
+    pr.add_argument(
+        "--compare-to",
+        metavar="FILTER",
+        help="reference filter: add each other filter's paired difference (95 %% interval, "
+        "p-value, verdict) per headline metric",
+    )
     pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument(
+        "--summary",
+        action="store_true",
+        help="keep only per-run statistics (metrics with intervals, no per-epoch arrays): for "
+        "very large runs (up to 10 000 000 runs, computed in chunks that fit the memory budget)",
+    )
+    pr.add_argument(
+        "--memory-budget",
+        metavar="SIZE",
+        help="refuse a run expected to hold more than this (e.g. 8GB; default: NAVLAB_MEMORY_BUDGET "
+        "or half of the available memory)",
+    )
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
-    pp = sub.add_parser("reproduce", help="reproduce a paper's experiment (paper vs navlab)")
+    pp = sub.add_parser("reproduce", help="judge a paper's claims over many Monte Carlo seeds")
     pp.add_argument("name", help="hakf, irakf, nnmfukf or vbekf")
-    pp.add_argument("--runs", type=int, default=None, help="Monte Carlo runs (default: the paper's)")
-    pp.add_argument("--seed", type=int, default=1)
-    pp.add_argument("--format", choices=["table", "json", "csv"], default="table")
-    pp.add_argument("--out", help="write the table to this file")
-    pp.add_argument("--outdir", help="directory for per-epoch RMSE curves (CSV)")
+    pp.add_argument(
+        "--seeds",
+        type=int,
+        default=20,
+        help="Monte Carlo sets ('seeds' in the papers' sense) of --runs runs each (default 20)",
+    )
+    pp.add_argument("--runs", type=int, default=None, help="runs per seed (default: the paper's)")
+    pp.add_argument("--seed", type=int, default=1, help="base seed")
+    pp.add_argument("--format", choices=["table", "json", "csv", "markdown"], default="table")
+    pp.add_argument(
+        "--details",
+        action="store_true",
+        help="print the detailed readings (every quantity of every filter) instead of the verdicts",
+    )
+    pp.add_argument("--out", help="write the output to this file")
+    pp.add_argument("--outdir", help="directory for the verdicts, readings and RMSE curves (CSV)")
+    pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     pa = sub.add_parser("app", help="start the Streamlit app")
     pa.add_argument("streamlit_args", nargs=argparse.REMAINDER)

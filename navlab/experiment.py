@@ -10,22 +10,26 @@ app streams them), :func:`run_experiment` returns the final :class:`Results`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from navlab import memory
 from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
 from navlab.linalg import Array, diag, quad
+from navlab.metrics import NEES_BOUND, divergence_bound
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
 from navlab.scenarios.base import Scenario, ScenarioData, get_scenario_class
 
-MAX_RUNS = 20000
+MAX_RUNS = 20000  # a full run (per-epoch arrays of every run)
+MAX_SUMMARY_RUNS = 10_000_000  # a summary run (per-run statistics only)
 MAX_EPOCHS = 200000
 
 
@@ -140,9 +144,16 @@ def _check_int(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
-def plan(spec: ExperimentSpec) -> Plan:
+def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
     """Validate every part of ``spec`` before any computation; NavlabError says what to change."""
-    _check_int("runs", spec.runs, 1, MAX_RUNS)
+    big = isinstance(spec.runs, int) and not isinstance(spec.runs, bool) and spec.runs > MAX_RUNS
+    if big and max_runs == MAX_RUNS and spec.runs <= MAX_SUMMARY_RUNS:
+        raise NavlabError(
+            f"'runs' must be at most {MAX_RUNS} for a run that keeps every epoch; for up to "
+            f"{MAX_SUMMARY_RUNS} runs use a summary run (--summary: metrics without the "
+            "per-epoch arrays)"
+        )
+    _check_int("runs", spec.runs, 1, max_runs)
     _check_int("seed", spec.seed, 0, 2**63 - 1)
     scen_cls = get_scenario_class(spec.scenario)
     sp = dict(spec.scenario_params)
@@ -202,7 +213,8 @@ class FilterRun:
     flags: Array
     stats: dict[str, Array]
     runtime_s: float
-    diverged_at: Array  # (B,) first epoch with a non-finite state, −1 if never
+    diverged_at: Array  # (B,) first epoch the run diverged (navlab.metrics rule), −1 if never
+    diverged_why: Array  # (B,) int8: 0 no, 1 non-finite state, 2 error bound, 3 NEES bound
 
     @property
     def diverged(self) -> Array:
@@ -228,6 +240,7 @@ class FilterRun:
             stats={k: np.concatenate([p.stats[k] for p in parts]) for k in first.stats},
             runtime_s=sum(p.runtime_s for p in parts),
             diverged_at=cat("diverged_at"),
+            diverged_why=cat("diverged_why"),
         )
 
 
@@ -271,6 +284,13 @@ class _Recorder:
         self.stats: dict[str, Array] = {}
         self.runtime = 0.0
         self.diverged_at = np.full(B, -1)
+        self.diverged_why = np.zeros(B, dtype=np.int8)
+        self.window = np.asarray(data.window, dtype=bool)
+        bound = divergence_bound(data) if data.has_truth else None
+        self.bound = None
+        if bound is not None:
+            g = data.groups[bound[0]]
+            self.bound = (list(g.idx), g.scale, bound[1] ** 2)
         self._pending: list[tuple[int, Any]] = []
         self.x_true = data.x_true if data.has_truth else None
         self._block = int(np.clip(4e6 / (8 * B * (n * n + m * m)), 1, 32))
@@ -335,14 +355,23 @@ class _Recorder:
         if no_nis:
             inn = np.stack([outs[j].innov for j in no_nis])
             self.nis[:, [items[j][0] for j in no_nis]] = quad(inn, S[no_nis]).T
+        why = np.where(np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2), 0, 1)  # (B, L)
         if self.x_true is not None:
             dx = (x - self.x_true[:, ks]).swapaxes(0, 1)
-            self.nees[:, ks] = quad(dx, P).T
-        ok = np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2)  # (B, L)
-        bad = ~ok.all(axis=1) & (self.diverged_at < 0)
+            nees = quad(dx, P).T
+            self.nees[:, ks] = nees
+            win = self.window[ks]  # the error and NEES bounds apply inside the analysis window
+            with np.errstate(over="ignore", invalid="ignore"):  # a run-away's error is inf
+                if self.bound is not None:
+                    idx, scale, b2 = self.bound
+                    err2 = ((dx[..., idx] * scale) ** 2).sum(axis=-1).T
+                    why = np.where((why == 0) & win & (err2 > b2), 2, why)
+                why = np.where((why == 0) & win & (nees > NEES_BOUND), 3, why)
+        bad = (why != 0).any(axis=1) & (self.diverged_at < 0)
         if bad.any():
-            first = np.argmin(ok[bad], axis=1)
+            first = np.argmax(why[bad] != 0, axis=1)
             self.diverged_at[bad] = np.asarray([k for k, _ in items])[first]
+            self.diverged_why[bad] = why[bad, first]
 
     def result(self) -> FilterRun:
         self._flush()
@@ -363,6 +392,7 @@ class _Recorder:
             stats=self.stats,
             runtime_s=self.runtime,
             diverged_at=self.diverged_at,
+            diverged_why=self.diverged_why,
         )
 
 
@@ -406,64 +436,260 @@ class Results:
     runs: dict[str, FilterRun]
     complete: bool = True
     elapsed_s: float = 0.0
+    last: Chunk | None = None  # the chunk that completed these results (streaming)
 
     @property
     def done_runs(self) -> int:
         return self.data.B
 
     def metrics(self):
-        """Tidy metric table (pandas DataFrame): filter, metric, value, unit (see navlab.metrics)."""
+        """Tidy metric table (pandas DataFrame): filter, metric, value, unit, ci_lo, ci_hi, …
+        (see navlab.metrics.summarize).
+        """
         from navlab.metrics import summarize
 
         return summarize(self)
 
 
-def _concat_data(parts: Sequence[ScenarioData]) -> ScenarioData:
-    if len(parts) == 1:
-        return parts[0]
-    per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
-    return dataclasses.replace(
-        parts[0], **{f: np.concatenate([getattr(p, f) for p in parts]) for f in per_run}
-    )
+# --------------------------------------------------------------------------- the one driver
+
+ChunkPolicy = Callable[[int, int], int]  # (runs done, total) -> size of the next chunk
 
 
-def iter_experiment(spec: ExperimentSpec, chunk_runs: int | None = None) -> Iterator[Results]:
-    """Run the Monte Carlo in chunks of runs; yield the accumulated results after each chunk.
+def fixed_chunks(size: int | None) -> ChunkPolicy:
+    """Chunks of ``size`` runs (None: all at once)."""
+    return lambda done, total: total - done if not size else int(size)
 
-    Chunking never changes the numbers: run r draws from its own seed whatever the chunk.
+
+@dataclass(eq=False)
+class Chunk:
+    """One chunk of Monte Carlo runs: its data and every filter's output over it."""
+
+    data: ScenarioData
+    runs: dict[str, FilterRun]
+    elapsed_s: float  # simulation + filtering of this chunk
+
+
+@functools.lru_cache(maxsize=64)
+def _dims(scenario_json: str, scenario: str) -> tuple[int, int, int]:
+    """(n, m, K) of a scenario configuration, from a one-run probe (cheap: a short run of a
+    simulated scenario; a real recording is read once and cached by its loader).
+    """
+    from navlab.noise import make_outliers, make_schedule
+
+    cls = get_scenario_class(scenario)
+    params = json.loads(scenario_json)
+    K = params.get("epochs")
+    short = cls.simulated and isinstance(K, int) and K > 3
+    try:
+        sc = cls({**params, "epochs": 3} if short else params)
+        data = sc.simulate(make_schedule("constant"), make_outliers("none"), [0], 0)
+    except NavlabError:
+        if not short:
+            raise
+        short = False
+        data = cls(params).simulate(make_schedule("constant"), make_outliers("none"), [0], 0)
+    return int(data.x0.shape[1]), int(data.z.shape[2]), int(K if short else data.K)
+
+
+def run_size(p: Plan) -> memory.Size:
+    """The dimensions that decide the memory of plan ``p``."""
+    sp = {f.name: getattr(p.scenario.params, f.name) for f in dataclasses.fields(p.scenario.params)}
+    n, m, K = _dims(json.dumps(sp, sort_keys=True, default=list), p.spec.scenario)
+    return memory.Size(p.spec.runs, K, n, m, len(p.filters))
+
+
+def iter_chunks(
+    p: Plan,
+    policy: ChunkPolicy | None = None,
+    start: int = 0,
+    on_epoch: Callable[[float], None] | None = None,
+) -> Iterator[Chunk]:
+    """THE Monte Carlo driver: simulate runs [done, done + n) and drive every filter over them
+    (:func:`run_filters`), chunk after chunk, until ``p.spec.runs`` runs are done.
+
+    ``policy(done, total)`` sizes the next chunk (default: all at once); ``on_epoch(runs_done)``
+    reports progress within a chunk (fractional runs). Chunking never changes a number: run r
+    draws from its own seed whatever the chunk, and every kernel's result depends on its own run.
+    """
+    policy = policy or fixed_chunks(None)
+    total, done = p.spec.runs, start
+    while done < total:
+        n = max(1, min(total - done, int(policy(done, total))))
+        t0 = time.perf_counter()
+        data = p.scenario.simulate(p.schedule, p.outliers, list(range(done, done + n)), p.spec.seed)
+        tick = None
+        if on_epoch is not None:
+            tick = lambda k, K, d=done, b=n: on_epoch(d + b * k / K)  # noqa: E731
+        out = run_filters(data, p.filters, tick)
+        done += n
+        yield Chunk(data, out, time.perf_counter() - t0)
+
+
+def iter_experiment(
+    spec: ExperimentSpec,
+    chunk_runs: int | None = None,
+    *,
+    policy: ChunkPolicy | None = None,
+    start: Results | None = None,
+    on_epoch: Callable[[float], None] | None = None,
+    budget: int | str | None = None,
+) -> Iterator[Results]:
+    """Run the Monte Carlo in chunks (``chunk_runs`` each, or as ``policy`` says) and yield the
+    accumulated :class:`Results` after each chunk; resumable from partial results ``start``.
+
+    Refused before any computation (NavlabError) when the run would not fit the memory budget
+    (:mod:`navlab.memory`).
     """
     p = plan(spec)
-    total = spec.runs
-    chunk = max(1, min(total, chunk_runs or total))
-    data_parts: list[ScenarioData] = []
-    run_parts: dict[str, list[FilterRun]] = {f.key: [] for f in p.filters}
-    t_start = time.perf_counter()
-    for start in range(0, total, chunk):
-        runs = list(range(start, min(total, start + chunk)))
-        data = p.scenario.simulate(p.schedule, p.outliers, runs, spec.seed)
-        out = run_filters(data, p.filters)
-        data_parts.append(data)
-        for key, fr in out.items():
-            run_parts[key].append(fr)
-        done = runs[-1] + 1
-        yield Results(
-            spec=spec,
-            data=_concat_data(data_parts),
-            runs={k: FilterRun.concat(v) if len(v) > 1 else v[0] for k, v in run_parts.items()},
-            complete=done >= total,
-            elapsed_s=time.perf_counter() - t_start,
-        )
+    size = run_size(p)
+    alt = size.summary(summary_chunk(size, budget), False)
+    memory.check(size, size.full(), budget, as_summary=alt)
+    acc = start
+    elapsed = 0.0 if start is None else start.elapsed_s
+    done0 = 0 if start is None else start.done_runs
+    for ch in iter_chunks(p, policy or fixed_chunks(chunk_runs), done0, on_epoch):
+        elapsed += ch.elapsed_s
+        if acc is None:
+            data, runs = ch.data, ch.runs
+        else:
+            data = ScenarioData.concat([acc.data, ch.data])
+            runs = {k: FilterRun.concat([acc.runs[k], ch.runs[k]]) for k in ch.runs}
+        acc = Results(spec, data, runs, spec.runs <= data.B, elapsed, ch)
+        yield acc
 
 
 def run_experiment(
     spec: ExperimentSpec,
     on_progress: Callable[[int, int], None] | None = None,
     chunk_runs: int | None = None,
+    budget: int | str | None = None,
 ) -> Results:
     """Run ``spec`` to completion; ``on_progress(done_runs, total_runs)`` after each chunk."""
     res = None
-    for res in iter_experiment(spec, chunk_runs=chunk_runs):
+    for res in iter_experiment(spec, chunk_runs, budget=budget):
         if on_progress is not None:
             on_progress(res.done_runs, spec.runs)
     assert res is not None
     return res
+
+
+# --------------------------------------------------------------------------- summary runs
+
+
+class FilterInfo(NamedTuple):
+    """A filter of a summary run (no per-epoch arrays)."""
+
+    key: str
+    label: str
+
+
+@dataclass(eq=False)
+class DataInfo:
+    """What the metrics need of a summary run's data: its configuration and size, no run arrays."""
+
+    scenario: str
+    t: Array
+    model: Any
+    groups: dict[str, Any]
+    window: Array
+    has_truth: bool
+    extras: dict[str, Any]
+    divergence_bound: float | None
+    B: int
+    K: int
+    n: int
+    m: int
+    any_outliers: bool
+
+
+@dataclass(eq=False)
+class SummaryResults:
+    """The outcome of a summary run: per-run statistics of every filter, no per-epoch arrays.
+
+    :func:`navlab.metrics.summarize` works on it as on :class:`Results` (the consistency bands'
+    in-band share, plain-function scenario metrics and — when ``keep_epochs`` was off — the
+    mean of the per-epoch RMSE need per-epoch arrays and are left out).
+    """
+
+    spec: ExperimentSpec
+    data: DataInfo
+    stats: dict[str, Any]  # key -> navlab.metrics.RunStats
+    runs: dict[str, FilterInfo]
+    elapsed_s: float = 0.0
+    complete: bool = True
+
+    @property
+    def done_runs(self) -> int:
+        return self.data.B
+
+    def metrics(self):
+        from navlab.metrics import summarize
+
+        return summarize(self)
+
+
+def summary_chunk(size: memory.Size, budget: int | str | None = None) -> int:
+    """Runs per chunk of a summary run: the most whose full arrays take at most 256 MB and a
+    quarter of the budget (at most 5000: beyond, numpy's batched kernels gain nothing).
+    """
+    limit = min(256 * 2**20, memory.budget_bytes(budget) / 4)
+    per_run = memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
+    return int(max(1, min(5000, size.runs, limit // max(per_run, 1))))
+
+
+def run_summary(
+    spec: ExperimentSpec,
+    on_progress: Callable[[int, int], None] | None = None,
+    chunk_runs: int | None = None,
+    keep_epochs: bool | None = None,
+    budget: int | str | None = None,
+) -> SummaryResults:
+    """Run ``spec`` keeping only per-run statistics (up to :data:`MAX_SUMMARY_RUNS` runs).
+
+    The runs are computed in chunks (``chunk_runs``, default sized to the memory budget); each
+    chunk's per-epoch arrays are reduced to the metrics' per-run sufficient statistics and
+    dropped. ``keep_epochs`` keeps the per-epoch squared errors too (for the mean of the
+    per-epoch RMSE and quantile metrics; default: when they take at most a quarter of the
+    budget). The numbers equal a full run's (the same runs, the same statistics).
+    """
+    from navlab.metrics import RunStats, run_stats
+
+    p = plan(spec, max_runs=MAX_SUMMARY_RUNS)
+    size = run_size(p)
+    chunk = int(chunk_runs) if chunk_runs else summary_chunk(size, budget)
+    if keep_epochs is None:  # float32 squared errors of up to 8 groups per filter
+        sq_bytes = size.runs * (size.epochs + 1) * size.filters * 8 * 4
+        keep_epochs = sq_bytes <= min(256 * 2**20, memory.budget_bytes(budget) / 8)
+    memory.check(size, size.summary(chunk, keep_epochs), budget, summary=True)
+    parts: dict[str, list[RunStats]] = {f.key: [] for f in p.filters}
+    first: ScenarioData | None = None
+    outliers = False
+    elapsed = 0.0
+    for ch in iter_chunks(p, fixed_chunks(chunk)):
+        first = first or ch.data
+        outliers = outliers or bool(ch.data.outlier_mask.any())
+        for key, fr in ch.runs.items():
+            parts[key].append(run_stats(ch.data, fr).compact(keep_epochs))
+        elapsed += ch.elapsed_s
+        if on_progress is not None:
+            on_progress(int(ch.data.runs[-1]) + 1, spec.runs)
+    assert first is not None
+    info = DataInfo(
+        scenario=first.scenario,
+        t=first.t,
+        model=first.model,
+        groups=first.groups,
+        window=first.window,
+        has_truth=first.has_truth,
+        extras={k: v for k, v in first.extras.items() if k == "metrics"},
+        divergence_bound=first.divergence_bound,
+        B=spec.runs,
+        K=first.K,
+        n=int(first.x0.shape[1]),
+        m=int(first.z.shape[2]),
+        any_outliers=outliers,
+    )
+    stats = {k: RunStats.concat(v) for k, v in parts.items()}
+    labels = {f.key: FilterInfo(f.key, f.label) for f in p.filters}
+    return SummaryResults(spec, info, stats, labels, elapsed)

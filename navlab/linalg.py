@@ -18,7 +18,7 @@ inside the filters, and a shortcut stays only where it saves ≥ 10 % of some fi
 * :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S;
 * :func:`predict_cov` — F P Fᵀ + Q as two GEMMs over the batch for a shared F;
 * :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape (closed form for
-  d ≤ 2, LDLᵀ or Cholesky with the batch axis last for many small matrices, LU otherwise).
+  d ≤ 2, LDLᵀ with the batch axes last otherwise, LU only where those could not decide).
 """
 
 from __future__ import annotations
@@ -367,62 +367,47 @@ def quad(v: Array, S: Array) -> Array:
     Parameters
     ----------
     v : (..., d).
-    S : (d, d) shared by every v, or (..., d, d) matching v's leading axes (broadcast views
-        welcome: an S that is constant along the axis before the matrix axes, e.g. the KF's P
-        shared by every run, is solved once with all the v as right-hand sides).
+    S : (d, d) shared by every v, or (..., d, d) broadcastable to v's leading axes (an S constant
+        along the axis before the matrix axes — stride 0, e.g. the KF's P shared by every run —
+        is factored once).
 
     Returns
     -------
     (...,) values; NaN where S is singular or not finite (never an exception).
 
-    Method: one LU solve for a shared S; otherwise, over the flattened stack, the closed form for
-    d ≤ 2, one batched LU solve for fewer than 512 matrices, a batched Cholesky and forward
-    substitution for d > 8, and an unpivoted LDLᵀ elimination with the batch axis last otherwise
-    (several times faster than one LAPACK call per matrix); a non-finite result of a shortcut (an
-    indefinite or singular S) is redone by LU, which decides.
+    One kernel whatever the batch, so a value depends on its own v and S only, never on the
+    other runs of the chunk it was computed with: the closed form for d ≤ 2, else an unpivoted
+    LDLᵀ elimination with the batch axes last (stable for positive-definite S; many small
+    matrices at numpy speed instead of one LAPACK call each); LU with pivoting, one matrix at a
+    time, decides only the entries the elimination could not (a zero pivot of a singular or
+    indefinite S).
     """
     v = np.asarray(v, dtype=float)
     S = np.asarray(S, dtype=float)
-    shape, d = v.shape[:-1], v.shape[-1]
-    if S.ndim == 2:
-        X = _solve_or_none(S, v.reshape(-1, d).T)
-        if X is not None:
-            return np.einsum("ib,bi->b", X, v.reshape(-1, d)).reshape(shape)
-        S = np.broadcast_to(S, (*shape, d, d))
-    elif S.ndim >= 3 and S.shape[-3] > 1 and S.strides[-3] == 0:  # S shared along that axis
-        X = _solve_or_none(S[..., 0, :, :], v.swapaxes(-1, -2))  # (..., d, B)
-        if X is not None:
-            return np.einsum("...bi,...ib->...b", v, X)
-    vf, Sf = v.reshape(-1, d), np.broadcast_to(S, (*shape, d, d)).reshape(-1, d, d)
+    d = v.shape[-1]
+    Sb = np.broadcast_to(S, (*v.shape, d))
     # a singular or indefinite S legitimately gives inf/NaN in the shortcuts: redone by LU below
     with np.errstate(all="ignore"):
         if d <= 2:
-            q = _quad_closed(vf, Sf)
-        elif vf.shape[0] < 512:
-            return _quad_lu(vf, Sf).reshape(shape)
-        elif d > 8:
-            q = _quad_chol(vf, Sf)
+            q = _quad_closed(v, Sb)
         else:
-            q = _quad_ldl(vf, Sf)
-        redo = ~np.isfinite(q) & np.isfinite(vf).all(axis=1) & np.isfinite(Sf).all(axis=(1, 2))
+            shared = S.ndim >= 3 and S.shape[-3] > 1 and S.strides[-3] == 0
+            Sm = S[..., :1, :, :] if shared else S
+            Sm = Sm.reshape((1,) * (v.ndim + 1 - Sm.ndim) + Sm.shape)  # one batch axis per v's
+            q = np.asarray(_quad_ldl(np.moveaxis(v, -1, 0), np.moveaxis(Sm, (-2, -1), (0, 1))))
+            q = np.broadcast_to(q, v.shape[:-1]).copy()
+        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(Sb).all(axis=(-2, -1))
     if redo.any():
-        q[redo] = _quad_lu(vf[redo], Sf[redo])
-    return q.reshape(shape)
-
-
-def _solve_or_none(S: Array, Y: Array) -> Array | None:
-    """``S⁻¹ Y`` by LU, or None where S is singular (a NaN right-hand side gives NaN, silently)."""
-    with np.errstate(all="ignore"), contextlib.suppress(np.linalg.LinAlgError):
-        return np.linalg.solve(S, Y)
-    return None
+        q[redo] = _quad_lu(v[redo], Sb[redo])
+    return q
 
 
 def _quad_closed(v: Array, S: Array) -> Array:
-    """D = 1: v²/s; d = 2: (s11 v0² − 2 s01 v0 v1 + s00 v1²)/det S."""
+    """D = 1: v²/s; d = 2: (s11 v0² − 2 s01 v0 v1 + s00 v1²)/det S (any leading axes)."""
     if v.shape[-1] == 1:
-        return v[:, 0] * v[:, 0] / S[:, 0, 0]
-    a, b, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
-    v0, v1 = v[:, 0], v[:, 1]
+        return v[..., 0] * v[..., 0] / S[..., 0, 0]
+    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    v0, v1 = v[..., 0], v[..., 1]
     return (d * v0 * v0 - 2.0 * b * v0 * v1 + a * v1 * v1) / (a * d - b * b)
 
 
@@ -439,30 +424,21 @@ def _quad_lu(v: Array, S: Array) -> Array:
 
 
 def _quad_ldl(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v by symmetric elimination S = L D Lᵀ, batch axis last: q = Σᵢ yᵢ²/Dᵢ with L y = v.
+    """vᵀ S⁻¹ v by symmetric elimination S = L D Lᵀ (no pivoting: stable for positive-definite S).
 
-    Without pivoting, which is stable for positive-definite S.
+    ``S`` is (d, d, *s) and ``v`` (d, *t) with the batch axes last and ``s`` broadcastable to
+    ``t``: a covariance shared by many runs is factored once, and every run's value is computed
+    with exactly the arithmetic it would get alone. q = Σᵢ yᵢ²/Dᵢ with L y = v.
     """
-    d = S.shape[-1]
-    A = np.empty((d, d + 1, S.shape[0]))
-    A[:, :d] = np.moveaxis(S, 0, -1)
-    A[:, d] = v.T
-    q = np.zeros(S.shape[0])
+    d = S.shape[0]
+    A = np.array(S, dtype=float)  # the elimination works in place
+    y = np.array(v, dtype=float)
+    q = np.zeros(np.broadcast_shapes(S.shape[2:], v.shape[1:]))
     for i in range(d):
         piv = A[i, i]
-        q += A[i, d] ** 2 / piv
+        q += y[i] ** 2 / piv
         if i + 1 < d:
-            A[i + 1 :, i:] -= (A[i + 1 :, i] / piv)[:, None] * A[i, i:][None]
+            f = A[i + 1 :, i] / piv
+            A[i + 1 :, i:] -= f[:, None] * A[i, i:][None]
+            y[i + 1 :] = y[i + 1 :] - f * y[i]
     return q
-
-
-def _quad_chol(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v = |L⁻¹ v|² with S = L Lᵀ (≈ 25 % faster than LU at d = 15); LU where any S of
-    the stack is not positive definite.
-    """
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        return _quad_lu(v, S)
-    y = forward_subst(L, v)
-    return np.einsum("bi,bi->b", y, y)

@@ -1,24 +1,80 @@
-"""Metrics of ALGORITHMS.md §9: RMSE (per epoch, pooled, windowed), ANEES/ANIS with χ² bands,
-R̂ error against the true R(t), detection rates, divergence, runtime.
+"""Metrics of ALGORITHMS.md §9 with their uncertainty: RMSE (per epoch, pooled, mean of per-epoch),
+ANEES/ANIS with χ² bands, R̂ error, outlier detection rates, numerical fixes, divergence.
 
-Pure functions of arrays plus :func:`summarize`, which turns :class:`navlab.experiment.Results`
-into a tidy table (one row per filter and metric). Diverged runs (non-finite state) are counted
-and excluded from every other metric.
+How a number is made (the statistics spec, docs/STATISTICS.md):
+
+* Every metric is a function of per-run statistics (:class:`RunStats`: the run's sum of squared
+  errors over the analysis window, its NEES/NIS sums and counts, its flag counts, …), so its 95 %
+  interval resamples runs (:mod:`navlab.stats`) and a difference between two filters is paired.
+* **Divergence** (the rule is stated in every table's footnote, :data:`DIVERGENCE_RULE`): a run
+  is diverged for a filter when its state or covariance becomes non-finite, or when inside the
+  analysis window its position error exceeds the scenario's bound (default 100 × the largest
+  nominal measurement σ) or its NEES exceeds 10⁶. The experiment recorder marks it
+  (:attr:`navlab.experiment.FilterRun.diverged_at`).
+* **Every filter is judged on the same runs.** A filter that diverges in at most 5 % of the runs
+  is *reliable*; the *common runs* are those where every reliable filter is valid, and every
+  reliable filter's metrics are computed over them (so a run lost by one filter is left out for
+  all, and counted). A filter that diverges in more than 5 % is reported as "diverges in k of N
+  runs", ranks below every reliable filter whatever its numbers, and its metrics are computed over
+  the common runs it survived, labelled so.
+* Skipped non-finite entries (NEES, NIS, R̂ ratios) are counted and reported beside the metric.
+* The R̂ error compares R̂ with the variance the noise was actually drawn from: on clean epochs
+  (the headline ``rhat_err_pct``; the oracle reads 0) and, separately, on contaminated ones.
+  Detection and false-alarm rates count outlier decisions only (flag codes 1–5); numerical fixes
+  (code 9) are their own rate, ``numfix_pct``.
+
+:func:`summarize` turns :class:`navlab.experiment.Results` into the tidy table every output uses
+(CLI ``--format json|csv``, the app's downloads, sweeps); :func:`compare` adds the paired
+differences against a reference filter.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 from scipy.stats import chi2
 
+from navlab import stats as S
+from navlab.errors import NavlabError
 from navlab.linalg import Array
 from navlab.scenarios.base import MetricGroup
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results
+
+RELIABLE_SHARE = 0.05  # a filter diverging in more runs than this share is "unreliable"
+NEES_BOUND = 1e6  # NEES above this at any window epoch: diverged
+BOUND_SIGMAS = 100.0  # default position-error bound: this many nominal measurement σ
+OUTLIER_CODES = (1, 2, 3, 4, 5)  # flag codes that are outlier decisions (ALGORITHMS.md §0.3)
+NUMFIX_CODE = 9
+NUMFIX_SHOW_PCT = 1.0  # numerical fixes above this share of entries are pointed out on screen
+DIVERGENCE_RULE = (
+    "a run is diverged for a filter when its state becomes non-finite, or inside the analysis "
+    "window its position error exceeds {bound} or its NEES exceeds 1e6; every filter diverging in "
+    "at most 5 % of the runs is judged on the runs where all of them are valid (the common runs), "
+    "a filter diverging more often ranks below them and is judged on the common runs it survived"
+)
+COLUMNS = [
+    "filter",
+    "label",
+    "metric",
+    "value",
+    "unit",
+    "ci_lo",
+    "ci_hi",
+    "ci_method",
+    "runs_used",
+    "note",
+]
+DIFF_COLUMNS = ["vs", "p_value", "p_holm", "verdict"]
+
+
+# --------------------------------------------------------------------------- array helpers
 
 
 def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
@@ -33,8 +89,9 @@ def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
 
 def sq_error(x_hat: Array, x_true: Array, group: MetricGroup) -> Array:
     """Squared error norm over the group's components, in display units: (B, K+1)."""
-    e = (x_hat[..., list(group.idx)] - x_true[..., list(group.idx)]) * group.scale
-    return np.sum(e**2, axis=-1)
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverged run's inf stays inf
+        e = (x_hat[..., list(group.idx)] - x_true[..., list(group.idx)]) * group.scale
+        return np.sum(e**2, axis=-1)
 
 
 def rmse_per_epoch(sq: Array, ok_runs: Array | None = None) -> Array:
@@ -68,7 +125,7 @@ def error_quantiles(sq: Array, q: tuple[float, ...] = (0.1, 0.9), ok_runs: Array
 
 
 def average_over_runs(v: Array, ok_runs: Array | None = None) -> Array:
-    """Per-epoch mean over runs (ANEES ε̄_k or ANIS), (K+1,)."""
+    """Per-epoch mean over runs of the finite entries (ANEES ε̄_k or ANIS), (K+1,)."""
     if ok_runs is not None:
         v = v[ok_runs]
     finite = np.isfinite(v)
@@ -77,85 +134,540 @@ def average_over_runs(v: Array, ok_runs: Array | None = None) -> Array:
     return np.divide(total, n, out=np.full(v.shape[1:], np.nan), where=n > 0)
 
 
-def consistency(v: Array, dof: int, window: Array, ok_runs: Array) -> dict[str, float]:
-    """Time-averaged ANEES/ANIS, its per-epoch 95 % band and the fraction of epochs inside."""
-    avg = average_over_runs(v, ok_runs)[window]
-    lo, hi = chi2_band(dof, int(ok_runs.sum()))
-    finite = np.isfinite(avg)
-    return {
-        "mean": float(np.mean(avg[finite])) if finite.any() else float("nan"),
-        "lo": lo,
-        "hi": hi,
-        "in_band": float(np.mean((avg[finite] >= lo) & (avg[finite] <= hi))) if finite.any() else 0.0,
-    }
+# --------------------------------------------------------------------------- scenario metrics
 
 
-def rhat_error_pct(R_hat: Array, R_schedule: Array, window: Array, ok_runs: Array) -> float:
-    """Mean |σ̂/σ − 1| in % over epochs in ``window``, runs and channels (σ from the schedule)."""
-    with np.errstate(all="ignore"):
-        ratio = np.sqrt(R_hat[ok_runs][:, window]) / np.sqrt(R_schedule[window])[None]
-    ratio = ratio[np.isfinite(ratio)]
-    return float(100 * np.mean(np.abs(ratio - 1))) if ratio.size else float("nan")
+@dataclass(frozen=True)
+class QuantileMetric:
+    """A scenario-specific metric: the ``q``-quantile, pooled over window epochs and runs, of a
+    per-run per-epoch error ``sample(x_hat (B, K+1, n), data) -> (B, K+1)`` (e.g. the median
+    horizontal error of the real recordings). Its interval resamples runs.
+    """
+
+    sample: Callable[[Array, Any], Array]
+    q: float
+    unit: str = "m"
+    help: str = ""
 
 
-def flag_rates(fr: FilterRun, mask: Array, window: Array, ok_runs: Array) -> dict[str, float]:
-    """Share of contaminated entries the filter flagged (any code ≠ 0) and of clean ones."""
-    flags = fr.flags[ok_runs][:, window] != 0
-    m = mask[ok_runs][:, window]
-    return {
-        "detected_pct": float(100 * flags[m].mean()) if m.any() else float("nan"),
-        "false_alarm_pct": float(100 * flags[~m].mean()) if (~m).any() else float("nan"),
-    }
+# --------------------------------------------------------------------------- divergence
 
 
-def summarize(res: Results) -> pd.DataFrame:
-    """Tidy table with columns filter, label, metric, value, unit."""
-    data = res.data
-    rows: list[tuple[str, str, str, float, str]] = []
-    n = data.x0.shape[1]
-    m = data.z.shape[2]
-    W = data.window
-    B, K = data.B, data.K
-    for key, fr in res.runs.items():
-        ok = ~fr.diverged
-        add = lambda metric, value, unit="", key=key, label=fr.label: rows.append(  # noqa: E731
-            (key, label, metric, float(value), unit)
+def divergence_bound(data: Any) -> tuple[str, float] | None:
+    """(group, bound in its display unit) of the error-bound divergence rule, or None.
+
+    The scenario's own bound (``ScenarioData.divergence_bound``, metres of the ``pos`` group) if
+    it states one, else 100 × the largest nominal measurement σ on the ``pos`` group.
+    """
+    if not getattr(data, "has_truth", False) or "pos" not in data.groups:
+        return None
+    bound = getattr(data, "divergence_bound", None)
+    if bound is None:
+        R0 = np.asarray(data.model.R0, dtype=float)
+        sig = float(np.sqrt(np.max(np.diag(R0)))) if R0.size else 0.0
+        if not sig > 0:
+            return None
+        bound = BOUND_SIGMAS * sig
+    return "pos", float(bound)
+
+
+def rule_text(data: Any) -> str:
+    """The divergence rule with this experiment's bound, for footnotes."""
+    b = divergence_bound(data)
+    what = f"{b[1]:.4g} {data.groups[b[0]].unit}" if b else "(no truth: no error bound)"
+    return DIVERGENCE_RULE.format(bound=what)
+
+
+# --------------------------------------------------------------------------- per-run statistics
+
+
+@dataclass(eq=False)
+class RunStats:
+    """Per-run statistics of one filter over the analysis window; every array has a row per run.
+
+    ``sq`` (per-epoch squared errors, for the mean of the per-epoch RMSE) and ``samples`` (for
+    quantile metrics) are per run and epoch; everything else is one number per run.
+    """
+
+    key: str
+    label: str
+    diverged: Array  # (B,) bool
+    runtime_s: float
+    epochs: int  # window epochs
+    sse: dict[str, Array] = field(default_factory=dict)  # group -> (B,)
+    sq: dict[str, Array] = field(default_factory=dict)  # group -> (B, Kw)
+    sums: dict[str, Array] = field(default_factory=dict)  # name -> (B,): see run_stats
+    samples: dict[str, Array] = field(default_factory=dict)  # quantile metric -> (B, Kw)
+    estimates_R: bool = False
+
+    @staticmethod
+    def concat(parts: list[RunStats]) -> RunStats:
+        """The statistics of consecutive chunks of runs as one (a summary run)."""
+        first = parts[0]
+        cat = lambda d: {k: np.concatenate([getattr(p, d)[k] for p in parts]) for k in getattr(first, d)}  # noqa: E731
+        return RunStats(
+            key=first.key,
+            label=first.label,
+            diverged=np.concatenate([p.diverged for p in parts]),
+            runtime_s=sum(p.runtime_s for p in parts),
+            epochs=first.epochs,
+            sse=cat("sse"),
+            sq=cat("sq"),
+            sums=cat("sums"),
+            samples=cat("samples"),
+            estimates_R=first.estimates_R,
         )
+
+    def compact(self, keep_epochs: bool) -> RunStats:
+        """For a summary run: float32 per-run numbers, and the per-epoch arrays only if kept."""
+        f32 = lambda d: {k: v.astype(np.float32) for k, v in d.items()}  # noqa: E731
+        return dataclasses.replace(
+            self,
+            sse=f32(self.sse),
+            sums=f32(self.sums),
+            sq=f32(self.sq) if keep_epochs else {},
+            samples=f32(self.samples) if keep_epochs else {},
+        )
+
+
+def run_stats(data: Any, fr: FilterRun) -> RunStats:
+    """The per-run statistics of filter run ``fr`` on ``data`` (window ``data.window``)."""
+    W = np.asarray(data.window, dtype=bool)
+    B = data.B
+    st = RunStats(
+        key=fr.key,
+        label=fr.label,
+        diverged=np.asarray(fr.diverged, dtype=bool),
+        runtime_s=float(fr.runtime_s),
+        epochs=int(W.sum()),
+        estimates_R=fr.R_hat is not None,
+    )
+    s = st.sums
+    with np.errstate(over="ignore", invalid="ignore"):  # diverged runs hold inf/NaN: excluded later
         if data.has_truth:
             for g, group in data.groups.items():
-                sq = sq_error(fr.x, data.x_true, group)
-                add(f"rmse_{g}", pooled_rmse(sq, W, ok), group.unit)
-                add(f"mean_rmse_{g}", mean_of_rmse(sq, W, ok), group.unit)
-            c = consistency(fr.nees, n, W, ok)
-            add("anees", c["mean"])
-            add("anees_band_lo", c["lo"])
-            add("anees_band_hi", c["hi"])
-            add("anees_in_band_pct", 100 * c["in_band"], "%")
-        c = consistency(fr.nis, m, W, ok)
-        add("anis", c["mean"])
-        add("anis_band_lo", c["lo"])
-        add("anis_band_hi", c["hi"])
-        add("anis_in_band_pct", 100 * c["in_band"], "%")
+                sq = sq_error(fr.x, data.x_true, group)[:, W]
+                st.sq[g] = sq
+                st.sse[g] = sq.sum(axis=1)
+        present = np.isfinite(data.z[:, W])  # (B, Kw, m): a measurement exists
+        measured = present.any(axis=2)  # (B, Kw)
+        for name, v, where in (("nees", fr.nees, None), ("nis", fr.nis, measured)):
+            if name == "nees" and not data.has_truth:
+                continue
+            v = v[:, W]
+            fin = np.isfinite(v)
+            s[f"{name}_sum"] = np.where(fin, v, 0.0).sum(axis=1)
+            s[f"{name}_cnt"] = fin.sum(axis=1).astype(float)
+            expected = np.ones_like(fin) if where is None else where
+            s[f"{name}_skip"] = (expected & ~fin).sum(axis=1).astype(float)
+        mask = np.asarray(data.outlier_mask[:, W], dtype=bool) & present
+        clean = present & ~mask
         if fr.R_hat is not None:
-            add("rhat_err_pct", rhat_error_pct(fr.R_hat, data.R_schedule, W, ok), "%")
-        if data.outlier_mask.any():
-            r = flag_rates(fr, data.outlier_mask, W, ok)
-            add("detected_pct", r["detected_pct"], "%")
-            add("false_alarm_pct", r["false_alarm_pct"], "%")
-        # scenario-specific metrics (real data): data.extras["metrics"] = {name: (fn, unit)},
-        # fn(x_hat (B, K+1, n), data, ok_runs) -> float
-        for name, (fn, unit) in data.extras.get("metrics", {}).items():
-            add(name, fn(fr.x, data, ok), unit)
-        add("diverged", int((~ok).sum()), "runs")
-        add("runs", B, "runs")
-        add("us_per_run_step", 1e6 * fr.runtime_s / max(B * K, 1), "µs")
-        add("steps_per_s", B * K / fr.runtime_s if fr.runtime_s > 0 else float("nan"), "1/s")
-    return pd.DataFrame(rows, columns=["filter", "label", "metric", "value", "unit"])
+            ratio = np.sqrt(fr.R_hat[:, W] / data.R_true[:, W])
+            err = np.abs(ratio - 1.0)
+            fin = np.isfinite(err)
+            for part, sel in (("clean", clean), ("cont", mask)):
+                s[f"rhat_{part}_sum"] = np.where(sel & fin, err, 0.0).sum(axis=(1, 2))
+                s[f"rhat_{part}_cnt"] = (sel & fin).sum(axis=(1, 2)).astype(float)
+            s["rhat_skip"] = (present & ~fin).sum(axis=(1, 2)).astype(float)
+        flags = fr.flags[:, W]
+        decided = np.isin(flags, OUTLIER_CODES)
+        s["detected"] = (decided & mask).sum(axis=(1, 2)).astype(float)
+        s["false_alarm"] = (decided & clean).sum(axis=(1, 2)).astype(float)
+        s["numfix"] = ((flags == NUMFIX_CODE) & present).sum(axis=(1, 2)).astype(float)
+        s["contaminated"] = mask.sum(axis=(1, 2)).astype(float)
+        s["clean"] = clean.sum(axis=(1, 2)).astype(float)
+        s["entries"] = present.sum(axis=(1, 2)).astype(float)
+        for name, m in data.extras.get("metrics", {}).items():
+            if isinstance(m, QuantileMetric):
+                st.samples[name] = np.asarray(m.sample(fr.x, data), dtype=float)[:, W]
+    assert all(v.shape[0] == B for v in s.values())
+    return st
+
+
+# --------------------------------------------------------------------------- judged runs
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """Which runs each filter is judged on (module note): valid, reliable, common, judged."""
+
+    n_runs: int
+    valid: dict[str, Array]  # key -> (B,) bool: the filter did not diverge
+    reliable: dict[str, bool]
+    common: Array  # (B,) bool: valid for every reliable filter
+    judged: dict[str, Array]  # key -> (B,) bool
+
+    def lost(self, key: str) -> int:
+        return int((~self.valid[key]).sum())
+
+
+def judge(diverged: dict[str, Array]) -> Judgement:
+    """The judged runs of every filter from its per-run divergence flags."""
+    keys = list(diverged)
+    B = int(next(iter(diverged.values())).shape[0]) if keys else 0
+    valid = {k: ~np.asarray(diverged[k], dtype=bool) for k in keys}
+    reliable = {k: int((~valid[k]).sum()) <= RELIABLE_SHARE * B for k in keys}
+    common = np.ones(B, dtype=bool)
+    for k in keys:
+        if reliable[k]:
+            common &= valid[k]
+    judged = {k: common if reliable[k] else common & valid[k] for k in keys}
+    return Judgement(B, valid, reliable, common, judged)
+
+
+# --------------------------------------------------------------------------- estimators
+
+
+def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estimator, str]]:
+    """The headline metrics of one filter as estimators over the runs ``runs`` (bool mask).
+
+    Returns {metric: (estimator, unit)} for every metric that applies to this filter and data.
+    """
+    out: dict[str, tuple[S.Estimator, str]] = {}
+    s = {k: v[runs] for k, v in st.sums.items()}
+    n_ep = np.full(int(runs.sum()), float(st.epochs))
+    for g, group in data.groups.items() if data.has_truth else ():
+        out[f"rmse_{g}"] = (S.Ratio(st.sse[g][runs], n_ep, sqrt=True), group.unit)
+        if g in st.sq:  # per-epoch errors (not kept by a large summary run)
+            sq = st.sq[g][runs]
+            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(sq, np.ones_like(sq)), group.unit)
+    for name, extra in data.extras.get("metrics", {}).items():
+        if isinstance(extra, QuantileMetric) and name in st.samples:
+            out[name] = (S.Quantile(st.samples[name][runs], extra.q), extra.unit)
+    if "nees_sum" in s:
+        out["anees"] = (S.Ratio(s["nees_sum"], s["nees_cnt"]), "")
+    out["anis"] = (S.Ratio(s["nis_sum"], s["nis_cnt"]), "")
+    if st.estimates_R:
+        out["rhat_err_pct"] = (S.Ratio(s["rhat_clean_sum"], s["rhat_clean_cnt"], scale=100.0), "%")
+        if s["rhat_cont_cnt"].sum() > 0:
+            out["rhat_err_contaminated_pct"] = (
+                S.Ratio(s["rhat_cont_sum"], s["rhat_cont_cnt"], scale=100.0),
+                "%",
+            )
+    if any_outliers(data):
+        out["detected_pct"] = (S.Ratio(s["detected"], s["contaminated"], scale=100.0), "%")
+        out["false_alarm_pct"] = (S.Ratio(s["false_alarm"], s["clean"], scale=100.0), "%")
+    out["numfix_pct"] = (S.Ratio(s["numfix"], s["entries"], scale=100.0), "%")
+    return out
+
+
+def any_outliers(data: Any) -> bool:
+    """Whether any measurement of the experiment is contaminated."""
+    known = getattr(data, "any_outliers", None)
+    return bool(data.outlier_mask.any()) if known is None else bool(known)
+
+
+def direction(metric: str) -> int:
+    """+1 where lower is better, −1 where higher is better, 0 where neither (consistency)."""
+    if metric.startswith(("rmse_", "mean_rmse_", "rhat_err", "h_err", "false_alarm", "numfix")):
+        return 1
+    if metric.startswith("detected"):
+        return -1
+    return 0
+
+
+# --------------------------------------------------------------------------- the summary
+
+
+def window_text(data: Any) -> str:
+    """The analysis window in words: 'epochs 1–100, t = 1–100 s, 100 epochs'."""
+    W = np.asarray(data.window, dtype=bool)
+    idx = np.flatnonzero(W)
+    if not idx.size:
+        return "empty analysis window"
+    k0, k1 = int(idx[0]), int(idx[-1])
+    t = np.asarray(data.t)
+    span = f"epochs {k0}–{k1}"
+    if idx.size != k1 - k0 + 1:
+        span += " (not contiguous)"
+    return f"{span}, t = {t[k0]:.4g}–{t[k1]:.4g} s, {idx.size} epochs"
+
+
+def _row(key, label, metric, value, unit="", est: S.Estimate | None = None, runs_used=None, note=""):
+    r = dict(filter=key, label=label, metric=metric, value=float(value), unit=unit)
+    has = est is not None and est.has_ci
+    r["ci_lo"] = est.lo if has else np.nan
+    r["ci_hi"] = est.hi if has else np.nan
+    r["ci_method"] = est.method if has else ""
+    r["runs_used"] = np.nan if runs_used is None else int(runs_used)
+    notes = [n for n in (note, "" if est is None else est.note) if n]
+    r["note"] = "; ".join(notes)
+    return r
+
+
+class Summary:
+    """The metrics of one experiment, computed once and on demand (cached on the Results).
+
+    Point values of every metric are cheap; an interval costs one bootstrap (or delta) per
+    filter and metric, so it is computed when a table asks for that metric and then kept, and
+    the paired comparisons reuse each filter's resample replicates.
+    """
+
+    def __init__(self, res: Results | Any) -> None:
+        self.res = res
+        data = res.data
+        self.data = data
+        self.seed = int(res.spec.seed)
+        # a summary run (navlab.experiment.SummaryResults) brings its per-run statistics and
+        # has no per-epoch arrays; full results have both
+        self.arrays = not hasattr(res, "stats")
+        self.stats = res.stats if not self.arrays else {k: run_stats(data, fr) for k, fr in res.runs.items()}
+        self.judgement = judge({k: st.diverged for k, st in self.stats.items()})
+        self.rule = rule_text(data)
+        self.window = window_text(data)
+        self._resamplers: dict[int, S.Resampler] = {}
+        self._est: dict[tuple[str, bytes], dict[str, tuple[S.Estimator, str]]] = {}
+        self._ci: dict[tuple[str, str], S.Estimate] = {}
+        self._rep: dict[tuple[str, str, bytes], Array] = {}
+
+    def resampler(self, n: int) -> S.Resampler:
+        if n not in self._resamplers:
+            self._resamplers[n] = S.Resampler(n, self.seed)
+        return self._resamplers[n]
+
+    def estimators(self, key: str, runs: Array) -> dict[str, tuple[S.Estimator, str]]:
+        ck = (key, np.packbits(runs).tobytes())
+        if ck not in self._est:
+            self._est[ck] = estimators(self.stats[key], self.data, runs)
+        return self._est[ck]
+
+    def metrics_of(self, key: str) -> dict[str, tuple[S.Estimator, str]]:
+        return self.estimators(key, self.judgement.judged[key])
+
+    def estimate(self, key: str, metric: str) -> S.Estimate:
+        """The metric of filter ``key`` on its judged runs, with its 95 % interval."""
+        ck = (key, metric)
+        if ck not in self._ci:
+            est, _unit = self.metrics_of(key)[metric]
+            if est.n == 0:
+                self._ci[ck] = S.Estimate(float("nan"), note="no run to judge")
+            else:
+                self._ci[ck] = self.resampler(est.n).estimate(est)
+        return self._ci[ck]
+
+    def comparison(self, key: str, ref: str, metric: str) -> tuple[S.Comparison, str] | None:
+        """Paired Δ = metric(key) − metric(ref) over the runs both are judged on."""
+        jd = self.judgement
+        runs = jd.judged[key] & jd.judged[ref]
+        n = int(runs.sum())
+        ea = self.estimators(key, runs).get(metric)
+        eb = self.estimators(ref, runs).get(metric)
+        if ea is None or eb is None or n == 0:
+            return None
+        return self.resampler(n).compare(ea[0], eb[0]), ea[1]
+
+    def rows(self, metrics: list[str] | None = None) -> pd.DataFrame:
+        """Tidy rows (:data:`COLUMNS`): every metric of every filter, with intervals for the
+        ``metrics`` named (all when None) and point values for the rest.
+        """
+        res, data, jd = self.res, self.data, self.judgement
+        rows: list[dict] = []
+        for key, st in self.stats.items():
+            fr = res.runs[key]
+            runs = jd.judged[key]
+            n = int(runs.sum())
+            lost = jd.lost(key)
+            label_note = "" if jd.reliable[key] else f"on the {n} common runs it survived"
+            for metric, (est, unit) in self.metrics_of(key).items():
+                if metrics is None or metric in metrics:
+                    e = self.estimate(key, metric)
+                else:
+                    e = S.Estimate(est.point() if n else float("nan"), note="")
+                rows.append(_row(key, fr.label, metric, e.value, unit, e, n, label_note))
+            for name, skipped in (("nees_skipped", "nees_skip"), ("nis_skipped", "nis_skip")):
+                if skipped in st.sums:
+                    rows.append(_row(key, fr.label, name, st.sums[skipped][runs].sum(), "entries"))
+            if st.estimates_R:
+                skip = st.sums["rhat_skip"][runs].sum()
+                rows.append(_row(key, fr.label, "rhat_skipped", skip, "entries"))
+            dofs = {"anees": _n_states(data), "anis": _n_channels(data)} if data.has_truth else {}
+            dofs.setdefault("anis", _n_channels(data))
+            curves = _consistency_curves(res, key, runs) if self.arrays else {}
+            for name, dof in dofs.items():
+                lo, hi = chi2_band(dof, n)
+                rows.append(_row(key, fr.label, f"{name}_band_lo", lo))
+                rows.append(_row(key, fr.label, f"{name}_band_hi", hi))
+                if name in curves:  # needs the per-epoch averages (not in a summary run)
+                    avg = curves[name]
+                    fin = np.isfinite(avg)
+                    inside = float(np.mean((avg[fin] >= lo) & (avg[fin] <= hi))) if fin.any() else np.nan
+                    rows.append(_row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
+            for name, extra in data.extras.get("metrics", {}).items() if self.arrays else ():
+                if not isinstance(extra, QuantileMetric):  # a plain function: point value only
+                    fn, unit = extra
+                    v = fn(fr.x, data, runs) if n else float("nan")
+                    rows.append(_row(key, fr.label, name, v, unit, None, n, "no interval (point metric)"))
+            note = "" if lost == 0 else _lost_note(jd, key)
+            rows.append(_row(key, fr.label, "diverged", lost, "runs", note=note))
+            rows.append(_row(key, fr.label, "runs", data.B, "runs"))
+            rows.append(_row(key, fr.label, "runs_judged", n, "runs"))
+            B, K = data.B, data.K
+            us = 1e6 * st.runtime_s / max(B * K, 1)
+            rows.append(_row(key, fr.label, "us_per_run_step", us, "µs"))
+            rate = B * K / st.runtime_s if st.runtime_s > 0 else np.nan
+            rows.append(_row(key, fr.label, "steps_per_s", rate, "1/s"))
+        return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def summary(res: Results) -> Summary:
+    """The :class:`Summary` of ``res`` (made once per Results object)."""
+    sm = res.__dict__.get("_summary")
+    if sm is None:
+        sm = Summary(res)
+        res.__dict__["_summary"] = sm
+    return sm
+
+
+def _lost_note(jd: Judgement, key: str) -> str:
+    lost, n = jd.lost(key), jd.n_runs
+    if jd.reliable[key]:
+        return f"{lost} of {n} runs lost (left out for every filter)"
+    return f"diverges in {lost} of {n} runs: ranks below every filter that does not"
+
+
+def _n_states(data: Any) -> int:
+    return int(getattr(data, "n", None) or data.x0.shape[1])
+
+
+def _n_channels(data: Any) -> int:
+    return int(getattr(data, "m", None) or data.z.shape[2])
+
+
+def _consistency_curves(res: Results, key: str, runs: Array) -> dict[str, Array]:
+    """Per-epoch ANEES/ANIS over the judged runs in the window."""
+    fr, data = res.runs[key], res.data
+    W = np.asarray(data.window, dtype=bool)
+    out = {}
+    if data.has_truth:
+        out["anees"] = average_over_runs(fr.nees[runs][:, W])
+    out["anis"] = average_over_runs(fr.nis[runs][:, W])
+    return out
+
+
+def summarize(res: Results, compare_to: str | None = None, metrics: list[str] | None = None) -> pd.DataFrame:
+    """Tidy table: one row per filter and metric (:data:`COLUMNS`) with the intervals of
+    ``metrics`` (default: every metric), and the paired ``_diff`` rows of :func:`compare`
+    appended when ``compare_to`` names a reference filter.
+    """
+    df = summary(res).rows(metrics)
+    if compare_to is None:
+        return df
+    return pd.concat([df, compare(res, compare_to)], ignore_index=True)
+
+
+# --------------------------------------------------------------------------- paired comparison
+
+
+def compare(res: Results, ref: str, metrics: list[str] | None = None) -> pd.DataFrame:
+    """Paired differences of every other filter against ``ref`` (rows ``<metric>_diff``).
+
+    For each filter A ≠ ref and headline metric: Δ = metric(A) − metric(ref) over the runs both
+    are judged on (the common runs when both are reliable, so Δ is the difference of the table's
+    values), its 95 % interval and p-value (paired bootstrap over runs, or the delta method at
+    ≥ 1000 runs), Holm-adjusted across the other filters (``p_holm``), and a verdict: ``better`` /
+    ``worse`` (adjusted p < 0.05, by the metric's direction) or ``indistinguishable`` at this run
+    count. A filter that diverges in more than 5 % of the runs is ``worse`` than a reliable
+    reference whatever Δ (and the reverse).
+    """
+    if ref not in res.runs:
+        raise NavlabError(
+            f"--compare-to '{ref}' is not one of the filters in this run: {', '.join(res.runs)}"
+        )
+    sm = summary(res)
+    jd = sm.judgement
+    metrics = metrics or headline_metrics(res)
+    rows: list[dict] = []
+    for metric in metrics:
+        part: list[dict] = []
+        pvals: dict[str, float] = {}
+        for key in res.runs:
+            if key == ref:
+                continue
+            got = sm.comparison(key, ref, metric)
+            if got is None:
+                continue
+            c, unit = got
+            pvals[key] = c.p_value
+            r = _row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
+            r.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs=ref, p_value=c.p_value)
+            part.append(r)
+        adj = S.holm(pvals)
+        for r in part:
+            key = r["filter"]
+            r["p_holm"] = adj.get(key, np.nan)
+            r["verdict"], extra = _verdict(metric, r, jd, key, ref)
+            if extra:
+                r["note"] = "; ".join(x for x in (r["note"], extra) if x)
+        rows += part
+    return pd.DataFrame(rows, columns=COLUMNS + DIFF_COLUMNS)
+
+
+def _verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
+    if jd.reliable[ref] and not jd.reliable[key]:
+        return "worse", f"{key} diverges in {jd.lost(key)} of {jd.n_runs} runs"
+    if jd.reliable[key] and not jd.reliable[ref]:
+        return "better", f"{ref} diverges in {jd.lost(ref)} of {jd.n_runs} runs"
+    d = direction(metric)
+    p = r.get("p_holm", np.nan)
+    if not r["ci_method"] or not np.isfinite(p):
+        return "", "no test (too few runs)"
+    if d == 0:
+        return "", "no direction: consistency is judged against its χ² band"
+    if p < S.ALPHA and r["value"] * d < 0:
+        return "better", ""
+    if p < S.ALPHA and r["value"] * d > 0:
+        return "worse", ""
+    return "indistinguishable", "indistinguishable at this run count"
+
+
+def headline_metrics(res: Results) -> list[str]:
+    """The metrics a comparison reports: the headline error groups' RMSEs, scenario metrics,
+    consistency, R̂ error and detection rates (those that exist in this experiment).
+    """
+    from navlab.scenarios.base import scenario_registry
+
+    data = res.data
+    groups = list(data.groups) if data.has_truth else []
+    try:
+        head = [g for g in scenario_registry()[res.spec.scenario].headline if g in groups]
+    except KeyError:
+        head = []
+    head = head or groups
+    wanted = [f"rmse_{g}" for g in head] + [f"mean_rmse_{g}" for g in head]
+    wanted += list(data.extras.get("metrics", {}))
+    wanted += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct"]
+    sm = summary(res)
+    present = {m for k in res.runs for m in sm.metrics_of(k)}
+    return [m for m in wanted if m in present]
+
+
+def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
+    """The filter better than every other on ``metric`` after Holm's correction, or None.
+
+    The candidate is the reliable filter with the best point estimate; it is "best" only if the
+    paired test (:func:`compare`) says it is better than each other filter. Returns (key or None,
+    the comparison rows against the candidate).
+    """
+    sm = summary(res)
+    d = direction(metric) or 1
+    values = {
+        k: sm.metrics_of(k)[metric][0].point()
+        for k in res.runs
+        if sm.judgement.reliable[k] and metric in sm.metrics_of(k)
+    }
+    values = {k: v for k, v in values.items() if np.isfinite(v)}
+    if not values:
+        return None, pd.DataFrame(columns=COLUMNS + DIFF_COLUMNS)
+    cand = min(values, key=lambda k: d * values[k])
+    rows = compare(res, cand, [metric])
+    ok = len(rows) == len(res.runs) - 1 and (rows["verdict"] == "worse").all()
+    return (cand if ok else None), rows
 
 
 def headline_table(res: Results) -> pd.DataFrame:
-    """Wide table for display: one row per filter, columns the headline metrics."""
-    df = summarize(res)
+    """Wide numeric table for display: one row per filter (label), columns the headline metrics."""
+    df = summary(res).rows(metrics=[])
     wanted = [f"rmse_{g}" for g in res.data.groups]
     wanted += list(res.data.extras.get("metrics", {}))
     wanted += [
@@ -164,9 +676,10 @@ def headline_table(res: Results) -> pd.DataFrame:
         "rhat_err_pct",
         "detected_pct",
         "false_alarm_pct",
+        "numfix_pct",
         "diverged",
         "us_per_run_step",
     ]
     df = df[df.metric.isin(wanted)]
-    wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
+    wide = df.pivot_table(index="label", columns="metric", values="value", sort=False, dropna=False)
     return wide[[c for c in wanted if c in wide.columns]]

@@ -52,7 +52,11 @@ if res is not None and res.complete:
     st.markdown("##### Downloads")
     d1, d2, _ = st.columns([1, 1, 3])
     csv_download(
-        lambda: summarize(res), "Metrics (CSV)", "navlab-metrics.csv", "dl_metrics_compare", container=d1
+        lambda: summarize(res, compare_to=view.ref),
+        "Metrics (CSV)",
+        "navlab-metrics.csv",
+        "dl_metrics_compare",
+        container=d1,
     )
     csv_download(
         lambda: F.rmse_curves(res),

@@ -1,64 +1,36 @@
-"""Paper reproductions: each runs a paper's experiment and returns tidy rows
-(experiment, filter, metric, value, paper, …) comparing navlab's number with the paper's.
+"""Paper reproductions: each declares a paper's experiments, the quantities measured on every
+filter and the paper's claims (:mod:`navlab.reproduce.engine`), and is judged over many Monte Carlo
+sets ("seeds") with a verdict per claim.
 
-A reproduction module defines a :class:`Reproduction` and registers it with :func:`register`;
-every module of this package is imported so the CLI and the app see them.
+A reproduction module builds a :class:`~navlab.reproduce.engine.Reproduction` and passes it to
+:func:`register`; every module of this package is imported so the CLI and the app see them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
+from navlab.reproduce.engine import DEFAULT_SEEDS, Outcome, Reproduction
 
-import pandas as pd
-
-# the columns every reproduction table has (more may follow)
-COLUMNS = ["experiment", "filter", "metric", "value", "paper", "rel_diff", "unit", "note"]
-
-
-@dataclass(frozen=True)
-class Reproduction:
-    """A paper's experiment. ``run(runs=None, seed=1, outdir=None) -> DataFrame`` (COLUMNS).
-
-    ``runs=None`` uses the paper's Monte Carlo size; ``outdir`` (if given) receives per-epoch
-    RMSE curves as CSV.
-    """
-
-    key: str
-    title: str
-    paper: str
-    run: Callable[..., pd.DataFrame]
-
+__all__ = ["DEFAULT_SEEDS", "REPRODUCTIONS", "Outcome", "Reproduction", "register"]
 
 REPRODUCTIONS: dict[str, Reproduction] = {}
 
 
 def register(rep: Reproduction) -> Reproduction:
+    """Add a reproduction to the registry under ``rep.key``."""
+    if rep.key in REPRODUCTIONS and REPRODUCTIONS[rep.key] is not rep:
+        raise ValueError(f"reproduction key {rep.key!r} registered twice")
     REPRODUCTIONS[rep.key] = rep
     return rep
 
 
-def rel_diff(value: float, paper: float | None) -> float | None:
-    """(navlab − paper)/paper, or None where the paper gives no number."""
-    if paper is None or paper == 0:
-        return None
-    return (value - paper) / paper
-
-
-def ensure_dir(outdir: Path | None) -> Path | None:
-    if outdir is not None:
-        outdir.mkdir(parents=True, exist_ok=True)
-    return outdir
-
-
-# every module of this package calls register(...) on import
+# every module of this package (but the engine) calls register(...) on import
 def _discover() -> None:
     import importlib
     import pkgutil
 
     for m in pkgutil.iter_modules(__path__):
-        importlib.import_module(f"{__name__}.{m.name}")
+        if m.name != "engine":
+            importlib.import_module(f"{__name__}.{m.name}")
 
 
 _discover()

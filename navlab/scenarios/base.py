@@ -62,6 +62,9 @@ class ScenarioData:
     Q_extra: Array | None = None  # (K+1, n, n) process-noise anomaly known to the oracle
     has_truth: bool = True
     extras: dict[str, Any] = field(default_factory=dict)
+    # position-error bound (m, on the "pos" group) of the divergence rule; None: 100 × the
+    # largest nominal measurement σ (navlab.metrics.divergence_bound)
+    divergence_bound: float | None = None
 
     @property
     def B(self) -> int:
@@ -80,10 +83,21 @@ class ScenarioData:
             Q_extra=None if self.Q_extra is None else self.Q_extra[k],
         )
 
+    # the fields with a leading run axis (everything else is shared by every run)
+    PER_RUN: ClassVar[tuple[str, ...]] = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
+
     def subset(self, sl: slice) -> ScenarioData:
         """The same data for a slice of runs (chunked Monte Carlo)."""
-        per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
-        return dataclasses.replace(self, **{f: getattr(self, f)[sl] for f in per_run})
+        return dataclasses.replace(self, **{f: getattr(self, f)[sl] for f in self.PER_RUN})
+
+    @staticmethod
+    def concat(parts: Sequence[ScenarioData]) -> ScenarioData:
+        """The data of consecutive chunks of runs as one."""
+        if len(parts) == 1:
+            return parts[0]
+        return dataclasses.replace(
+            parts[0], **{f: np.concatenate([getattr(p, f) for p in parts]) for f in parts[0].PER_RUN}
+        )
 
 
 class RunStreams(NamedTuple):

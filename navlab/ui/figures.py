@@ -74,6 +74,15 @@ def nan_quantiles(v: np.ndarray, qs: Sequence[float]) -> np.ndarray:
         return np.nanquantile(v, list(qs), axis=0)
 
 
+def judged(res: Results, key: str) -> np.ndarray:
+    """The runs filter ``key`` is judged on (navlab.metrics: the common runs of the reliable
+    filters), so every curve is drawn over the same runs as the table's numbers.
+    """
+    from navlab.metrics import summary
+
+    return summary(res).judgement.judged[key]
+
+
 def ok_runs(fr: FilterRun) -> np.ndarray:
     """Runs that did not diverge (finite state throughout)."""
     return ~np.asarray(fr.diverged)
@@ -218,7 +227,7 @@ def error_vs_time(
     traces: list = []
     t = data.t
     for key, fr in res.runs.items():
-        ok = ok_runs(fr)
+        ok = judged(res, key)
         c = colors[key]
         if not ok.any():
             _diverged_stub(traces, fr, c)
@@ -272,7 +281,7 @@ def r_vs_rhat(
         traces, t, tf(data.R_schedule[:, channel]), f"true {sym}(t) (schedule)", TRUTH_COLOR, "truth", width=3
     )
     for key, fr in res.runs.items():
-        ok = ok_runs(fr)
+        ok = judged(res, key)
         c = colors[key]
         if not ok.any():
             _diverged_stub(traces, fr, c)
@@ -341,7 +350,7 @@ def nis_vs_chi2(res: Results, *, log_y: bool = True, level: float = 0.95) -> go.
     traces: list = []
     N = None
     for key, fr in res.runs.items():
-        ok = ok_runs(fr)
+        ok = judged(res, key)
         c = colors[key]
         if not ok.any():
             _diverged_stub(traces, fr, c)
@@ -424,7 +433,7 @@ def rmse_curves(res: Results) -> pd.DataFrame:
     data = res.data
     frames = []
     for key, fr in res.runs.items():
-        ok = ok_runs(fr)
+        ok = judged(res, key)
         for gname, g in data.groups.items():
             sq = sq_error(fr.x, data.x_true, g)
             frames.append(
@@ -451,23 +460,40 @@ def sweep_lines(
 ) -> go.Figure:
     """RMSE (or any metric) against the swept value, one line per filter.
 
-    ``df`` columns: ``value`` (swept parameter), ``filter`` (key), ``label``, ``metric_value``.
+    ``df`` columns: ``value`` (swept parameter), ``filter`` (key), ``label``, ``metric_value``
+    and, where they exist, ``ci_lo``/``ci_hi``: each point's 95 % interval, drawn as error bars.
     """
     colors = filter_colors(list(df["filter"].unique()))
     traces: list = []
     for key, d in df.groupby("filter", sort=False):
         d = d.sort_values("value")
+        y = d["metric_value"].to_numpy(dtype=float)
+        err = None
+        if {"ci_lo", "ci_hi"} <= set(d.columns):
+            lo, hi = d["ci_lo"].to_numpy(dtype=float), d["ci_hi"].to_numpy(dtype=float)
+            if np.isfinite(lo).any():
+                err = {
+                    "type": "data",
+                    "symmetric": False,
+                    "array": _f32(np.where(np.isfinite(hi), hi - y, 0.0)),
+                    "arrayminus": _f32(np.where(np.isfinite(lo), y - lo, 0.0)),
+                    "thickness": 1.2,
+                    "width": 4,
+                }
         traces.append(
             go.Scatter(
                 x=d["value"].to_numpy(dtype=float),
-                y=_f32(d["metric_value"].to_numpy(dtype=float)),
+                y=_f32(y),
+                error_y=err,
                 mode="lines+markers",
                 name=str(d["label"].iloc[0]),
                 legendgroup=str(key),
                 line={"color": colors[str(key)], "width": 2},
             )
         )
-    fig = _figure(traces, f"{y_label} against {x_label}", x_label, y_label, log_y)
+    fig = _figure(
+        traces, f"{y_label} against {x_label} (bars: 95 % intervals over runs)", x_label, y_label, log_y
+    )
     fig.update_layout(hovermode="closest", xaxis_type="log" if log_x else "linear")
     return fig
 
@@ -553,7 +579,7 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
     for key, fr in res.runs.items():
         if stat not in fr.stats:
             continue
-        ok = ok_runs(fr)
+        ok = judged(res, key)
         v = _per_epoch(np.asarray(fr.stats[stat], dtype=float), channel, m)[ok]
         if not v.size:
             continue

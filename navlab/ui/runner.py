@@ -26,8 +26,9 @@ import numpy as np
 import pandas as pd
 import streamlit as st
 
+from navlab import memory
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
+from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan, run_size
 from navlab.metrics import summarize
 
 PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
@@ -93,6 +94,14 @@ def result_store() -> ResultStore:
     return ResultStore()
 
 
+@st.cache_resource(show_spinner=False)
+def ledger() -> memory.Ledger:
+    """What all sessions' runs in flight may hold together: the memory budget at server start
+    (NAVLAB_MEMORY_BUDGET, or half of the memory available then).
+    """
+    return memory.Ledger(memory.budget_bytes())
+
+
 def cached_results(spec: ExperimentSpec) -> Results | None:
     return result_store().get(spec.to_json())
 
@@ -115,11 +124,6 @@ def next_chunk_size(remaining: int, big: int = 200) -> int:
     if remaining <= big:
         return remaining
     return max(100, -(-remaining // 3))
-
-
-def _concat_data(a: Any, b: Any) -> Any:
-    per_run = ("x_true", "z", "R_true", "outlier_mask", "bias", "x0", "runs")
-    return dataclasses.replace(a, **{f: np.concatenate([getattr(a, f), getattr(b, f)]) for f in per_run})
 
 
 # What every filter cost per epoch in this process, per scenario: {runs in the batch: seconds}
@@ -161,25 +165,52 @@ def _per_epoch(seen: dict[int, float], runs: int) -> float:
     return c1 + max(0.0, c2 - c1) * (runs - b1) / (b2 - b1)
 
 
-def estimated_seconds(spec: ExperimentSpec, K: int, runs: int) -> float | None:
-    """Filter time of ``runs`` runs of ``spec`` from the costs learned so far (the prior for a
-    filter not seen yet on this scenario); None if K is unknown.
+Costs = dict[tuple[str, str], dict[int, float]]
+
+
+def estimated_seconds(spec: ExperimentSpec, K: int, runs: int, costs: Costs | None = None) -> float | None:
+    """Filter time of ``runs`` runs of ``spec`` from the costs learned so far (``costs``: a table
+    to use instead, e.g. in tests; the prior for a filter not seen yet on this scenario); None if
+    K is unknown.
     """
     if K <= 0:
         return None
-    return sum(K * _per_epoch(_COST.get((spec.scenario, key)) or _PRIOR, runs) for key in spec.filters)
+    table = _COST if costs is None else costs
+    return sum(K * _per_epoch(table.get((spec.scenario, key)) or _PRIOR, runs) for key in spec.filters)
 
 
-def _one_batch(spec: ExperimentSpec, K: int, remaining: int, first: int) -> bool:
+def _one_batch(spec: ExperimentSpec, K: int, remaining: int, first: int, costs: Costs | None = None) -> bool:
     """Whether to run the remaining runs as one batch: known to be short, or streaming would
     not show results much sooner (the first chunk costs nearly a whole batch when per-epoch
     overhead dominates) and would only add that chunk's time.
     """
-    total = estimated_seconds(spec, K, remaining)
+    total = estimated_seconds(spec, K, remaining, costs)
     if total is None:
         return False
-    head = estimated_seconds(spec, K, first)
+    head = estimated_seconds(spec, K, first, costs)
     return total <= STREAM_ABOVE_S or (head is not None and head > STREAM_GAIN * total)
+
+
+def stream_policy(spec: ExperimentSpec, K: int, first_chunk: int | None = None, costs: Costs | None = None):
+    """The app's chunk policy for :func:`navlab.experiment.iter_experiment`: a quick first chunk
+    (about a tenth of the runs), then the rest (thirds of long runs) — unless the costs learned in
+    this process (or ``costs``) say the remainder takes less than ``STREAM_ABOVE_S`` or the first
+    chunk would take more than ``STREAM_GAIN`` of one batch: then one batch, since every batch
+    pays the per-epoch overhead of every filter again. ``first_chunk`` overrides the first size.
+    """
+    state = {"first": True}
+
+    def policy(done: int, total: int) -> int:
+        remaining = total - done
+        if not state["first"]:
+            return next_chunk_size(remaining)
+        state["first"] = False
+        n = min(remaining, first_chunk or first_chunk_size(total))
+        if first_chunk is None and _one_batch(spec, K, remaining, n, costs):
+            return remaining
+        return n
+
+    return policy
 
 
 def iter_chunks(
@@ -187,45 +218,19 @@ def iter_chunks(
     start: Results | None = None,
     first_chunk: int | None = None,
     on_epoch: Callable[[float], None] | None = None,
+    costs: Costs | None = None,
 ) -> Iterator[Results]:
-    """Like :func:`navlab.experiment.iter_experiment`, but resumable from partial results.
-
-    Chunks: a quick first one (about a tenth of the runs), then the rest — unless the costs
-    learned from this process's earlier runs (or a prior) say the remainder takes less than
-    ``STREAM_ABOVE_S`` or the first chunk would take more than ``STREAM_GAIN`` of one batch:
-    then one batch, since every batch pays the per-epoch overhead of every filter again and
-    streaming such a run only makes it slower. ``first_chunk`` overrides.
-    ``on_epoch(runs_done)`` reports progress within a batch (fractional runs).
+    """The app's streaming run: :func:`navlab.experiment.iter_experiment` with
+    :func:`stream_policy`, resumable from partial results ``start``, learning each filter's cost
+    after every chunk. ``on_epoch(runs_done)`` reports progress within a chunk.
     ``Results.elapsed_s`` is the compute time (simulation + filtering) summed over chunks.
     """
-    p = plan(spec)
-    done = 0 if start is None else start.done_runs
-    acc = start
-    elapsed = 0.0 if start is None else start.elapsed_s
-    remaining = spec.runs - done
-    n = min(remaining, first_chunk or first_chunk_size(spec.runs))
-    if first_chunk is None and _one_batch(spec, p.scenario.epochs, remaining, n):
-        n = remaining
-    while done < spec.runs:
-        t0 = time.perf_counter()
-        runs = list(range(done, done + n))
-        data = p.scenario.simulate(p.schedule, p.outliers, runs, spec.seed)
-        tick = None
-        if on_epoch is not None:
-            tick = lambda k, K, d=done, b=n: on_epoch(d + b * k / K)  # noqa: E731
-        out = run_filters(data, p.filters, tick)
-        learn_cost(spec.scenario, n, data.K, out)
-        if acc is None:
-            acc_data, acc_runs = data, out
-        else:
-            acc_data = _concat_data(acc.data, data)
-            acc_runs = {k: FilterRun.concat([acc.runs[k], out[k]]) for k in out}
-        done += n
-        elapsed += time.perf_counter() - t0
-        acc = Results(spec=spec, data=acc_data, runs=acc_runs, complete=done >= spec.runs, elapsed_s=elapsed)
-        yield acc
-        if done < spec.runs:
-            n = next_chunk_size(spec.runs - done)
+    K = plan(spec).scenario.epochs
+    policy = stream_policy(spec, K, first_chunk, costs)
+    for res in iter_experiment(spec, policy=policy, start=start, on_epoch=on_epoch):
+        ch = res.last
+        learn_cost(spec.scenario, ch.data.B, ch.data.K, ch.runs)
+        yield res
 
 
 def _partials() -> dict[str, tuple[str, Results]]:
@@ -303,14 +308,18 @@ def run_live(
             prog.progress(min(1.0, runs_done / spec.runs), text=f"{runs_done:.0f}/{spec.runs} runs…")
 
     try:
-        for res in iter_chunks(spec, start, first_chunk, tick):
-            _partials()[page] = (key, res)
-            prog.progress(
-                res.done_runs / spec.runs,
-                text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute",
-            )
-            if render is not None:
-                render(res)
+        size = run_size(plan(spec))
+        need = size.full()
+        memory.check(size, need)  # this run alone (the message says what to change)
+        with ledger().reserve(need):  # and all sessions' runs together
+            for res in iter_chunks(spec, start, first_chunk, tick):
+                _partials()[page] = (key, res)
+                prog.progress(
+                    res.done_runs / spec.runs,
+                    text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute",
+                )
+                if render is not None:
+                    render(res)
     except Exception as exc:  # shown to the user, never a traceback
         prog.empty()
         stop_ph.empty()
@@ -333,16 +342,28 @@ def run_live(
 # --------------------------------------------------------------------------- metric cache
 
 
+# the metrics a sweep plots, with intervals (the others are point values: cheaper per point)
+SWEEP_METRICS = ("anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
+
+
+def _sweep_rows(res: Results) -> pd.DataFrame:
+    head = [f"rmse_{g}" for g in res.data.groups] + ["mean_rmse_pos", *SWEEP_METRICS]
+    head += list(res.data.extras.get("metrics", {}))
+    return summarize(res, metrics=head)
+
+
 @st.cache_data(max_entries=512, show_spinner=False)
 def _metrics_json(spec_json: str) -> pd.DataFrame:
     from navlab.experiment import run_experiment
 
-    return summarize(run_experiment(ExperimentSpec.from_json(spec_json)))
+    return _sweep_rows(run_experiment(ExperimentSpec.from_json(spec_json)))
 
 
 def metrics_cached(spec: ExperimentSpec) -> pd.DataFrame:
-    """Tidy metric table of ``spec`` (cached by its JSON; bounded to 512 configurations)."""
+    """Tidy metric table of ``spec`` with the sweep's intervals (cached by its JSON; bounded to
+    512 configurations).
+    """
     res = result_store().get(spec.to_json())
     if res is not None:
-        return summarize(res)
+        return _sweep_rows(res)
     return _metrics_json(spec.to_json())

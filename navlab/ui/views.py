@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import streamlit as st
 
+from navlab import tables
+from navlab.metrics import summary
 from navlab.scenarios import scenario_registry
 from navlab.ui import figures as F
 
@@ -29,11 +31,22 @@ def chart(container: Any, fig: Any, alt: str) -> None:
 
 
 def divergence_warnings(res: Results, container: Any = None) -> None:
-    """One warning line per filter with diverged runs (they are excluded from every curve)."""
+    """One warning naming the filters that lost runs to divergence (rule in the table notes)."""
     c = container if container is not None else st
-    notes = [f"**{fr.label}**: {F.divergence_note(fr)}" for fr in res.runs.values() if F.divergence_note(fr)]
+    jd = summary(res).judgement
+    notes = []
+    for key, fr in res.runs.items():
+        lost = jd.lost(key)
+        if not lost:
+            continue
+        first = int(np.min(fr.diverged_at[fr.diverged_at >= 0]))
+        what = "left out for every filter" if jd.reliable[key] else "more than 5 %: ranks below"
+        notes.append(f"**{fr.label}**: {lost}/{jd.n_runs} runs (first at epoch {first}; {what})")
     if notes:
-        c.warning("Diverged (non-finite state; excluded from curves and metrics) — " + "; ".join(notes))
+        c.warning(
+            f"Diverged runs — the curves and numbers use the {int(jd.common.sum())} runs every "
+            "reliable filter kept: " + "; ".join(notes)
+        )
 
 
 def headline_groups(res: Results) -> list[str]:
@@ -86,7 +99,7 @@ class CompareView:
         self.rhat = left.empty()
         self.nis = right.empty()
         self._made = False
-        self.group = self.channel = None
+        self.group = self.channel = self.ref = None
         self.log_err = self.log_r = False
         self.as_std = False
         self.live = False  # set by the page while run_live streams chunks
@@ -95,7 +108,17 @@ class CompareView:
         if self._made:
             return
         self._made = True
-        c1, c2, c3, c4, c5 = self.controls.columns([2, 1, 2, 1, 1])
+        c1, c2, c3, c4, c5, c6 = self.controls.columns([2, 1, 2, 1, 1, 2])
+        keys = list(res.runs)
+        self.ref = c6.selectbox(
+            "Compare to",
+            keys,
+            index=keys.index("kf") if "kf" in keys else 0,
+            format_func=lambda k: res.runs[k].label if k in res.runs else k,
+            key=f"{self.page}_v_ref",
+            help="reference filter of the paired test: each other filter is better, worse or "
+            "indistinguishable from it over the same runs (Holm-corrected, 95 %)",
+        )
         groups = list(res.data.groups)
         first = headline_groups(res)[0]
         self.group = c1.selectbox(
@@ -131,9 +154,7 @@ class CompareView:
             F.error_vs_time(res, group, log_y=self.log_err),
             "RMSE over time per filter with spread bands",
         )
-        self.table.dataframe(F.summary_table(res, headline_groups(res)), width="stretch")
-        with self.notes.container():
-            divergence_warnings(res)
+        show_table(self.table, self.notes, res, self.ref)
         if not res.complete and self.live:
             # while chunks stream, only the error curves and the table update: fewer browser
             # redraws, so the first chart appears sooner
@@ -147,6 +168,17 @@ class CompareView:
             "true R(t) against each filter's R-hat",
         )
         chart(self.nis, F.nis_vs_chi2(res), "average NIS against its chi-square band")
+
+
+def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> None:
+    """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
+    ref = ref if ref in res.runs else None
+    t = tables.headline(res, compare_to=ref if len(res.runs) > 1 else None)
+    config = {c: st.column_config.TextColumn(c, help=h) for c, h in t.help.items() if h}
+    table.dataframe(t.cells, width="stretch", column_config=config)
+    with notes.container():
+        divergence_warnings(res)
+        st.caption("  \n".join(t.notes))
 
 
 def outlier_summary(res: Results, ch: int) -> str:
@@ -164,24 +196,26 @@ def outlier_summary(res: Results, ch: int) -> str:
 
 
 def rhat_error_table(res: Results) -> Any:
-    """Per filter and channel: mean |σ̂/σ − 1| (%) against the schedule, for filters with R̂."""
+    """Per filter and channel: mean |σ̂/σ − 1| (%) against the σ the noise was drawn with, on
+    clean epochs, over the judged runs (filters with R̂ only).
+    """
     import pandas as pd
 
     d = res.data
-    W = d.window
+    W = np.asarray(d.window, dtype=bool)
+    jd = summary(res).judgement
     rows = []
     for key, fr in res.runs.items():
         if fr.R_hat is None:
             continue
-        ok = F.ok_runs(fr)
+        ok = jd.judged[key]
         row = {"filter": fr.label, "key": key}
+        clean = ~d.outlier_mask[ok][:, W] & np.isfinite(d.z[ok][:, W])
+        with np.errstate(all="ignore"):
+            err = np.abs(np.sqrt(fr.R_hat[ok][:, W] / d.R_true[ok][:, W]) - 1.0)
         for ch in range(d.z.shape[2]):
-            with np.errstate(all="ignore"):
-                ratio = np.sqrt(fr.R_hat[ok][:, W, ch]) / np.sqrt(d.R_schedule[W, ch])[None]
-            ratio = ratio[np.isfinite(ratio)]
-            row[channel_label(res, ch)] = (
-                float(100 * np.mean(np.abs(ratio - 1))) if ratio.size else float("nan")
-            )
+            e = err[..., ch][clean[..., ch] & np.isfinite(err[..., ch])]
+            row[channel_label(res, ch)] = float(100 * e.mean()) if e.size else float("nan")
         rows.append(row)
     return pd.DataFrame(rows).set_index("filter") if rows else pd.DataFrame()
 
@@ -198,7 +232,9 @@ class NoiseView:
         self.preview = st.empty()
         self.fig = st.empty()
         self.outliers = st.empty()
-        st.markdown("##### R̂ error against the schedule: mean |σ̂/σ − 1| over the window (%)")
+        st.markdown(
+            "##### R̂ error on clean epochs: mean |σ̂/σ − 1| against the σ the noise was drawn with (%)"
+        )
         self.table = st.empty()
         self.notes = st.empty()
         st.markdown(
@@ -261,12 +297,12 @@ class NoiseView:
             )
         else:
             with self.table.container():
-                st.dataframe(tab.drop(columns="key"), width="stretch")
-                if "oracle-kf" in set(tab["key"]):
-                    st.caption(
-                        "The oracle's R̂ is the variance actually drawn, outliers included, "
-                        "so it leaves the schedule at outlier epochs by design."
-                    )
+                st.dataframe(tab.drop(columns="key").round(3), width="stretch")
+                st.caption(
+                    "Over the analysis window and the judged runs; outlier epochs are left out "
+                    "(their own number is in the Compare table's tidy download, "
+                    "rhat_err_contaminated_pct). An empty cell: no clean measurement on the channel."
+                )
         with self.notes.container():
             divergence_warnings(res)
         if self.stat is None:

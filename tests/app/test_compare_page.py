@@ -47,8 +47,11 @@ def test_small_run_completes_with_charts_and_table(open_page):
     assert any(t.get("fill") == "tonexty" for t in figs[0]["data"])
     table = at.dataframe[0].value
     assert list(table.index) == ["KF", "Oracle KF", "χ²-gated KF"]
-    rmse = table["RMSE position (m)"].to_numpy()
+    rmse = np.array([float(c.split()[0]) for c in table["RMSE position (m)"]])  # "v [lo, hi]"
     assert np.all(np.isfinite(rmse)) and rmse[1] < rmse[0]  # the oracle beats the KF
+    vs = table["vs KF, RMSE position (m)"]
+    assert vs.iloc[0] == "reference" and "no test" in vs.iloc[1]  # 6 runs: too few for a test
+    assert any("too few runs for an interval" in c.value for c in at.caption)
     assert any("6/6 runs (complete)" in c.value for c in at.caption)
     labels = [b.label for b in at.get("download_button")]
     assert {"Configuration (JSON)", "Metrics (CSV)", "RMSE per epoch (CSV)"} <= set(labels)
@@ -119,3 +122,13 @@ def test_run_without_live_updates(open_page, monkeypatch):
     assert_clean(at)
     assert sizes == [6]  # one batch
     assert len(plotly_figs(at)) == 3
+
+
+def test_a_link_that_would_exhaust_memory_is_refused_with_a_message(open_page):
+    """/Compare?flt=kf&runs=5000&sc.cv2d.epochs=100000 once grew the server to 9.9 GB in 21 s."""
+    at = open_page(PAGE, flt=["kf"], runs="5000", **{"sc.cv2d.epochs": "100000"})
+    at.button(key="run_compare").click().run()
+    assert not at.exception
+    (err,) = [e.value for e in at.error]
+    assert "would hold about" in err and "memory budget" in err and "fewer runs or epochs" in err
+    assert runner.ledger().in_use == 0  # nothing left reserved

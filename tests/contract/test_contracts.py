@@ -1,14 +1,14 @@
 """The contract every registered filter keeps, on every scenario it can run on.
 
-Parametrised over ``registry()`` × ``scenario_registry()`` (conftest.CASES): a new filter is checked
-by these tests without touching them. See conftest.py for the data and the driver.
+Parametrised over ``registry()`` × ``scenario_registry()`` (contract_data.CASES): a new filter is checked
+by these tests without touching them. See contract_data.py for the data and the driver.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import (
+from contract_data import (
     CASES,
     RUNS,
     Run,

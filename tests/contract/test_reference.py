@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import CASES, RUNS, batched_P, cached_run, filter_for, scenario_data
+from contract_data import CASES, RUNS, batched_P, cached_run, filter_for, scenario_data
 
 from navlab.filters.reference import REFERENCES
 

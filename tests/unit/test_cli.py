@@ -52,6 +52,29 @@ def test_run_json_has_tidy_rows(capsys):
         assert got[(f, "rmse_pos")] > 0
         assert got[(f, "rmse_vel")] > 0
     assert got[("oracle-kf", "rmse_pos")] <= got[("kf", "rmse_pos")]
+    # every headline row carries its interval; rows without one carry empty (null) bounds
+    by = {(r["filter"], r["metric"]): r for r in rows}
+    r = by[("kf", "rmse_pos")]
+    assert r["ci_lo"] < r["value"] < r["ci_hi"] and r["ci_method"] == "bootstrap"
+    assert by[("kf", "diverged")]["ci_lo"] is None and by[("kf", "runs")]["ci_hi"] is None
+
+
+def test_compare_to_adds_paired_rows_and_a_verdict_column(capsys):
+    argv = ["run", "--filters", "kf,oracle-kf,chi2-kf", "--runs", "30", "--epochs", "40"]
+    rc, out, _ = run_cli(capsys, *argv, "--compare-to", "kf", "--format", "json")
+    assert rc == 0
+    diff = [r for r in json.loads(out) if r["metric"] == "rmse_pos_diff"]
+    assert {r["filter"] for r in diff} == {"oracle-kf", "chi2-kf"}
+    assert all(r["vs"] == "kf" and 0 <= r["p_value"] <= 1 and r["ci_lo"] <= r["ci_hi"] for r in diff)
+    oracle = next(r for r in diff if r["filter"] == "oracle-kf")
+    assert oracle["verdict"] == "better" and oracle["value"] < 0
+    rc, out, _ = run_cli(capsys, *argv, "--compare-to", "kf")
+    assert rc == 0
+    assert "better than KF (Δ -" in out and "reference" in out
+    assert "nan" not in out.lower() and "None" not in out  # empty cells, reasons in footnotes
+    assert "Analysis window: epochs 1–40" in out and "Divergence:" in out
+    rc, _, err = run_cli(capsys, *argv, "--compare-to", "hakf")
+    assert rc == 2 and "--compare-to hakf" in err
 
 
 def test_config_file_and_overrides(tmp_path, capsys):

@@ -37,7 +37,11 @@ def test_same_seed_same_numbers_and_chunking_is_invisible():
     b = run_experiment(spec, chunk_runs=5).metrics()
     c = run_experiment(spec.replace(seed=4)).metrics()
     q = ~a.metric.isin(["us_per_run_step", "steps_per_s"])
-    np.testing.assert_array_equal(a[q].value.to_numpy(), b[q].value.to_numpy())
+    # to round-off: the χ²-KF's P is shared by all runs of a chunk until one of them rejects,
+    # so the matrix kernels (and their last bit) depend on the chunk; the intervals use the
+    # same resamples whatever the chunking
+    for col in ("value", "ci_lo", "ci_hi"):
+        np.testing.assert_allclose(a[q][col].to_numpy(), b[q][col].to_numpy(), rtol=1e-12)
     assert not np.allclose(a[q].value.to_numpy(), c[q].value.to_numpy(), equal_nan=True)
 
 

@@ -96,6 +96,19 @@ def test_quad_is_the_quadratic_form(d, N, layout, seed):
     np.testing.assert_allclose(quad(v, S), ref, rtol=1e-7)
 
 
+@FAST
+@given(d=st.integers(1, 10), N=st.integers(2, 40), shared=st.booleans(), seed=seeds)
+def test_quad_of_a_run_does_not_depend_on_its_batch(d, N, shared, seed):
+    """Bit for bit: a run's NIS/NEES is the same alone and in any chunk (the recorder relies on it)."""
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal((N, d))
+    S = np.broadcast_to(spd(rng, (), d), (N, d, d)) if shared else spd(rng, (N,), d)
+    q = quad(v, S)
+    for i in (0, N // 2, N - 1):
+        assert quad(v[i : i + 1], S[i : i + 1])[0] == q[i]
+        assert quad(v[: i + 1], S[: i + 1])[i] == q[i]
+
+
 def test_quad_is_nan_only_where_S_is_singular():
     S = np.broadcast_to(np.eye(3), (700, 3, 3)).copy()
     S[4] = 0.0

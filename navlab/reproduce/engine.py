@@ -1,0 +1,777 @@
+"""Seed-robust reproductions: a paper's claims judged over many Monte Carlo sets (docs/STATISTICS.md §4).
+
+A "seed" in the papers' sense is one Monte Carlo set of the paper's run count N. A reproduction
+runs S such sets as ONE batched experiment of S·N runs (set s is runs s·N … s·N + N − 1 of the
+base seed, so set 0 is the old single-seed result), reduced chunk by chunk to per-run statistics
+(:class:`Quantity`), and turns every claim of the paper into one row with a verdict:
+
+* **a number** (:class:`Number`, "IRAKF x-position RMSE 1.5942 m"): the mean over the S sets, its
+  95 % t interval, and the 2.5–97.5 % range of the per-set values (what another lab with another
+  seed would plausibly see). *reproduced* if |mean − paper| ≤ 20 % of the paper's value;
+  *contradicted* if the whole interval of the mean lies outside that band; *inconclusive*
+  otherwise. The note says whether the paper's value is inside the per-set range (a lucky-seed
+  match is not a reproduction) and whether it lies below the oracle filter's floor.
+* **a bound** (:class:`Bound`, "SKF's peak error above 10 m"): *reproduced* if the interval of the
+  mean lies on the paper's side of the bound, *contradicted* if it lies on the other side.
+* **a ranking** (:class:`Ranking`, "A better than B", "A best"): the share of sets on which it
+  holds, and the paired test of §3 on all S·N runs pooled (Holm over the competitors for "best").
+  *reproduced* if the pooled test says A better than each; *contradicted* if it says A worse than
+  at least one; *inconclusive* otherwise.
+* **a margin** (:class:`Margin`, "A is 27 % better than B"): the paired interval of the relative
+  difference (A − B)/B over all runs pooled; verdict as for a number (±20 % of the paper's margin).
+
+Every filter is judged on the same runs (navlab.metrics' divergence rule, per experiment).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from navlab import stats as S
+from navlab.errors import NavlabError
+from navlab.experiment import ExperimentSpec, fixed_chunks, iter_chunks, plan, run_size, summary_chunk
+from navlab.metrics import judge, sq_error
+
+Array = np.ndarray
+TOLERANCE = 0.20  # a number is reproduced within ±20 % of the paper's value
+DEFAULT_SEEDS = 20
+
+ErrFn = Callable[[Any, Any], Array]  # (data, filter run) -> (B, K+1) squared error, display units²
+WindowFn = Callable[[Any], Array]  # data -> (K+1,) bool
+
+
+# --------------------------------------------------------------------------- quantities
+
+
+def group_error(group: str) -> ErrFn:
+    """Squared error norm of a metric group of the scenario (display units²)."""
+    return lambda data, fr: sq_error(fr.x, data.x_true, data.groups[group])
+
+
+def component_error(idx: Sequence[int], scale: float = 1.0) -> ErrFn:
+    """Squared error norm of state components ``idx`` (times ``scale``)."""
+    idx = list(idx)
+
+    def err(data, fr):
+        with np.errstate(over="ignore", invalid="ignore"):
+            return (((fr.x[..., idx] - data.x_true[..., idx]) * scale) ** 2).sum(axis=-1)
+
+    return err
+
+
+def epochs(lo: int | None = None, hi: int | None = None) -> WindowFn:
+    """Epochs lo … hi inclusive (None: the scenario's analysis window)."""
+
+    def win(data):
+        if lo is None and hi is None:
+            return np.asarray(data.window, dtype=bool)
+        k = np.arange(data.K + 1)
+        return (k >= (lo if lo is not None else 1)) & (k <= (hi if hi is not None else data.K))
+
+    return win
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """A statistic of one filter: per-run features (computed chunk by chunk) → an estimator.
+
+    ``features(data, fr) -> {name: (B, …)}``; ``make(features of a set of runs) -> Estimator``.
+    ``lower_is_better`` orders filters in rankings.
+    """
+
+    name: str
+    unit: str
+    features: Callable[[Any, Any], dict[str, Array]]
+    make: Callable[[dict[str, Array]], S.Estimator]
+    lower_is_better: bool = True
+    help: str = ""
+
+
+def pooled_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
+    """sqrt(mean over the window's epochs and the runs of the squared error)."""
+    win = win or epochs()
+
+    def feats(data, fr):
+        sq = err(data, fr)[:, win(data)]
+        return {"sse": sq.sum(axis=1), "n": np.full(sq.shape[0], float(sq.shape[1]))}
+
+    return Quantity(name, unit, feats, lambda f: S.Ratio(f["sse"], f["n"], sqrt=True), help=help)
+
+
+def mean_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
+    """Mean over the window's epochs of the per-epoch Monte Carlo RMSE."""
+    win = win or epochs()
+
+    def feats(data, fr):
+        return {"sq": err(data, fr)[:, win(data)].astype(np.float32)}
+
+    return Quantity(name, unit, feats, lambda f: S.MeanSqrtRatio(f["sq"], np.ones_like(f["sq"])), help=help)
+
+
+def peak_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
+    """The largest per-epoch Monte Carlo RMSE in the window."""
+    win = win or epochs()
+
+    def feats(data, fr):
+        return {"sq": err(data, fr)[:, win(data)].astype(np.float32)}
+
+    return Quantity(name, unit, feats, lambda f: S.MaxSqrtRatio(f["sq"], np.ones_like(f["sq"])), help=help)
+
+
+def mean_norm(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
+    """Mean over the window's epochs and the runs of the error norm (not squared)."""
+    win = win or epochs()
+
+    def feats(data, fr):
+        with np.errstate(over="ignore", invalid="ignore"):
+            e = np.sqrt(err(data, fr)[:, win(data)])
+        return {"s": e.sum(axis=1), "n": np.full(e.shape[0], float(e.shape[1]))}
+
+    return Quantity(name, unit, feats, lambda f: S.Ratio(f["s"], f["n"]), help=help)
+
+
+def run_peak(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
+    """Mean over runs of each run's largest error norm in the window."""
+    win = win or epochs()
+
+    def feats(data, fr):
+        with np.errstate(over="ignore", invalid="ignore"):
+            e = np.sqrt(err(data, fr)[:, win(data)])
+        return {"mx": e.max(axis=1), "one": np.ones(e.shape[0])}
+
+    return Quantity(name, unit, feats, lambda f: S.Ratio(f["mx"], f["one"]), help=help)
+
+
+def rate(
+    name: str, hits: Callable[[Any, Any], tuple[Array, Array]], help: str = "", lower_is_better: bool = True
+) -> Quantity:
+    """A share in %: ``hits(data, fr) -> (hits (B,), opportunities (B,))``."""
+
+    def feats(data, fr):
+        h, o = hits(data, fr)
+        return {"h": np.asarray(h, dtype=float), "o": np.asarray(o, dtype=float)}
+
+    return Quantity(name, "%", feats, lambda f: S.Ratio(f["h"], f["o"], scale=100.0), lower_is_better, help)
+
+
+# --------------------------------------------------------------------------- claims
+
+
+@dataclass(frozen=True)
+class Ref:
+    """A (experiment, filter) pair a claim is about."""
+
+    experiment: str
+    filter: str
+
+
+@dataclass(frozen=True)
+class Number:
+    """The paper gives a number for ``ref``'s ``quantity``."""
+
+    id: str
+    text: str
+    ref: Ref
+    quantity: str
+    paper: float
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The paper says ``ref``'s ``quantity`` is above (or below) ``bound``."""
+
+    id: str
+    text: str
+    ref: Ref
+    quantity: str
+    bound: float
+    above: bool = True
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """The paper says ``better`` beats every one of ``than`` on ``quantity`` ("best" if several)."""
+
+    id: str
+    text: str
+    better: Ref
+    than: tuple[Ref, ...]
+    quantity: str
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Margin:
+    """The paper says (a − b)/b = ``paper`` on ``quantity`` (``as_ratio``: it states a/b)."""
+
+    id: str
+    text: str
+    a: Ref
+    b: Ref
+    quantity: str
+    paper: float  # the paper's relative difference (a − b)/b, or the ratio a/b if as_ratio
+    as_ratio: bool = False
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Close:
+    """The paper says the filters ``refs`` are close on ``quantity``; navlab reads "close" as
+    every relative difference to the best within ±``within``.
+    """
+
+    id: str
+    text: str
+    refs: tuple[Ref, ...]
+    quantity: str
+    within: float = 0.10
+    note: str = ""
+
+
+Claim = Number | Bound | Ranking | Margin | Close
+
+
+# --------------------------------------------------------------------------- the reproduction
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One experiment of a paper: a spec (its ``runs`` = the paper's run count N per set)."""
+
+    name: str
+    spec: ExperimentSpec
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """A per-epoch RMSE curve to show (e.g. the paper's figure)."""
+
+    name: str
+    unit: str
+    err: ErrFn
+
+
+@dataclass(frozen=True)
+class Reproduction:
+    """A paper's experiments, the quantities measured on every filter, and the paper's claims.
+
+    :meth:`evaluate` runs ``seeds`` sets of ``runs`` runs (default: the paper's count) and
+    returns an :class:`Outcome`.
+    """
+
+    key: str
+    title: str
+    paper: str
+    experiments: tuple[Experiment, ...]
+    quantities: tuple[Quantity, ...]
+    claims: tuple[Claim, ...]
+    curves: tuple[Curve, ...] = ()
+    names: dict[str, str] = field(default_factory=dict)  # filter key -> the paper's name
+    paper_runs: int | None = None
+    notes: dict[str, str] = field(default_factory=dict)  # quantity or claim id -> why it may differ
+
+    @property
+    def default_runs(self) -> int:
+        return int(self.paper_runs or self.experiments[0].spec.runs)
+
+    def name(self, key: str) -> str:
+        return self.names.get(key, key)
+
+    def evaluate(
+        self,
+        runs: int | None = None,
+        seeds: int = DEFAULT_SEEDS,
+        seed: int = 1,
+        on_progress: Callable[[int, int], None] | None = None,
+    ) -> Outcome:
+        return evaluate(self, runs, seeds, seed, on_progress)
+
+
+@dataclass(eq=False)
+class Measured:
+    """Per-run features of every (filter, quantity) of one experiment over all S·N runs."""
+
+    experiment: Experiment
+    labels: dict[str, str]
+    feats: dict[tuple[str, str], dict[str, Array]]  # (filter, quantity) -> features
+    judged: dict[str, Array]  # filter -> (S·N,) bool
+    reliable: dict[str, bool]
+    lost: dict[str, int]
+    curves: dict[tuple[str, str], tuple[Array, Array]]  # (filter, curve) -> Σ e², count per epoch
+    t: Array
+
+
+@dataclass(eq=False)
+class Outcome:
+    """What a reproduction found: one verdict row per claim, the detailed readings, the curves."""
+
+    reproduction: Reproduction
+    verdicts: pd.DataFrame
+    readings: pd.DataFrame
+    curves: dict[str, pd.DataFrame]
+    seeds: int
+    runs: int
+    seed: int
+
+
+def _measure(
+    rep: Reproduction, exp: Experiment, runs: int, seeds: int, seed: int, progress: Callable[[int], None]
+) -> Measured:
+    spec = exp.spec.replace(runs=runs * seeds, seed=seed)
+    p = plan(spec)
+    chunk = summary_chunk(run_size(p))
+    feats: dict[tuple[str, str], list[dict[str, Array]]] = {}
+    curves: dict[tuple[str, str], list[Array]] = {}
+    diverged: dict[str, list[Array]] = {f.key: [] for f in p.filters}
+    labels = {f.key: f.label for f in p.filters}
+    t = None
+    for ch in iter_chunks(p, fixed_chunks(chunk)):
+        t = ch.data.t
+        for key, fr in ch.runs.items():
+            diverged[key].append(fr.diverged)
+            for q in rep.quantities:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    feats.setdefault((key, q.name), []).append(q.features(ch.data, fr))
+            for c in rep.curves:
+                with np.errstate(over="ignore", invalid="ignore"):
+                    curves.setdefault((key, c.name), []).append(c.err(ch.data, fr).astype(np.float32))
+        progress(ch.data.B)
+    jd = judge({k: np.concatenate(v) for k, v in diverged.items()})
+    out_feats = {
+        kq: {name: np.concatenate([d[name] for d in parts]) for name in parts[0]}
+        for kq, parts in feats.items()
+    }
+    out_curves = {}
+    for (key, c), parts in curves.items():
+        sq = np.concatenate(parts)[jd.judged[key]].astype(float)
+        out_curves[(key, c)] = (sq.sum(axis=0), np.full(sq.shape[1], float(sq.shape[0])))
+    return Measured(
+        exp,
+        labels,
+        out_feats,
+        jd.judged,
+        jd.reliable,
+        {k: jd.lost(k) for k in labels},
+        out_curves,
+        np.asarray(t),
+    )
+
+
+def _quantity(rep: Reproduction, name: str) -> Quantity:
+    for q in rep.quantities:
+        if q.name == name:
+            return q
+    raise KeyError(name)
+
+
+class _Evaluator:
+    def __init__(self, rep: Reproduction, measured: dict[str, Measured], runs: int, seeds: int, seed: int):
+        self.rep, self.m, self.N, self.S, self.seed = rep, measured, runs, seeds, seed
+
+    def sets(self) -> list[Array]:
+        total = self.N * self.S
+        idx = np.arange(total)
+        return [(idx >= s * self.N) & (idx < (s + 1) * self.N) for s in range(self.S)]
+
+    def estimator(self, ref: Ref, quantity: str, runs: Array) -> S.Estimator:
+        f = self.m[ref.experiment].feats[(ref.filter, quantity)]
+        return _quantity(self.rep, quantity).make({k: v[runs] for k, v in f.items()})
+
+    def judged(self, *refs: Ref) -> Array:
+        mask = np.ones(self.N * self.S, dtype=bool)
+        for r in refs:
+            mask &= self.m[r.experiment].judged[r.filter]
+        return mask
+
+    def per_set(self, ref: Ref, quantity: str) -> Array:
+        jd = self.judged(ref)
+        vals = [
+            self.estimator(ref, quantity, s & jd).point() if (s & jd).any() else np.nan for s in self.sets()
+        ]
+        return np.asarray(vals, dtype=float)
+
+    def pooled(self, ref: Ref, quantity: str) -> S.Estimate:
+        runs = self.judged(ref)
+        n = int(runs.sum())
+        if n == 0:
+            return S.Estimate(float("nan"), note="no run to judge")
+        return S.Resampler(n, self.seed).estimate(self.estimator(ref, quantity, runs))
+
+    def compare(self, a: Ref, b: Ref, quantity: str, relative: bool = False) -> S.Comparison | None:
+        runs = self.judged(a, b)
+        n = int(runs.sum())
+        if n == 0:
+            return None
+        rs = S.Resampler(n, self.seed)
+        return rs.compare(self.estimator(a, quantity, runs), self.estimator(b, quantity, runs), relative)
+
+    def reliability_note(self, *refs: Ref) -> str:
+        notes = []
+        for r in refs:
+            m = self.m[r.experiment]
+            if m.lost[r.filter]:
+                total = self.N * self.S
+                rel = "" if m.reliable[r.filter] else ", more than 5 %: ranks below"
+                notes.append(f"{self.name(r)} diverges in {m.lost[r.filter]} of {total} runs{rel}")
+        return "; ".join(notes)
+
+    def name(self, r: Ref) -> str:
+        return self.rep.name(r.filter)
+
+
+def _range(v: Array) -> tuple[float, float]:
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return float("nan"), float("nan")
+    lo, hi = np.quantile(v, [0.025, 0.975])
+    return float(lo), float(hi)
+
+
+def _number_verdict(mean: S.Estimate, paper: float) -> str:
+    if not np.isfinite(mean.value):
+        return "inconclusive"
+    band = TOLERANCE * abs(paper)
+    if abs(mean.value - paper) <= band:
+        return "reproduced"
+    if mean.has_ci and (mean.lo > paper + band or mean.hi < paper - band):
+        return "contradicted"
+    return "inconclusive"
+
+
+def _row(claim: Claim, kind: str, **kw) -> dict:
+    base = dict(
+        claim=claim.id,
+        kind=kind,
+        text=claim.text,
+        paper=np.nan,
+        mean=np.nan,
+        ci_lo=np.nan,
+        ci_hi=np.nan,
+        range_lo=np.nan,
+        range_hi=np.nan,
+        unit="",
+        seeds=np.nan,
+        runs_per_seed=np.nan,
+        share_of_seeds_holding=np.nan,
+        p_value=np.nan,
+        verdict="",
+        note=claim.note,
+    )
+    base.update(kw)
+    return base
+
+
+def _join(*parts: str) -> str:
+    return "; ".join(p for p in parts if p)
+
+
+def _judge_number(ev: _Evaluator, c: Number, unit: str) -> dict:
+    vals = ev.per_set(c.ref, c.quantity)
+    mean = S.mean_ci(vals)
+    lo, hi = _range(vals)
+    inside = lo <= c.paper <= hi
+    notes = [c.note, f"paper value inside the per-seed range: {'yes' if inside else 'no'}"]
+    floor = _oracle_floor(ev, c.ref, c.quantity)
+    if floor is not None and c.paper < floor:
+        notes.append(
+            f"the paper's {c.paper:g} lies below the oracle KF's {S.sig3(floor)} (the MMSE floor of "
+            "navlab's setup): the claim is about a different setup"
+        )
+    notes.append(ev.reliability_note(c.ref))
+    return _row(
+        c,
+        "number",
+        paper=c.paper,
+        mean=mean.value,
+        ci_lo=mean.lo,
+        ci_hi=mean.hi,
+        range_lo=lo,
+        range_hi=hi,
+        unit=unit,
+        seeds=ev.S,
+        runs_per_seed=ev.N,
+        share_of_seeds_holding=float(np.mean(np.abs(vals - c.paper) <= TOLERANCE * abs(c.paper))),
+        verdict=_number_verdict(mean, c.paper),
+        note=_join(*notes),
+    )
+
+
+def _oracle_floor(ev: _Evaluator, ref: Ref, quantity: str) -> float | None:
+    m = ev.m[ref.experiment]
+    if ("oracle-kf", quantity) not in m.feats or ref.filter == "oracle-kf":
+        return None
+    v = ev.per_set(Ref(ref.experiment, "oracle-kf"), quantity)
+    return float(np.nanmean(v)) if np.isfinite(v).any() else None
+
+
+def _judge_bound(ev: _Evaluator, c: Bound, unit: str) -> dict:
+    vals = ev.per_set(c.ref, c.quantity)
+    mean = S.mean_ci(vals)
+    lo, hi = _range(vals)
+    side = vals > c.bound if c.above else vals < c.bound
+    if not mean.has_ci:
+        verdict = "inconclusive"
+    elif (mean.lo > c.bound) if c.above else (mean.hi < c.bound):
+        verdict = "reproduced"
+    elif (mean.hi < c.bound) if c.above else (mean.lo > c.bound):
+        verdict = "contradicted"
+    else:
+        verdict = "inconclusive"
+    return _row(
+        c,
+        "bound",
+        paper=c.bound,
+        mean=mean.value,
+        ci_lo=mean.lo,
+        ci_hi=mean.hi,
+        range_lo=lo,
+        range_hi=hi,
+        unit=unit,
+        seeds=ev.S,
+        runs_per_seed=ev.N,
+        share_of_seeds_holding=float(np.mean(side[np.isfinite(vals)])) if np.isfinite(vals).any() else np.nan,
+        verdict=verdict,
+        note=_join(
+            c.note, f"paper: {'above' if c.above else 'below'} {c.bound:g} {unit}", ev.reliability_note(c.ref)
+        ),
+    )
+
+
+def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
+    q = _quantity(ev.rep, c.quantity)
+    sign = 1.0 if q.lower_is_better else -1.0
+    # the share of sets on which the claim holds (point estimates of each set)
+    mine = ev.per_set(c.better, c.quantity)
+    others = np.array([ev.per_set(r, c.quantity) for r in c.than])
+    holds = np.all(sign * (mine[None] - others) < 0, axis=0)
+    share = float(np.mean(holds[np.isfinite(mine)])) if np.isfinite(mine).any() else np.nan
+    # the pooled paired test, Holm over the competitors; a filter diverging in more than 5 % of
+    # the runs loses to a reliable one whatever its numbers
+    comps = {r: ev.compare(c.better, r, c.quantity) for r in c.than}
+    adj = S.holm({str(i): (cm.p_value if cm is not None else np.nan) for i, cm in enumerate(comps.values())})
+    better, worse, parts = {}, {}, []
+    for i, (r, cm) in enumerate(comps.items()):
+        rel_a = ev.m[c.better.experiment].reliable[c.better.filter]
+        rel_b = ev.m[r.experiment].reliable[r.filter]
+        p = adj[str(i)]
+        if rel_b and not rel_a:
+            worse[r] = 0.0
+        elif rel_a and not rel_b:
+            better[r] = 0.0
+        elif cm is not None and np.isfinite(p) and p < S.ALPHA:
+            (better if sign * cm.value < 0 else worse)[r] = p
+        if cm is not None:
+            parts.append(
+                f"vs {ev.name(r)}: Δ {S.sig3(cm.value)} [{S.sig3(cm.lo)}, {S.sig3(cm.hi)}] {unit}, "
+                f"Holm {S.format_p(p, cm.at_floor)}"
+            )
+    finite = [v for v in adj.values() if np.isfinite(v)]
+    if len(better) == len(c.than):
+        verdict, p_value = "reproduced", max(finite, default=np.nan)  # every comparison must hold
+    elif worse:
+        verdict, p_value = "contradicted", min(worse.values())  # the clearest counterexample
+    else:
+        verdict, p_value = "inconclusive", max(finite, default=np.nan)
+    first = comps[c.than[0]] if len(c.than) == 1 else None
+    return _row(
+        c,
+        "ranking",
+        mean=first.value if first is not None else np.nan,
+        ci_lo=first.lo if first is not None else np.nan,
+        ci_hi=first.hi if first is not None else np.nan,
+        unit=unit,
+        seeds=ev.S,
+        runs_per_seed=ev.N,
+        share_of_seeds_holding=share,
+        p_value=p_value,
+        verdict=verdict,
+        note=_join(c.note, "; ".join(parts), ev.reliability_note(c.better, *c.than)),
+    )
+
+
+def _judge_margin(ev: _Evaluator, c: Margin, unit: str) -> dict:
+    cm = ev.compare(c.a, c.b, c.quantity, relative=True)
+    va, vb = ev.per_set(c.a, c.quantity), ev.per_set(c.b, c.quantity)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (va - vb) / vb
+    off = 1.0 if c.as_ratio else 0.0
+    paper = c.paper
+    per = rel + off
+    lo, hi = _range(per)
+    if cm is None:
+        return _row(c, "margin", paper=paper, verdict="inconclusive", note=c.note)
+    est = S.Estimate(cm.value + off, cm.lo + off, cm.hi + off, cm.method)
+    return _row(
+        c,
+        "margin",
+        paper=paper,
+        mean=est.value,
+        ci_lo=est.lo,
+        ci_hi=est.hi,
+        range_lo=lo,
+        range_hi=hi,
+        unit="ratio" if c.as_ratio else "relative",
+        seeds=ev.S,
+        runs_per_seed=ev.N,
+        share_of_seeds_holding=float(np.mean(np.abs(per - paper) <= TOLERANCE * abs(paper))),
+        p_value=cm.p_value,
+        verdict=_number_verdict(est, paper),
+        note=_join(
+            c.note,
+            f"paired over {cm.n_runs} runs pooled; paper value inside the per-seed range: "
+            f"{'yes' if lo <= paper <= hi else 'no'}",
+            ev.reliability_note(c.a, c.b),
+        ),
+    )
+
+
+def _judge_close(ev: _Evaluator, c: Close, unit: str) -> dict:
+    q = _quantity(ev.rep, c.quantity)
+    sign = 1.0 if q.lower_is_better else -1.0
+    vals = np.array([ev.per_set(r, c.quantity) for r in c.refs])  # (refs, sets)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.nanmax(vals, axis=0) / np.nanmin(vals, axis=0) - 1.0
+    pooled = [ev.pooled(r, c.quantity).value for r in c.refs]
+    best = c.refs[int(np.nanargmin(sign * np.asarray(pooled)))]
+    inside, outside, parts = 0, 0, []
+    for r in c.refs:
+        if r == best:
+            continue
+        cm = ev.compare(r, best, c.quantity, relative=True)
+        if cm is None or not np.isfinite(cm.lo):
+            continue
+        inside += -c.within <= cm.lo and cm.hi <= c.within
+        outside += cm.lo > c.within or cm.hi < -c.within
+        parts.append(
+            f"{ev.name(r)} vs {ev.name(best)}: {100 * cm.value:+.1f} % "
+            f"[{100 * cm.lo:+.1f}, {100 * cm.hi:+.1f}]"
+        )
+    n = len(c.refs) - 1
+    verdict = "reproduced" if inside == n else ("contradicted" if outside else "inconclusive")
+    lo, hi = _range(spread)
+    return _row(
+        c,
+        "close",
+        paper=c.within,
+        mean=float(np.nanmean(spread)),
+        range_lo=lo,
+        range_hi=hi,
+        unit="relative spread",
+        seeds=ev.S,
+        runs_per_seed=ev.N,
+        share_of_seeds_holding=float(np.mean(spread[np.isfinite(spread)] <= c.within)),
+        verdict=verdict,
+        note=_join(
+            c.note,
+            f"'close' read as every filter within ±{100 * c.within:g} % of the best ({ev.name(best)})",
+            "; ".join(parts),
+            ev.reliability_note(*c.refs),
+        ),
+    )
+
+
+def evaluate(
+    rep: Reproduction,
+    runs: int | None = None,
+    seeds: int = DEFAULT_SEEDS,
+    seed: int = 1,
+    on_progress: Callable[[int, int], None] | None = None,
+) -> Outcome:
+    """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim."""
+    runs = rep.default_runs if runs is None else runs
+    for name, v, lo in (("runs", runs, 1), ("seeds", seeds, 1)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise NavlabError(f"--{name} must be a whole number ≥ {lo}, got {v!r}")
+    total = runs * seeds * len(rep.experiments)
+    done = [0]
+
+    def progress(n: int) -> None:
+        done[0] += n
+        if on_progress is not None:
+            on_progress(done[0], total)
+
+    measured = {e.name: _measure(rep, e, runs, seeds, seed, progress) for e in rep.experiments}
+    ev = _Evaluator(rep, measured, runs, seeds, seed)
+    units = {q.name: q.unit for q in rep.quantities}
+    rows = []
+    for c in rep.claims:
+        if isinstance(c, Number):
+            rows.append(_judge_number(ev, c, units[c.quantity]))
+        elif isinstance(c, Bound):
+            rows.append(_judge_bound(ev, c, units[c.quantity]))
+        elif isinstance(c, Ranking):
+            rows.append(_judge_ranking(ev, c, units[c.quantity]))
+        elif isinstance(c, Close):
+            rows.append(_judge_close(ev, c, units[c.quantity]))
+        else:
+            rows.append(_judge_margin(ev, c, units[c.quantity]))
+    verdicts = pd.DataFrame(rows)
+    return Outcome(rep, verdicts, _readings(rep, ev), _curves(rep, measured), seeds, runs, seed)
+
+
+def _readings(rep: Reproduction, ev: _Evaluator) -> pd.DataFrame:
+    """Every quantity of every filter of every experiment: pooled over all judged runs with its
+    interval, the mean and range over the sets, and the paper's number where a claim gives one.
+    """
+    papers = {
+        (c.ref.experiment, c.ref.filter, c.quantity): c.paper for c in rep.claims if isinstance(c, Number)
+    }
+    rows = []
+    for name, m in ev.m.items():
+        for key in m.labels:
+            for q in rep.quantities:
+                if (key, q.name) not in m.feats:
+                    continue
+                ref = Ref(name, key)
+                pooled = ev.pooled(ref, q.name)
+                vals = ev.per_set(ref, q.name)
+                lo, hi = _range(vals)
+                rows.append(
+                    dict(
+                        experiment=name,
+                        filter=key,
+                        label=rep.name(key),
+                        quantity=q.name,
+                        value=pooled.value,
+                        ci_lo=pooled.lo,
+                        ci_hi=pooled.hi,
+                        seed_mean=float(np.nanmean(vals)) if np.isfinite(vals).any() else np.nan,
+                        range_lo=lo,
+                        range_hi=hi,
+                        paper=papers.get((name, key, q.name), np.nan),
+                        unit=q.unit,
+                        runs_used=int(ev.judged(ref).sum()),
+                        diverged=m.lost[key],
+                        note=_join(q.help, rep.notes.get(q.name, ""), rep.notes.get(f"{key}:{q.name}", "")),
+                    )
+                )
+    return pd.DataFrame(rows)
+
+
+def _curves(rep: Reproduction, measured: dict[str, Measured]) -> dict[str, pd.DataFrame]:
+    out = {}
+    for name, m in measured.items():
+        for c in rep.curves:
+            tab: dict[str, Array] = {"t_s": m.t}
+            for key in m.labels:
+                if (key, c.name) in m.curves:
+                    s, n = m.curves[(key, c.name)]
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        tab[f"{key}_rmse_{c.name}_{c.unit.replace('/', 'p')}"] = np.sqrt(s / n)
+            out[f"{rep.key}_{name}_rmse_{c.name}.csv"] = pd.DataFrame(tab)
+    return out
+
+
+def replace_spec(rep: Reproduction, **changes: Any) -> Reproduction:
+    """The reproduction with every experiment's spec changed (e.g. epochs for a quick test)."""
+    exps = tuple(dataclasses.replace(e, spec=e.spec.replace(**changes)) for e in rep.experiments)
+    return dataclasses.replace(rep, experiments=exps)

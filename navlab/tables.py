@@ -1,0 +1,217 @@
+"""Display tables: the headline metrics of an experiment as text cells with their intervals, the
+paired verdicts against a reference filter, and the footnotes that say how the numbers were made.
+
+Pure (no streamlit): the CLI prints :func:`headline` as text, the app shows the same table.
+Cells hold three significant figures, "value [lo, hi]" where an interval exists; a cell that does
+not apply is empty and its reason is in a footnote — never ``NaN`` or ``None``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from navlab import metrics as M
+from navlab import stats as S
+
+if TYPE_CHECKING:
+    from navlab.experiment import Results
+
+NAMES = {
+    "anees": "ANEES",
+    "anis": "ANIS",
+    "rhat_err_pct": "R̂ error, clean epochs (%)",
+    "rhat_err_contaminated_pct": "R̂ error, outlier epochs (%)",
+    "detected_pct": "outliers flagged (%)",
+    "false_alarm_pct": "false alarms (%)",
+    "numfix_pct": "numerical fixes (%)",
+    "diverged": "diverged runs",
+    "us_per_run_step": "µs per run·step",
+    "h_err_median": "median horizontal error (m)",
+    "h_err_p90": "90 % horizontal error (m)",
+}
+HELP = {
+    "anees": "average NEES over runs and window epochs; a consistent filter reads the state "
+    "dimension, inside the χ² band",
+    "anis": "average NIS; a consistent filter reads the measurement dimension",
+    "rhat_err_pct": "mean |σ̂/σ − 1| of the filter's R̂ against the σ the noise was drawn with, "
+    "on clean epochs",
+    "detected_pct": "share of contaminated measurements the filter flagged as outliers (codes 1–5)",
+    "false_alarm_pct": "share of clean measurements flagged as outliers (codes 1–5)",
+    "numfix_pct": "share of measurements where the filter needed a numerical repair (code 9)",
+    "diverged": "runs lost to divergence (rule in the footnote)",
+}
+
+
+def metric_name(metric: str, data) -> str:
+    """Readable column name with unit for a metric key of :func:`navlab.metrics.summarize`."""
+    groups = data.groups
+    for prefix, word in (("mean_rmse_", "mean RMSE"), ("rmse_", "RMSE")):
+        if metric.startswith(prefix) and metric[len(prefix) :] in groups:
+            g = groups[metric[len(prefix) :]]
+            return f"{word} {g.label} ({g.unit})"
+    return NAMES.get(metric, metric.replace("_", " "))
+
+
+def cell(value: float, lo: float = np.nan, hi: float = np.nan) -> str:
+    """'1.23 [1.10, 1.37]', '1.23' without an interval, '' for no value."""
+    v = S.sig3(value)
+    if not v:
+        return ""
+    if np.isfinite(lo) and np.isfinite(hi) and not lo == hi == value:
+        return f"{v} [{S.sig3(lo)}, {S.sig3(hi)}]"
+    return v
+
+
+def verdict_cell(row: pd.Series, ref_label: str) -> str:
+    """'better than KF (Δ −0.41 m [−0.52, −0.30])' etc. for one ``_diff`` row."""
+    unit = f" {row['unit']}" if row["unit"] and row["unit"] != "%" else (" %" if row["unit"] else "")
+    d = f"Δ {S.sig3(row['value'])}{unit}"
+    if np.isfinite(row["ci_lo"]):
+        d += f" [{S.sig3(row['ci_lo'])}, {S.sig3(row['ci_hi'])}]"
+    v = row["verdict"]
+    if v == "better":
+        return f"better than {ref_label} ({d})"
+    if v == "worse":
+        return f"worse than {ref_label} ({d})"
+    if v == "indistinguishable":
+        return f"indistinguishable from {ref_label} at this run count ({d})"
+    return f"{d}" if row["ci_method"] else f"{d}; no test"
+
+
+def text_table(df: pd.DataFrame, index: bool = True) -> str:
+    """A plain-text table with left-aligned text and right-aligned numbers-first cells."""
+    t = df.reset_index() if index and df.index.name else df
+    cols = [str(c) for c in t.columns]
+    cells = [[("" if v is None else str(v)) for v in row] for row in t.itertuples(index=False)]
+    widths = [max([len(c)] + [len(r[i]) for r in cells]) for i, c in enumerate(cols)]
+
+    def numeric(v: str) -> bool:
+        head = v.split(" ")[0].replace("-", "", 1).replace(".", "", 1)
+        return bool(head) and head.isdigit()
+
+    right = [
+        all(numeric(r[i]) or not r[i] for r in cells) and any(r[i] for r in cells) for i in range(len(cols))
+    ]
+    fmt = lambda vals: "  ".join(  # noqa: E731
+        (v.rjust(w) if r else v.ljust(w)) for v, w, r in zip(vals, widths, right, strict=True)
+    ).rstrip()
+    return "\n".join([fmt(cols)] + [fmt(r) for r in cells])
+
+
+@dataclass
+class Table:
+    """A display table (text cells, one row per filter) and its footnotes."""
+
+    cells: pd.DataFrame
+    notes: list[str] = field(default_factory=list)
+    help: dict[str, str] = field(default_factory=dict)  # column -> tooltip
+
+    def text(self) -> str:
+        body = text_table(self.cells) if len(self.cells) else "(no filters)"
+        return body + "\n" + "\n".join(f"  {n}" for n in self.notes) + "\n"
+
+
+def headline_metrics(res: Results) -> list[str]:
+    """The columns of the headline table (those that exist in this experiment)."""
+    from navlab.scenarios.base import scenario_registry
+
+    data = res.data
+    try:
+        head = scenario_registry()[res.spec.scenario].headline
+    except KeyError:
+        head = ()
+    groups = [g for g in head if g in data.groups] or list(data.groups)
+    cols = [f"rmse_{g}" for g in groups] if data.has_truth else []
+    cols += list(data.extras.get("metrics", {}))
+    cols += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct"]
+    sm = M.summary(res)
+    present = {m for k in res.runs for m in sm.metrics_of(k)} | set(data.extras.get("metrics", {}))
+    return [c for c in cols if c in present]
+
+
+def headline(res: Results, compare_to: str | None = None, metrics: list[str] | None = None) -> Table:
+    """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
+    the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
+    """
+    sm = M.summary(res)
+    data = res.data
+    metrics = metrics or headline_metrics(res)
+    df = sm.rows(metrics)
+    by = {(r["filter"], r["metric"]): r for r in df.to_dict("records")}
+    rows, notes = [], []
+    empty: dict[str, str] = {}
+    for key, fr in res.runs.items():
+        row = {"filter": fr.label}
+        for m in metrics:
+            r = by.get((key, m))
+            name = metric_name(m, data)
+            if r is None:
+                row[name] = ""
+                if m.startswith("rhat_err"):
+                    empty[name] = "R̂ error: empty for filters that do not estimate R"
+                continue
+            row[name] = cell(r["value"], r["ci_lo"], r["ci_hi"])
+        lost = by[(key, "diverged")]
+        row["diverged runs"] = f"{int(lost['value'])} of {data.B}" if lost["value"] else "0"
+        row["µs per run·step"] = S.sig3(by[(key, "us_per_run_step")]["value"])
+        rows.append(row)
+    cells = pd.DataFrame(rows).set_index("filter")
+    if compare_to is not None and compare_to in res.runs and metrics:
+        first = metrics[0]
+        c = M.compare(res, compare_to, [first])
+        ref_label = res.runs[compare_to].label
+        col = f"vs {ref_label}, {metric_name(first, data)}"
+        verdicts = {r["filter"]: verdict_cell(r, ref_label) for r in c.to_dict("records")}
+        cells[col] = ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs]
+        notes.append(
+            f"{col}: paired over the same runs, Δ = filter − {ref_label} with its 95 % interval; "
+            f"better/worse when Holm-corrected p < 0.05 across the {len(res.runs) - 1} other filters"
+        )
+    notes += footnotes(res, sm)
+    notes += sorted(set(empty.values()))
+    return Table(cells, notes, {metric_name(m, data): HELP.get(m, "") for m in metrics if m in HELP})
+
+
+def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
+    """How the numbers were made: window, intervals, divergence, skipped entries, fixes."""
+    sm = sm or M.summary(res)
+    jd = sm.judgement
+    n_common = int(jd.common.sum())
+    methods = {sm.resampler(int(jd.judged[k].sum())).n for k in res.runs}
+    out = [f"Analysis window: {sm.window}."]
+    if min(methods, default=0) < S.MIN_RUNS:
+        out.append(f"Intervals: {S.TOO_FEW}.")
+    else:
+        how = (
+            "delta method (normal) over runs"
+            if min(methods) >= S.DELTA_FROM
+            else f"BCa bootstrap over runs (B = {S.N_BOOT}, seeded; the same resamples for every filter)"
+        )
+        out.append(f"[lo, hi]: 95 % interval, {how}.")
+    lost = {k: jd.lost(k) for k in res.runs if jd.lost(k)}
+    if lost:
+        out.append(
+            f"Judged on {n_common} of {jd.n_runs} runs (the runs every reliable filter kept): "
+            + "; ".join(
+                f"{res.runs[k].label} lost {v}" + ("" if jd.reliable[k] else " (> 5 %: ranks below)")
+                for k, v in lost.items()
+            )
+            + "."
+        )
+    out.append("Divergence: " + sm.rule + ".")
+    t = sm.rows([])
+    skipped = t[t.metric.str.endswith("_skipped") & (t.value > 0)]
+    for r in skipped.itertuples():
+        what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
+        out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden).")
+    fixes = t[(t.metric == "numfix_pct") & (t.value > M.NUMFIX_SHOW_PCT)]
+    for r in fixes.itertuples():
+        out.append(
+            f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
+            "not outlier decisions."
+        )
+    return out

@@ -1,0 +1,165 @@
+"""Metrics that cannot flatter: divergence (finite run-aways too), every filter judged on the same
+runs, counted skips, R̂ error against the variance actually drawn, outlier rates from outlier codes
+only, paired comparisons and "best" only by the paired test (docs/STATISTICS.md §3, §5)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from navlab.experiment import ExperimentSpec, Results, plan, run_experiment, run_filters
+from navlab.filters.kalman import KF
+from navlab.metrics import best_filter, compare, summarize, summary
+
+
+class Pushed(KF):
+    """The KF with some runs' OUTPUT pushed by a fixed offset (its own state is untouched)."""
+
+    key, label = "pushed-kf", "pushed KF"
+
+    def __init__(self, pushes):  # pushes: {run: [(from epoch, offset m), …]}
+        super().__init__()
+        self.pushes = pushes
+
+    def update(self, model, state, k, z, side):
+        st, out = super().update(model, state, k, z, side)
+        x = out.x.copy()
+        for r, steps in self.pushes.items():
+            for k0, off in steps:
+                if k >= k0:
+                    x[r, [0, 2]] = state.x[r, [0, 2]] * 0 + st.x[r, [0, 2]] + off
+        return st, dataclasses.replace(out, x=x)
+
+
+def experiment(pushes, runs=20, epochs=100, extra=("oracle-kf",), outliers="none"):
+    spec = ExperimentSpec(filters=("kf", *extra), runs=runs, epochs=epochs, outliers=outliers)
+    p = plan(spec)
+    data = p.scenario.simulate(p.schedule, p.outliers, list(range(runs)), spec.seed)
+    with np.errstate(over="ignore", invalid="ignore"):  # the pushed run overflows on purpose
+        out = run_filters(data, [Pushed(pushes), *p.filters[1:]])
+    out["kf"] = out.pop("pushed-kf")
+    return Results(spec=spec, data=data, runs=out)
+
+
+def value(df, key, metric):
+    row = df[(df["filter"] == key) & (df.metric == metric)]
+    assert len(row) == 1, (key, metric)
+    return row.iloc[0]
+
+
+def test_constructed_divergence_is_caught_and_both_filters_lose_the_run():
+    """The issue's case: run 3 pushed +50 m from epoch 30 and to 1.7e308 from epoch 80."""
+    res = experiment({3: [(30, 50.0), (80, 1.7e308)]})
+    fr = res.runs["kf"]
+    # +50 m stays within the bound (100 σ = 200 m); 1.7e308 is finite but far beyond it
+    assert fr.diverged_at[3] == 80 and fr.diverged_why[3] == 2
+    assert fr.diverged.sum() == 1 and not res.runs["oracle-kf"].diverged.any()
+    df = summarize(res)
+    for key in ("kf", "oracle-kf"):  # both judged on the same 19 runs
+        assert value(df, key, "runs_judged").value == 19
+        assert value(df, key, "rmse_pos").runs_used == 19
+    assert value(df, "kf", "diverged").value == 1
+    assert "1 of 20 runs lost" in value(df, "kf", "diverged").note
+    # the oracle's number is over the 19 runs the KF kept, not its own 20
+    d = res.data
+    keep = np.arange(20) != 3
+    e2 = ((res.runs["oracle-kf"].x - d.x_true)[keep][:, 1:][..., [0, 2]] ** 2).sum(-1)
+    assert value(df, "oracle-kf", "rmse_pos").value == pytest.approx(np.sqrt(e2.mean()))
+
+
+def test_a_filter_diverging_in_more_than_5_percent_ranks_below_whatever_its_rmse():
+    # two runs (10 %) run away finitely, +1e4 m: the KF is then unreliable
+    res = experiment({3: [(40, 1e4)], 7: [(60, 1e4)]})
+    fr = res.runs["kf"]
+    assert fr.diverged.sum() == 2 and set(fr.diverged_why[[3, 7]]) == {2}
+    sm = summary(res)
+    assert not sm.judgement.reliable["kf"] and sm.judgement.reliable["oracle-kf"]
+    df = sm.rows()
+    assert value(df, "oracle-kf", "runs_judged").value == 20  # the reliable filter keeps all
+    assert value(df, "kf", "runs_judged").value == 18
+    assert "diverges in 2 of 20 runs" in value(df, "kf", "diverged").note
+    c = compare(res, "oracle-kf", ["rmse_pos"])
+    assert c.iloc[0].verdict == "worse" and "diverges in 2 of 20 runs" in c.iloc[0].note
+    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+
+
+def test_nees_beyond_1e6_is_divergence():
+    class Overconfident(KF):
+        key, label = "overconfident-kf", "overconfident KF"
+
+        def update(self, model, state, k, z, side):
+            st, out = super().update(model, state, k, z, side)
+            return st, dataclasses.replace(out, P=out.P * (1e-9 if k >= 50 else 1.0))
+
+    spec = ExperimentSpec(filters=("kf",), runs=3, epochs=60, outliers="none")
+    p = plan(spec)
+    data = p.scenario.simulate(p.schedule, p.outliers, [0, 1, 2], spec.seed)
+    fr = run_filters(data, [Overconfident()])["overconfident-kf"]
+    assert (fr.diverged_at == 50).all() and (fr.diverged_why == 3).all()
+
+
+def test_skipped_entries_are_counted():
+    res = run_experiment(ExperimentSpec(filters=("kf", "vb-akf"), runs=12, epochs=40))
+    res.runs["kf"].nees[2, 5:8] = np.nan  # three non-finite NEES entries in the window
+    res.runs["vb-akf"].R_hat[4, 10, 0] = np.nan
+    df = summarize(res)
+    assert value(df, "kf", "nees_skipped").value == 3
+    assert value(df, "vb-akf", "nees_skipped").value == 0
+    assert value(df, "vb-akf", "rhat_skipped").value == 1
+
+
+def test_rhat_error_is_against_the_variance_actually_drawn_on_clean_epochs():
+    spec = ExperimentSpec(
+        filters=("kf", "oracle-kf", "vb-akf"), runs=30, epochs=60, outliers="mixture", contamination=0.2
+    )
+    df = summarize(run_experiment(spec))
+    # the oracle's R̂ IS the variance drawn: 0 on clean and on contaminated epochs (it read 92–178 %
+    # when the error was taken against the schedule on every epoch)
+    assert value(df, "oracle-kf", "rhat_err_pct").value == 0
+    assert value(df, "oracle-kf", "rhat_err_contaminated_pct").value == 0
+    v = value(df, "vb-akf", "rhat_err_pct")
+    assert 0 < v.value < np.inf and v.ci_lo < v.value < v.ci_hi  # VB absorbs the outliers in R̂
+    assert not (df[df["filter"] == "kf"].metric == "rhat_err_pct").any()  # no R̂: no row
+
+
+def test_numerical_fixes_are_not_false_alarms():
+    res = run_experiment(ExperimentSpec(filters=("kf", "chi2-kf"), runs=10, epochs=40))
+    base = summarize(res)
+    fl = res.runs["chi2-kf"].flags
+    clean = ~res.data.outlier_mask & (fl == 0)
+    clean[:, 0] = False
+    fl[clean & (np.arange(fl.shape[1]) % 4 == 1)[None, :, None]] = 9  # numerical fixes on clean entries
+    res.__dict__.pop("_summary", None)
+    df = summarize(res)
+    assert value(df, "chi2-kf", "false_alarm_pct").value <= value(base, "chi2-kf", "false_alarm_pct").value
+    assert value(df, "chi2-kf", "numfix_pct").value > 10
+    assert value(base, "chi2-kf", "numfix_pct").value == 0
+
+
+def test_paired_comparison_and_best_are_made_by_the_test():
+    res = run_experiment(ExperimentSpec(filters=("kf", "oracle-kf", "chi2-kf"), runs=40, epochs=60))
+    c = compare(res, "kf")
+    r = c[(c["filter"] == "oracle-kf") & (c.metric == "rmse_pos_diff")].iloc[0]
+    assert r.verdict == "better" and r.ci_hi < 0 and r.p_holm < 0.05 and r.vs == "kf"
+    # Δ is the difference of the two table values (same runs)
+    df = summarize(res)
+    assert r.value == pytest.approx(
+        value(df, "oracle-kf", "rmse_pos").value - value(df, "kf", "rmse_pos").value
+    )
+    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+    # a filter against an identical copy of itself: indistinguishable, never "better"
+    res.runs["kf2"] = dataclasses.replace(res.runs["kf"], key="kf2", label="KF copy")
+    res.__dict__.pop("_summary", None)
+    c = compare(res, "kf", ["rmse_pos"])
+    assert c[c["filter"] == "kf2"].iloc[0].verdict == "indistinguishable"
+    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+
+
+def test_too_few_runs_no_interval_and_no_nan_strings():
+    df = summarize(run_experiment(ExperimentSpec(runs=3, epochs=20)))
+    r = value(df, "kf", "rmse_pos")
+    assert np.isnan(r.ci_lo) and r.ci_method == "" and "too few runs" in r.note
+    csv = df.to_csv(index=False)
+    assert "nan" not in csv.lower() and "None" not in csv
