@@ -1,4 +1,4 @@
-"""Reproduce: the papers' tables and curves beside navlab's numbers."""
+"""Reproduce: every claim of a paper judged over many Monte Carlo seeds, with a verdict."""
 
 import time
 
@@ -6,75 +6,51 @@ import streamlit as st
 
 from navlab.errors import NavlabError
 from navlab.reproduce import REPRODUCTIONS
+from navlab.reproduce.report import RULES, header
 from navlab.ui import reproduce as ui
 from navlab.ui.frame import frame
 
 frame(
     "Reproduce the papers",
     ":material/article:",
-    "Each reproduction runs a paper's experiment with navlab and lays the paper's numbers beside "
-    "navlab's: the relative difference, and a note on why they differ (a reconstruction, an "
-    "undefined metric, a typo in the paper). The URL keeps the selection.",
+    "Each reproduction runs a paper's experiment with navlab on many Monte Carlo sets ('seeds') and "
+    "turns every claim of the paper — a number, a ranking, a margin — into one verdict: reproduced, "
+    "contradicted or inconclusive. The URL keeps the selection.",
 )
-
-SMALL_RUNS = 10  # default Monte Carlo size in the browser; the paper's count is one tick away
-# page-specific widget keys (session_state is shared with the other pages' flt/runs/seed)
-for k, v in {"rep_seed": 1, "rep_runs": SMALL_RUNS, "rep_full": False}.items():
-    st.session_state.setdefault(k, v)
 
 keys = sorted(REPRODUCTIONS)
 if not keys:
-    st.info(
-        "No paper reproductions are registered yet. A reproduction is one module in "
-        "`navlab/reproduce/` that calls `register(Reproduction(...))`; it appears here by itself."
-    )
+    st.info("No paper reproductions are registered yet (a module in navlab/reproduce/ that calls register).")
     st.stop()
-
-if st.session_state.get("rep") not in keys:
+for k, v in {"rep": keys[0], "rep_seeds": ui.APP_SEEDS, "rep_seed": 1}.items():
+    st.session_state.setdefault(k, v)
+if st.session_state["rep"] not in keys:
     st.session_state["rep"] = keys[0]
-key = st.selectbox("Reproduction", keys, key="rep", bind="query-params")
+
+c0, c1, c2, c3 = st.columns([3, 1, 1, 1])
+key = c0.selectbox("Reproduction", keys, key="rep", bind="query-params")
 rep = REPRODUCTIONS[key]
+seeds = int(c1.number_input("Seeds", 1, 100, step=1, key="rep_seeds", bind="query-params",
+                            help=f"Monte Carlo sets of the paper's run count; the CLI uses 20 "
+                            f"(the app starts with {ui.APP_SEEDS} for a quick first look)"))
+st.session_state.setdefault(f"rep_runs_{key}", rep.default_runs)
+runs = int(c2.number_input("Runs per seed", 1, 5000, step=1, key=f"rep_runs_{key}", bind="query-params",
+                           help=f"the paper's count: {rep.default_runs}"))
+seed = int(c3.number_input("Base seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params"))
 st.markdown(f"**{rep.title}**  \n{rep.paper}")
+if seeds < 20:
+    st.caption(f"{seeds} seeds: a first look. The CLI judges at 20 seeds "
+               f"(`python -m navlab reproduce {key}`); verdicts can change with more seeds.")
 
-n_paper = ui.paper_runs(rep)
-c1, c2, c3 = st.columns([2, 1, 1])
-full = c1.checkbox(
-    f"Use the paper's Monte Carlo count ({n_paper} runs)" if n_paper else "Use the paper's Monte Carlo count",
-    key="rep_full",
-    bind="query-params",
-    help="Slower; the small default is enough to see the picture.",
-)
-runs = c2.number_input(
-    "Monte Carlo runs",
-    1,
-    5000,
-    step=1,
-    key="rep_runs",
-    bind="query-params",
-    disabled=full,
-)
-seed = c3.number_input("Seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params")
-config = (key, None if full else int(runs), int(seed))
-
-done = st.session_state.setdefault("repro_done", set())
-if ui.is_cached(*config):  # computed before on this server (e.g. by whoever shared the link)
-    done.add(config)
-else:  # never run, or evicted from the bounded cache: ask for Run rather than block silently
-    done.discard(config)
-if st.button("Run", type="primary", icon=":material/play_arrow:"):
-    label = f"{key}: {'the paper’s count' if full else f'{int(runs)} runs'}, seed {int(seed)}"
+config = (key, runs, seeds, seed)
+if st.button("Run", type="primary", icon=":material/play_arrow:", key="rep_run"):
+    label = f"{key}: {seeds} seeds × {runs} runs, base seed {seed}"
     with st.status(f"Running {label} …", expanded=True) as status:
         t0 = time.perf_counter()
-        progress = None
-        if ui.accepts(rep.run, "on_progress"):
-            bar = st.progress(0.0, text="starting")
-
-            def progress(d: int, n: int) -> None:
-                bar.progress(min(1.0, d / max(n, 1)), text=f"{d}/{n} runs")
-        else:
-            st.write("This reproduction reports no progress; the status turns green when done.")
+        bar = st.progress(0.0, text="starting")
         try:
-            ui.cached_run(*config, on_progress=progress)
+            ui.cached_run(*config, on_progress=lambda d, n: bar.progress(min(1.0, d / max(n, 1)),
+                                                                          text=f"{d}/{n} runs"))
         except NavlabError as exc:
             status.update(label=f"{label}: {exc}", state="error")
             st.error(str(exc))
@@ -82,96 +58,46 @@ if st.button("Run", type="primary", icon=":material/play_arrow:"):
             status.update(label=f"{label} failed", state="error")
             st.error(f"The reproduction '{key}' failed: {type(exc).__name__}: {exc}")
         else:
-            done.add(config)
-            status.update(
-                label=f"{label}: done in {time.perf_counter() - t0:.1f} s",
-                state="complete",
-                expanded=False,
-            )
+            status.update(label=f"{label}: done in {time.perf_counter() - t0:.1f} s", state="complete",
+                          expanded=False)
 
-if config not in done:
-    st.info("Press **Run** to compute this configuration (a repeated run comes from the cache).")
+if not ui.is_cached(*config):
+    st.info("Press **Run** to judge the paper's claims (a repeated configuration comes from the cache).")
     st.stop()
 
-table, curves = ui.cached_run(*config)
-diff = ui.differences(table)
-counts = diff["verdict"].value_counts()
+o = ui.cached_run(*config)
+counts = o.verdicts["verdict"].value_counts()
 m1, m2, m3, m4 = st.columns(4)
-m1.metric("numbers the paper gives", len(diff))
-m2.metric("close (≤ 10 %)", int(counts.get("close", 0)))
-m3.metric("differ (10–25 %)", int(counts.get("differs", 0)))
-m4.metric("far (> 25 %)", int(counts.get("far", 0)))
+m1.metric("claims", len(o.verdicts))
+m2.metric("reproduced", int(counts.get("reproduced", 0)))
+m3.metric("contradicted", int(counts.get("contradicted", 0)))
+m4.metric("inconclusive", int(counts.get("inconclusive", 0)))
 
-st.subheader("Paper vs navlab")
-if diff.empty:
-    st.info("This reproduction reports no paper numbers (navlab's values only).")
-else:
-    st.caption("Largest disagreement first; the note says why navlab and the paper differ.")
-    show = diff[
-        ["experiment", "filter", "metric", "paper", "value", "rel_diff", "verdict", "unit", "note"]
-    ].rename(columns={"value": "navlab"})
-    st.dataframe(
-        show.style.format({"paper": "{:.4g}", "navlab": "{:.4g}", "rel_diff": "{:+.1%}"}, na_rep="—")
-        .map(
-            lambda v: {
-                "close": "background-color: #d9f2d9",
-                "differs": "background-color: #fff1c2",
-                "far": "background-color: #f8d0d0",
-            }.get(v, ""),
-            subset=["verdict"],
-        )
-        .map(lambda v: "font-weight: 600", subset=["paper", "navlab"]),
-        hide_index=True,
-        width="stretch",
-        column_config={"note": st.column_config.TextColumn("why they differ", width="large")},
-    )
-    st.plotly_chart(
-        ui.reldiff_figure(table),
-        width="stretch",
-        config=ui.CONFIG,
-        alt="Relative difference navlab vs paper per reported number",
-    )
-    groups = {f"{e} · {m}": (e, m) for e, m in ui.paper_groups(table)}
-    g = groups[st.selectbox("Bar chart of", list(groups), key="rep_bar")]
-    st.plotly_chart(
-        ui.bar_figure(table, *g), width="stretch", config=ui.CONFIG, alt=f"Paper vs navlab, {g[0]} {g[1]}"
-    )
+st.subheader("The paper's claims")
+st.caption(header(o).replace("\n", "  \n"))
+st.dataframe(ui.style_verdicts(o), hide_index=True, width="stretch",
+             column_config={"claim": st.column_config.TextColumn("claim", width="large")})
+with st.expander("Why each verdict (notes per claim) and the rules"):
+    for i, note in enumerate(o.verdicts["note"], 1):
+        if note:
+            st.markdown(f"{i}. {note}")
+    st.caption(RULES)
+st.plotly_chart(ui.claims_figure(o), width="stretch", config=ui.CONFIG,
+                alt="navlab's value relative to the paper's for every number claim")
+st.download_button("Verdicts (CSV)", o.verdicts.to_csv(index=False).encode(),
+                   file_name=f"navlab-reproduce-{key}-verdicts.csv", mime="text/csv", on_click="ignore")
 
-if curves:
+with st.expander("Detailed readings: every quantity of every filter, pooled over all seeds"):
+    st.dataframe(ui.readings_table(o), hide_index=True, width="stretch")
+    st.download_button("Readings (CSV)", o.readings.to_csv(index=False).encode(),
+                       file_name=f"navlab-reproduce-{key}-readings.csv", mime="text/csv", on_click="ignore")
+
+if o.curves:
     st.subheader("Curves")
-    tabs = st.tabs(list(curves))
-    for tab, (name, df) in zip(tabs, curves.items(), strict=True):
+    names = list(o.curves)
+    tabs = st.tabs([n.removeprefix(f"{key}_").removesuffix(".csv") for n in names])
+    for tab, name in zip(tabs, names, strict=True):
         with tab:
-            measure, cols = None, None
-            groups = ui.wide_groups(df)
-            if ui.is_long(df):
-                measure = st.selectbox("Quantity", ui.curve_measures(df), key=f"curve_{name}")
-            elif groups:
-                measure = st.selectbox("Quantity", list(groups), key=f"curve_{name}")
-                cols = groups[measure]
-            st.plotly_chart(
-                ui.curve_figure(df, name, measure, cols),
-                width="stretch",
-                config=ui.CONFIG,
-                alt=f"Curves from {name}",
-            )
-            st.download_button(
-                f"Download {name}",
-                df.to_csv(index=False).encode(),
-                file_name=name.replace("/", "_"),
-                mime="text/csv",
-                on_click="ignore",
-                key=f"dl_{name}",
-            )
-
-st.subheader("Full table")
-st.dataframe(ui.style_table(table), hide_index=True, width="stretch")
-runs_txt = "paper" if config[1] is None else f"{config[1]}runs"
-st.download_button(
-    "Download the table (CSV)",
-    table.to_csv(index=False).encode(),
-    file_name=f"navlab-reproduce-{key}-{runs_txt}-seed{config[2]}.csv",
-    mime="text/csv",
-    on_click="ignore",
-    type="primary",
-)
+            st.plotly_chart(ui.curve_figure(o, name), width="stretch", config=ui.CONFIG, alt=f"Curves {name}")
+            st.download_button(f"Download {name}", o.curves[name].to_csv(index=False).encode(),
+                               file_name=name, mime="text/csv", on_click="ignore", key=f"dl_{name}")

@@ -284,7 +284,13 @@ class Reproduction:
         return int(self.paper_runs or self.experiments[0].spec.runs)
 
     def name(self, key: str) -> str:
-        return self.names.get(key, key)
+        """The paper's name for a filter, else its registry label."""
+        if key in self.names:
+            return self.names[key]
+        from navlab.filters.base import registry
+
+        cls = registry().get(key)
+        return cls.label if cls is not None else key
 
     def evaluate(
         self,

@@ -35,6 +35,8 @@ def navlab_cell(r: pd.Series) -> str:
         if not np.isfinite(r["mean"]):
             return "no value"
         if r["kind"] == "margin" and r["unit"] == "relative":
+            if not np.isfinite(r["ci_lo"]):
+                return f"{100 * r['mean']:+.1f} %"
             return f"{100 * r['mean']:+.1f} % [{100 * r['ci_lo']:+.1f}, {100 * r['ci_hi']:+.1f}]"
         if np.isfinite(r["ci_lo"]):
             return f"{_num(r['mean'])} [{_num(r['ci_lo'])}, {_num(r['ci_hi'])}] {unit}".strip()
@@ -42,6 +44,8 @@ def navlab_cell(r: pd.Series) -> str:
     if r["kind"] == "close":
         return f"spread {100 * r['mean']:.1f} %" if np.isfinite(r["mean"]) else "no value"
     if np.isfinite(r["mean"]):  # a ranking against one competitor: the pooled Δ
+        if not np.isfinite(r["ci_lo"]):
+            return f"Δ {_num(r['mean'], unit)}"
         return f"Δ {_num(r['mean'])} [{_num(r['ci_lo'])}, {_num(r['ci_hi'])}] {unit}".strip()
     return "see note"
 

@@ -1,337 +1,175 @@
-"""The Reproduce page's building blocks: run a registered paper reproduction, cached by its
-configuration, and show the paper's numbers beside navlab's (tables, bars, curves).
+"""The Reproduce page's building blocks: a registered reproduction judged over many seeds, cached
+by its configuration, and its verdicts, readings and curves as tables and figures.
 
-Pure helpers (no streamlit calls): :func:`numeric_table`, :func:`differences`,
-:func:`bar_figure`, :func:`paper_groups`, :func:`curve_figure`, :func:`style_table`,
-:func:`paper_runs`. :func:`cached_run` is the cached runner the page calls.
+Pure helpers (no streamlit calls): :func:`claims_figure`, :func:`curve_figure`,
+:func:`style_verdicts`, :func:`readings_table`. :func:`cached_run` is the cached runner the page
+calls.
 """
 
 from __future__ import annotations
 
-import inspect
-import sys
-import tempfile
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
-from navlab.reproduce import COLUMNS, REPRODUCTIONS, Reproduction
-from navlab.ui.colors import PALETTE, filter_colors
+from navlab import stats as S
+from navlab.reproduce import REPRODUCTIONS, Outcome
+from navlab.reproduce.engine import TOLERANCE
+from navlab.reproduce.report import verdict_table
+from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
 
-PAPER_COLOR = "#9aa0a6"  # the paper's bars: neutral grey beside the filter's own colour
 CONFIG = {"displaylogo": False}
-X_COLUMNS = ("epoch", "k", "t_s", "t", "time", "time_s")
-CLOSE, FAR = 0.10, 0.25  # |rel_diff| ≤ 10 %: close; > 25 %: far (colouring only)
+VERDICT_COLORS = {"reproduced": "#d9f2d9", "inconclusive": "#fff1c2", "contradicted": "#f8d0d0"}
 MAX_CURVE_POINTS = 2000
+APP_SEEDS = 5  # the app's default number of seeds (the CLI's is 20): a first look in seconds
 
 
-# ------------------------------------------------------------------------------------ pure
-def paper_runs(rep: Reproduction) -> int | None:
-    """The paper's Monte Carlo size if the reproduction's module states it (``DEFAULT_RUNS``)."""
-    for obj in (rep, sys.modules.get(getattr(rep.run, "__module__", ""), None)):
-        for name in ("paper_runs", "DEFAULT_RUNS"):
-            v = getattr(obj, name, None)
-            if isinstance(v, int) and not isinstance(v, bool) and v > 0:
-                return v
-    return None
+def style_verdicts(o: Outcome):
+    """The verdict table (one row per claim) with the verdict cell coloured."""
+    t = verdict_table(o)
+    return t.style.map(lambda v: f"background-color: {VERDICT_COLORS.get(v, '')}", subset=["verdict"])
 
 
-def accepts(fn: Callable[..., Any], name: str) -> bool:
-    """Whether ``fn`` takes a keyword argument ``name`` (or **kwargs)."""
-    try:
-        params = inspect.signature(fn).parameters
-    except (TypeError, ValueError):
-        return False
-    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+def readings_table(o: Outcome) -> pd.DataFrame:
+    """The detailed readings with three significant figures and the paper's names."""
+    r = o.readings.copy()
+    for c in ("value", "ci_lo", "ci_hi", "seed_mean", "range_lo", "range_hi", "paper"):
+        r[c] = [S.sig3(v) for v in r[c]]
+    return r.drop(columns=["filter"]).rename(columns={"label": "filter", "value": "pooled"})
 
 
-def numeric_table(df: pd.DataFrame) -> pd.DataFrame:
-    """The reproduction table with ``value``, ``paper`` and ``rel_diff`` as floats (None → NaN)."""
-    out = df.copy()
-    for c in COLUMNS:
-        if c not in out.columns:
-            out[c] = np.nan if c in ("value", "paper", "rel_diff") else ""
-    for c in ("value", "paper", "rel_diff"):
-        out[c] = pd.to_numeric(out[c], errors="coerce").astype(float)
-    for c in ("experiment", "filter", "metric", "unit", "note"):
-        out[c] = out[c].fillna("").astype(str)
-    extra = [c for c in out.columns if c not in COLUMNS]
-    return out[COLUMNS + extra].reset_index(drop=True)
-
-
-def verdict(rel: float) -> str:
-    if not np.isfinite(rel):
-        return "no paper number"
-    a = abs(rel)
-    return "close" if a <= CLOSE else ("differs" if a <= FAR else "far")
-
-
-def differences(df: pd.DataFrame, tol: float = CLOSE) -> pd.DataFrame:
-    """Rows with a paper number: paper, ours, the relative difference, a verdict and why.
-
-    Sorted so the largest disagreements come first.
+def claims_figure(o: Outcome) -> go.Figure:
+    """Each number, bound and margin claim: navlab's mean over seeds relative to the paper's value
+    (%), with its 95 % interval (thick) and the per-seed range (thin); the ±20 % band shaded.
     """
-    t = numeric_table(df)
-    t = t[np.isfinite(t["paper"])].copy()
-    t["verdict"] = [verdict(r) for r in t["rel_diff"]]
-    t["abs_rel"] = t["rel_diff"].abs()
-    t = t.sort_values("abs_rel", ascending=False, na_position="last")
-    return t.drop(columns="abs_rel").reset_index(drop=True)
-
-
-def style_table(df: pd.DataFrame):
-    """A pandas Styler: rel_diff coloured green (≤ 10 %), amber (≤ 25 %), red (beyond)."""
-    t = numeric_table(df)
-
-    def colour(v: float) -> str:
-        if not np.isfinite(v):
-            return "color: #888"
-        a = abs(v)
-        if a <= CLOSE:
-            return "background-color: #d9f2d9"
-        if a <= FAR:
-            return "background-color: #fff1c2"
-        return "background-color: #f8d0d0"
-
-    return (
-        t.style.format({"value": "{:.4g}", "paper": "{:.4g}", "rel_diff": "{:+.1%}"}, na_rep="—")
-        .map(colour, subset=["rel_diff"])
-        .map(lambda v: "font-weight: 600", subset=["value", "paper"])
-    )
-
-
-def paper_groups(df: pd.DataFrame) -> list[tuple[str, str]]:
-    """(experiment, metric) pairs having at least one paper number, in table order."""
-    t = numeric_table(df)
-    t = t[np.isfinite(t["paper"])]
-    return list(dict.fromkeys(zip(t["experiment"], t["metric"], strict=True)))
-
-
-def bar_figure(df: pd.DataFrame, experiment: str, metric: str) -> go.Figure:
-    """Grouped bars per filter: the paper's number (grey) and navlab's (the filter's colour)."""
-    t = numeric_table(df)
-    t = t[(t["experiment"] == experiment) & (t["metric"] == metric)]
-    filters = t["filter"].tolist()
-    colours = filter_colors()
-    ours_c = [colours.get(f.split(" ")[0], PALETTE[i % len(PALETTE)]) for i, f in enumerate(filters)]
-    unit = next((u for u in t["unit"] if u), "")
+    v = o.verdicts
+    v = v[v["kind"].isin(["number", "bound", "margin"]) & np.isfinite(v["mean"].astype(float))]
+    v = v.iloc[::-1]
+    paper = v["paper"].astype(float).to_numpy()
+    rel = lambda col: 100 * (v[col].astype(float).to_numpy() - paper) / np.abs(paper)  # noqa: E731
+    y = v["text"].to_numpy()
+    colors = [{"reproduced": "#2ca02c", "contradicted": "#d62728"}.get(x, "#f0a500") for x in v["verdict"]]
     fig = go.Figure()
+    fig.add_vrect(x0=-100 * TOLERANCE, x1=100 * TOLERANCE, fillcolor="rgba(44,160,44,0.08)", line_width=0)
+    fig.add_vline(x=0, line={"color": TRUTH_COLOR, "width": 1})
+    m = rel("mean")
     fig.add_trace(
-        go.Bar(
-            x=filters,
-            y=t["paper"].to_numpy(dtype=np.float32),
-            name="paper",
-            marker={"color": PAPER_COLOR, "pattern": {"shape": "/"}},
-            hovertemplate="%{x}<br>paper: %{y:.4g}<extra></extra>",
+        go.Scatter(
+            x=m,
+            y=y,
+            mode="markers",
+            marker={"color": colors, "size": 10},
+            name="mean over seeds",
+            error_x={
+                "type": "data",
+                "symmetric": False,
+                "array": rel("range_hi") - m,
+                "arrayminus": m - rel("range_lo"),
+                "thickness": 1,
+                "width": 0,
+                "color": "#999999",
+            },
+            hovertemplate="%{y}<br>%{x:+.1f} % from the paper<extra></extra>",
         )
     )
     fig.add_trace(
-        go.Bar(
-            x=filters,
-            y=t["value"].to_numpy(dtype=np.float32),
-            name="navlab",
-            marker={"color": ours_c},
-            customdata=np.stack([t["rel_diff"].to_numpy(dtype=float)], axis=-1),
-            hovertemplate="%{x}<br>navlab: %{y:.4g}<br>rel. diff %{customdata[0]:+.1%}<extra></extra>",
+        go.Scatter(
+            x=m,
+            y=y,
+            mode="markers",
+            marker={"color": colors, "size": 1},
+            showlegend=False,
+            error_x={
+                "type": "data",
+                "symmetric": False,
+                "array": rel("ci_hi") - m,
+                "arrayminus": m - rel("ci_lo"),
+                "thickness": 4,
+                "width": 0,
+            },
+            hoverinfo="skip",
         )
     )
     fig.update_layout(
-        barmode="group",
-        title=f"{experiment} · {metric}",
-        height=340,
-        yaxis_title=f"{metric} ({unit})" if unit else metric,
-        margin={"l": 50, "r": 10, "t": 50, "b": 40},
-        legend={"orientation": "h", "y": 1.12},
+        title={
+            "text": "navlab relative to the paper (%): mean over seeds, 95 % interval (thick), per-seed "
+            "range (thin); shaded ±20 %",
+            "x": 0,
+            "font": {"size": 14},
+        },
+        xaxis_title="(navlab − paper) / |paper|  (%)",
+        height=max(240, 34 * len(v) + 120),
+        margin={"l": 10, "r": 20, "t": 50, "b": 45},
+        showlegend=False,
     )
     return fig
 
 
-def reldiff_figure(df: pd.DataFrame) -> go.Figure:
-    """One horizontal bar per row with a paper number: (navlab − paper)/paper, coloured by verdict."""
-    d = differences(df)
-    d = d[np.isfinite(d["rel_diff"])].iloc[::-1]
-    labels = (d["experiment"] + " · " + d["filter"] + " · " + d["metric"]).to_numpy()
-    cmap = {"close": "#2ca02c", "differs": "#f0a500", "far": "#d62728"}
-    fig = go.Figure(
-        go.Bar(
-            x=(100 * d["rel_diff"]).to_numpy(dtype=np.float32),
-            y=labels,
-            orientation="h",
-            marker={"color": [cmap.get(v, "#888888") for v in d["verdict"]]},
-            customdata=np.stack([d["paper"].to_numpy(dtype=float), d["value"].to_numpy(dtype=float)], axis=-1)
-            if len(d)
-            else None,
-            hovertemplate="%{y}<br>paper %{customdata[0]:.4g} · navlab %{customdata[1]:.4g}"
-            "<br>%{x:+.1f} %<extra></extra>",
-        )
-    )
-    for x in (-100 * FAR, -100 * CLOSE, 100 * CLOSE, 100 * FAR):
-        fig.add_vline(x=x, line={"color": "#bbbbbb", "dash": "dot", "width": 1})
-    fig.update_layout(
-        title="navlab vs paper: relative difference (%)",
-        xaxis_title="(navlab − paper)/paper, %",
-        height=max(260, 26 * len(d) + 110),
-        margin={"l": 10, "r": 10, "t": 50, "b": 40},
-    )
-    return fig
-
-
-def _x_column(df: pd.DataFrame) -> str | None:
-    for c in X_COLUMNS:
-        if c in df.columns:
-            return c
-    return None
-
-
-def is_long(df: pd.DataFrame) -> bool:
-    """A tidy curves table: one row per (filter, epoch) with a ``filter`` column."""
-    return "filter" in df.columns
-
-
-def curve_measures(df: pd.DataFrame) -> list[str]:
-    """The numeric columns one can plot against the time/epoch column."""
-    x_col = _x_column(df)
-    return [c for c in df.columns if c != x_col and pd.api.types.is_numeric_dtype(df[c])]
-
-
-def _key_of(name: str, keys: list[str]) -> str | None:
-    return next((k for k in keys if name == k or name.startswith((k + "_", k + " "))), None)
-
-
-def wide_groups(df: pd.DataFrame) -> dict[str, list[str]]:
-    """Columns of a wide curves table grouped by quantity: ``<filter key>_<quantity>``.
-
-    A variant's column (``vb-ekf_tauP3_rmse_pos_m``) joins the group whose quantity its own ends
-    with (``rmse_pos_m``). Returns {} when grouping would not help (one group, or one column per
-    group): then every column goes in one chart.
-    """
-    if is_long(df):
-        return {}
-    keys = sorted(filter_colors(), key=len, reverse=True)
-    cols = curve_measures(df)
-    suffix = {}
-    for c in cols:
-        k = _key_of(c, keys)
-        suffix[c] = c[len(k) + 1 :] if k and len(c) > len(k) else c
-    bases = sorted(set(suffix.values()), key=len)
-    groups: dict[str, list[str]] = {}
-    for c in cols:
-        q = suffix[c]
-        base = next((b for b in bases if b != q and q.endswith("_" + b)), q)
-        groups.setdefault(base, []).append(c)
-    if len(groups) <= 1 or len(groups) == len(cols):
-        return {}
-    return groups
-
-
-def curve_figure(
-    df: pd.DataFrame, title: str, measure: str | None = None, columns: list[str] | None = None
-) -> go.Figure:
-    """Curves of a reproduction's CSV against its time/epoch column (decimated, float32).
-
-    Wide table: every numeric column (or those in ``columns``; ``measure`` then names the group)
-    is a line. Tidy table (a ``filter`` column): one line per
-    filter of ``measure`` (default: the first numeric column). A line named after a registered
-    filter key takes that filter's colour.
-    """
-    x_col = _x_column(df)
-    colours = filter_colors()
-    keys = sorted(colours, key=len, reverse=True)
-    series: list[tuple[str, np.ndarray, np.ndarray]] = []
-    if is_long(df):
-        measure = measure or (curve_measures(df) or [None])[0]
-        if measure is not None:
-            for f, g in df.groupby("filter", sort=False):
-                x = g[x_col].to_numpy(dtype=float) if x_col else np.arange(len(g), dtype=float)
-                series.append((str(f), x, g[measure].to_numpy(dtype=float)))
-    else:
-        x = df[x_col].to_numpy(dtype=float) if x_col else np.arange(len(df), dtype=float)
-        series = [(c, x, df[c].to_numpy(dtype=float)) for c in (columns or curve_measures(df))]
+def curve_figure(o: Outcome, name: str) -> go.Figure:
+    """One curve table (per-epoch RMSE of every filter), in the filters' colours and names."""
+    df = o.curves[name]
+    rep = o.reproduction
+    colors = filter_colors()
     fig = go.Figure()
-    for i, (name, x, y) in enumerate(series):
-        key = _key_of(name, keys)
-        colour = colours[key] if key else PALETTE[i % len(PALETTE)]
-        dash = "dot" if any(s in name for s in ("tau", "true", "paper")) else "solid"
-        step = max(1, int(np.ceil(len(y) / MAX_CURVE_POINTS)))
-        trace = go.Scattergl if len(y) // step > 1000 else go.Scatter
+    t = df["t_s"].to_numpy(dtype=float)
+    step = max(1, int(np.ceil(len(t) / MAX_CURVE_POINTS)))
+    unit = ""
+    for i, col in enumerate(c for c in df.columns if c != "t_s"):
+        key, _, rest = col.partition("_rmse_")
+        unit = rest.rsplit("_", 1)[-1].replace("p", "/") if "_" in rest else ""
         fig.add_trace(
-            trace(
-                x=x[::step].astype(np.float32),
-                y=y[::step].astype(np.float32),
-                name=name,
+            go.Scatter(
+                x=t[::step].astype(np.float32),
+                y=df[col].to_numpy(dtype=float)[::step].astype(np.float32),
                 mode="lines",
-                line={"color": colour, "dash": dash},
+                name=rep.name(key),
+                line={"color": colors.get(key, PALETTE[i % len(PALETTE)])},
             )
         )
     fig.update_layout(
-        title=title if measure is None else f"{title} · {measure}",
+        title={
+            "text": f"{name.removesuffix('.csv')}: per-epoch RMSE over the judged runs of all seeds",
+            "x": 0,
+            "font": {"size": 14},
+        },
+        xaxis_title="time (s)",
+        yaxis_title=f"RMSE ({unit})" if unit else "RMSE",
         height=380,
-        xaxis_title=x_col or "row",
-        margin={"l": 50, "r": 10, "t": 50, "b": 40},
+        legend={"orientation": "h", "yanchor": "top", "y": -0.18, "x": 0},
+        margin={"l": 60, "r": 20, "t": 50, "b": 90},
     )
     return fig
 
 
-# --------------------------------------------------------------------------------- running
-def run_reproduction(
-    key: str,
-    runs: int | None,
-    seed: int,
-    on_progress: Callable[[int, int], None] | None = None,
-) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
-    """Run reproduction ``key`` into a temporary outdir: (tidy table, {csv name: curves})."""
-    rep = REPRODUCTIONS[key]
-    kwargs: dict[str, Any] = {"runs": runs, "seed": seed}
-    if on_progress is not None and accepts(rep.run, "on_progress"):
-        kwargs["on_progress"] = on_progress
-    with tempfile.TemporaryDirectory(prefix=f"navlab-{key}-") as tmp:
-        table = rep.run(outdir=Path(tmp), **kwargs)
-        curves = {}
-        for p in sorted(Path(tmp).rglob("*.csv")):
-            try:
-                curves[str(p.relative_to(tmp))] = pd.read_csv(p)
-            except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError):
-                continue
-    return numeric_table(table), curves
-
-
 # A small process-wide LRU cache instead of st.cache_data: the progress callback draws on a bar
-# created outside the function, which st.cache_data cannot replay on a cache hit
-# (CacheReplayClosureError). Entries are returned as copies, so callers cannot alter them.
-_CACHE: OrderedDict[tuple[str, int | None, int], tuple[pd.DataFrame, dict[str, pd.DataFrame]]]
-_CACHE = OrderedDict()
+# created outside the function, which st.cache_data cannot replay on a cache hit.
+_CACHE: OrderedDict[tuple[str, int, int, int], Outcome] = OrderedDict()
 _CACHE_LOCK = threading.Lock()
-CACHE_ENTRIES = 32
+CACHE_ENTRIES = 16
 
 
-def _copy(v: tuple[pd.DataFrame, dict[str, pd.DataFrame]]):
-    return v[0].copy(), {k: d.copy() for k, d in v[1].items()}
-
-
-def is_cached(key: str, runs: int | None, seed: int) -> bool:
+def is_cached(key: str, runs: int, seeds: int, seed: int) -> bool:
     with _CACHE_LOCK:
-        return (key, runs, seed) in _CACHE
+        return (key, runs, seeds, seed) in _CACHE
 
 
 def cached_run(
-    key: str, runs: int | None, seed: int, on_progress: Callable[[int, int], None] | None = None
-) -> tuple[pd.DataFrame, dict[str, pd.DataFrame]]:
-    """:func:`run_reproduction` cached by (reproduction, runs, seed) (LRU, process-wide)."""
-    ck = (key, runs, seed)
+    key: str, runs: int, seeds: int, seed: int, on_progress: Callable[[int, int], None] | None = None
+) -> Outcome:
+    """The reproduction's :class:`Outcome`, cached by (reproduction, runs, seeds, seed)."""
+    ck = (key, runs, seeds, seed)
     with _CACHE_LOCK:
         if ck in _CACHE:
             _CACHE.move_to_end(ck)
-            return _copy(_CACHE[ck])
-    value = run_reproduction(key, runs, seed, on_progress)
+            return _CACHE[ck]
+    value = REPRODUCTIONS[key].evaluate(runs=runs, seeds=seeds, seed=seed, on_progress=on_progress)
     with _CACHE_LOCK:
         _CACHE[ck] = value
         _CACHE.move_to_end(ck)
         while len(_CACHE) > CACHE_ENTRIES:
             _CACHE.popitem(last=False)
-    return _copy(value)
+    return value

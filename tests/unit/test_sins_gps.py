@@ -223,17 +223,17 @@ def test_experiment_runs_with_default_filters():
     assert {"rmse_att", "rmse_vel", "rmse_pos", "rmse_phi_U"} <= set(df.metric)
 
 
-def test_reproduction_table_shape():
-    from navlab.reproduce import COLUMNS, REPRODUCTIONS
+def test_reproduction_claims_and_readings():
+    from navlab.reproduce import REPRODUCTIONS
+    from navlab.reproduce.engine import replace_spec
 
-    df = REPRODUCTIONS["hakf"].run(runs=2, epochs=110)
-    assert list(df.columns) == COLUMNS
-    assert set(df.experiment) == {"case1", "case2", "case3", "case4", "kf-across-cases"}
-    att = df[(df.metric == "rmse_att")]
-    assert set(att["filter"]) == {"KF", "HKF", "AKF", "HAKF", "Oracle"}
+    o = replace_spec(REPRODUCTIONS["hakf"], epochs=110).evaluate(runs=2, seeds=2)
+    assert set(o.readings.experiment) == {"case1", "case2", "case3", "case4"}
+    att = o.readings[o.readings.quantity == "rmse_att"]
+    assert set(att.label) == {"KF", "HKF", "AKF", "HAKF", "Oracle KF"}
     assert att.paper.isna().all()  # the paper gives figures only
-    ranks = df[(df.experiment == "case4") & (df.metric == "rank_att")]
-    assert ranks.paper.notna().all() and sorted(ranks.value) == [1, 2, 3, 4]
+    assert {"case4-hakf-best", "case1-close", "kf-case3-vs-2"} <= set(o.verdicts.claim)
+    assert (o.verdicts.kind != "number").all()
 
 
 @pytest.mark.slow

@@ -208,20 +208,20 @@ def test_vb_ekf_r_hat_follows_the_interference_burst():
 
 def test_reproduction_vbekf_orderings_and_ratios():
     """`reproduce vbekf` (Hou et al. 2024 Table 1): orderings and ratios, not the paper's numbers."""
-    from navlab.reproduce import COLUMNS, REPRODUCTIONS
+    from navlab.reproduce import REPRODUCTIONS
 
-    df = REPRODUCTIONS["vbekf"].run(runs=4, seed=1)
-    assert list(df.columns) == COLUMNS
-    v = df.set_index(["filter", "metric"]).value
-    for metric in ("deviation_pos", "rmse_pos"):
+    o = REPRODUCTIONS["vbekf"].evaluate(runs=4, seeds=2)
+    v = o.readings.set_index(["experiment", "filter", "quantity"]).value
+    e = "pseudorange-burst"
+    for q in ("deviation_pos", "rmse_pos"):
         # oracle (true R) ≤ VB-EKF < EKF: the paper's claim, with the floor below
-        assert v[("oracle-kf", metric)] < v[("vb-ekf", metric)] < v[("ekf", metric)]
-        assert v[("ekf/vb-ekf", f"ratio_{metric}")] > 1.5  # paper: 2.23 and 1.75
+        assert v[(e, "oracle-kf", q)] < v[(e, "vb-ekf", q)] < v[(e, "ekf", q)]
+        assert v[(e, "ekf", q)] / v[(e, "vb-ekf", q)] > 1.5  # paper: 2.23 and 1.75
         # Huang's τ_P = 3 lets a sudden burst inflate P̂ (ALGORITHMS.md §7): worse than τ_P = 10
-        assert v[("vb-ekf (τ_P=3)", metric)] > v[("vb-ekf", metric)]
-    paper = df.set_index(["filter", "metric"]).paper
-    assert paper[("ekf", "rmse_pos")] == 11.27
-    assert paper[("vb-ekf", "deviation_pos")] == 3.16
+        assert v[("tauP3", "vb-ekf", q)] > v[(e, "vb-ekf", q)]
+    claims = o.verdicts.set_index("claim")
+    assert claims.loc["ekf-rmse", "paper"] == 11.27 and claims.loc["vbekf-deviation", "paper"] == 3.16
+    assert claims.loc["ratio-rmse", "paper"] == pytest.approx(11.27 / 6.44)
 
 
 def test_vb_ekf_missing_channel_keeps_its_r_hat():

@@ -1,0 +1,137 @@
+"""Seed-robust reproductions: the verdict rules on claims whose truth is known independently, the
+sets being the single-seed runs, every registered reproduction yielding a verdict per claim, and
+the orderings a faithful implementation of ALGORITHMS.md §4 shows (never a paper value as a result)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from navlab.cli import main
+from navlab.experiment import ExperimentSpec, run_experiment
+from navlab.metrics import summarize
+from navlab.reproduce import REPRODUCTIONS
+from navlab.reproduce.engine import (
+    Bound,
+    Experiment,
+    Margin,
+    Number,
+    Ranking,
+    Ref,
+    Reproduction,
+    component_error,
+    pooled_rmse,
+    replace_spec,
+)
+from navlab.reproduce.report import markdown, text
+
+SPEC = ExperimentSpec(filters=("kf", "oracle-kf"), runs=12, epochs=40, outliers="mixture", contamination=0.2)
+
+
+def _truth_rmse() -> float:
+    """The oracle KF's pooled x-position RMSE from 4000 other runs (independent of the sets)."""
+    res = run_experiment(SPEC.replace(runs=4000, seed=99))
+    df = summarize(res, metrics=["rmse_x_pos"])
+    return float(df[(df["filter"] == "oracle-kf") & (df.metric == "rmse_x_pos")].value.iloc[0])
+
+
+def _rep(claims) -> Reproduction:
+    q = pooled_rmse("rmse_x", "m", component_error((0,)))
+    return Reproduction("test", "a test", "nobody 2026", (Experiment("e", SPEC),), (q,), tuple(claims))
+
+
+def test_verdict_rules_on_claims_with_a_known_truth():
+    truth = _truth_rmse()
+    e = lambda k: Ref("e", k)  # noqa: E731
+    rep = _rep(
+        [
+            Number("right", "oracle x RMSE = the truth", e("oracle-kf"), "rmse_x", truth),
+            Number("off", "oracle x RMSE = twice the truth", e("oracle-kf"), "rmse_x", 2 * truth),
+            Ranking("oracle-better", "the oracle beats the KF", e("oracle-kf"), (e("kf"),), "rmse_x"),
+            Ranking("kf-better", "the KF beats the oracle", e("kf"), (e("oracle-kf"),), "rmse_x"),
+            Bound("above", "oracle above 0.1 m", e("oracle-kf"), "rmse_x", 0.1, True),
+            Bound("below", "oracle below 0.1 m", e("oracle-kf"), "rmse_x", 0.1, False),
+            Margin("margin-off", "the oracle 99 % better", e("oracle-kf"), e("kf"), "rmse_x", -0.99),
+        ]
+    )
+    v = rep.evaluate(seeds=8).verdicts.set_index("claim")
+    assert v.loc["right", "verdict"] == "reproduced"
+    assert v.loc["right", "ci_lo"] <= truth <= v.loc["right", "ci_hi"]
+    assert v.loc["off", "verdict"] == "contradicted"
+    assert (
+        v.loc["oracle-better", "verdict"] == "reproduced"
+        and v.loc["oracle-better", "share_of_seeds_holding"] == 1
+    )
+    assert v.loc["kf-better", "verdict"] == "contradicted"
+    assert (v.loc["above", "verdict"], v.loc["below", "verdict"]) == ("reproduced", "contradicted")
+    assert v.loc["margin-off", "verdict"] == "contradicted"
+    assert (v["seeds"] == 8).all() and (v["runs_per_seed"] == 12).all()
+
+
+def test_seed_sets_are_the_single_seed_runs():
+    """Set s of the base seed is runs s·N … s·N + N − 1: set 0 is the old single-seed result."""
+    from navlab.reproduce.engine import _Evaluator, _measure
+
+    rep = _rep([Number("n", "x", Ref("e", "kf"), "rmse_x", 1.0)])
+    measured = {"e": _measure(rep, rep.experiments[0], 12, 3, 1, lambda n: None)}
+    per_set = _Evaluator(rep, measured, 12, 3, 1).per_set(Ref("e", "kf"), "rmse_x")
+    for s in range(3):
+        spec = SPEC.replace(runs=12 * (s + 1))
+        res = run_experiment(spec)
+        x = res.runs["kf"].x[12 * s :, 1:, 0] - res.data.x_true[12 * s :, 1:, 0]
+        assert per_set[s] == pytest.approx(np.sqrt(np.mean(x**2)), rel=1e-12)
+    assert measured["e"].judged["kf"].shape == (36,)
+
+
+@pytest.mark.parametrize("key", sorted(REPRODUCTIONS))
+def test_every_reproduction_gives_a_verdict_per_claim(key):
+    rep = REPRODUCTIONS[key]
+    short = {"hakf": 120, "nnmfukf": 700, "irakf": 100, "vbekf": 200}
+    if key in ("hakf", "nnmfukf"):
+        rep = replace_spec(rep, epochs=short[key])
+    o = rep.evaluate(runs=3, seeds=2)
+    v = o.verdicts
+    assert len(v) == len(rep.claims) and set(v["verdict"]) <= {"reproduced", "contradicted", "inconclusive"}
+    assert v["text"].str.len().min() > 10
+    assert len(o.readings) >= len(rep.quantities) and o.curves
+    out = text(o)
+    assert "None" not in out and "nan" not in out.lower()
+    assert markdown(o).count("\n|") >= len(rep.claims)
+
+
+@pytest.fixture(scope="module")
+def irakf():
+    return REPRODUCTIONS["irakf"].evaluate(runs=40, seeds=2)
+
+
+def test_irakf_orderings_a_faithful_implementation_shows(irakf):
+    r = irakf.readings.set_index(["experiment", "filter", "quantity"]).value
+    iso = lambda k: r[("isolated", k, "rmse_x_pos")]  # noqa: E731
+    assert iso("irakf") < 0.9 * iso("kf") and iso("irakf") < iso("rakf") and iso("irakf") < iso("rsshakf")
+    cont = lambda k, q: r[("continuous", k, q)]  # noqa: E731
+    assert cont("irakf", "rmse_x_vel") < cont("kf", "rmse_x_vel")
+    assert cont("irakf", "run_peak_x_pos_window") < cont("kf", "run_peak_x_pos_window")
+    assert cont("irakf", "peak_rmse_x_pos_window") < cont("rakf", "peak_rmse_x_pos_window")
+    for exp in ("isolated", "continuous"):  # the oracle is the floor
+        for k in ("kf", "rrae", "rakf", "rsshakf", "irakf"):
+            assert r[(exp, "oracle-kf", "rmse_x_pos")] < r[(exp, k, "rmse_x_pos")]
+    v = irakf.verdicts.set_index("claim")
+    assert v.loc["iso-irakf-pos", "paper"] == 1.5942  # the paper's numbers are the claims'
+    assert "not reproducible" in v.loc["cont-irakf-pos", "note"]
+
+
+def test_cli_reproduce_json_and_details(capsys):
+    rc = main(["reproduce", "vbekf", "--seeds", "2", "--runs", "4", "--format", "json"])
+    rows = json.loads(capsys.readouterr().out)
+    assert rc == 0 and {r["claim"] for r in rows} >= {"ekf-deviation", "ratio-rmse", "vbekf-better-rmse"}
+    assert all(
+        {"claim", "paper", "mean", "ci_lo", "ci_hi", "seeds", "share_of_seeds_holding", "verdict"} <= set(r)
+        for r in rows
+    )
+    rc = main(["reproduce", "vbekf", "--seeds", "2", "--runs", "4", "--details", "--format", "csv"])
+    out = capsys.readouterr().out
+    assert rc == 0 and out.startswith("experiment,filter,label,quantity,value,ci_lo,ci_hi")
+    rc = main(["reproduce", "vbekf", "--seeds", "0"])
+    assert rc == 2 and "--seeds" in capsys.readouterr().err
