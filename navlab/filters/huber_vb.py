@@ -68,13 +68,13 @@ from navlab.linalg import (
     Array,
     batched,
     bcast,
-    cofactors,
+    cofactor_index,
     diag,
     diag_embed,
-    inv_spd,
     mask_missing,
     mT,
     mv,
+    solve_sym,
 )
 from navlab.params import param
 
@@ -92,7 +92,7 @@ def huber_weight(e: Array, gamma: float) -> Array:
 def meas_space_step(M: Array, nu: Array, Rt: Array) -> tuple[Array, Array, Array]:
     """One update from the prior with a diagonal R̃, in measurement space (S0 eqs. 18–20).
 
-    The plain form (any m; the reference of :class:`MeasSpace`).
+    The plain form for any m, one LU solve (the reference of :class:`MeasSpace`).
 
     Parameters
     ----------
@@ -105,34 +105,49 @@ def meas_space_step(M: Array, nu: Array, Rt: Array) -> tuple[Array, Array, Array
     fixed : (B,) S needed jitter (flag 9).
     """
     S = M + diag_embed(Rt)  # (18) S = H P⁻ Hᵀ + R̃
-    Si, fixed = inv_spd(S)
-    resid = Rt * mv(Si, nu)  # (19) z − H x⁺ = R̃ S⁻¹ ν
-    hph = diag(M) - np.sum((M @ Si) * M, axis=-1)  # (20) diag(M − M S⁻¹ M), M symmetric
-    return resid, hph, fixed
+    X, fixed = solve_sym(S, np.concatenate([nu[..., None], M], axis=-1))  # S⁻¹ [ν | M]
+    resid = Rt * X[..., 0]  # (19) z − H x⁺ = R̃ S⁻¹ ν
+    hph = diag(M) - np.einsum("bij,bji->bi", M, X[..., 1:])  # (20) diag(M − M S⁻¹ M)
+    return resid, hph, np.broadcast_to(fixed, Rt.shape[:1])
 
 
 class MeasSpace:
     """The iterations of one epoch in measurement space for a fixed prior (M = H P⁻ Hᵀ, ν), fast.
 
     ``step(R̃)`` equals :func:`meas_space_step` (its reference; the tests compare them) and is
-    the speed trick this module keeps (``benchmarks/tricks.py`` "vb-closed-form": it saves 20–50 %
-    of vb-akf's and hakf's time at m = 2 and 3). Only the diagonal R̃ changes between
-    iterations, so for m ≤ 3 S⁻¹ = adj(S)/det(S) in closed form (:func:`navlab.linalg.cofactors`)
-    with what does not change laid out once per epoch: the flattened M, the products M_ij M_ik,
-    the positions of the diagonal. Then, with C = adj(S),
+    the speed trick this module keeps (``benchmarks/tricks.py`` "vb-closed-form"). Only the
+    diagonal R̃ changes between iterations, and these problems are so small that numpy's
+    per-call overhead, not arithmetic, is the cost; so for m ≤ 3 S⁻¹ is written out in closed
+    form, with everything that does not change between iterations computed once per epoch:
 
-        z − H x⁺ = R̃ (C ν)/det S ,     diag(H P⁺ Hᵀ)_i = M_ii − Σ_jk M_ij M_ik C_jk / det S.
+    * m = 1: S = d + r; z − H x⁺ = r ν / S; H P⁺ Hᵀ = d − d²/S.
+    * m = 2: M = [[d0, b], [b, d1]], s_i = d_i + r_i, det S = s0 s1 − b², adj S = [[s1, −b],
+      [−b, s0]]: z − H x⁺ = r ∘ (s1 ν0 − b ν1, s0 ν1 − b ν0)/det S and diag(M adj(S) M) =
+      (d0² s1 + b² s0 − 2 b² d0, b² s1 + d1² s0 − 2 b² d1): a dozen (B, 2) operations a step.
+    * m = 3: the cofactors C of S in one gather (:func:`navlab.linalg.cofactor_index`), det S =
+      Σ_j S_0j C_0j: z − H x⁺ = r ∘ (C ν)/det S, diag(M C M)_i = Σ_jk M_ij M_ik C_jk.
+    * m > 3: :func:`meas_space_step`.
 
-    For m > 3, or where some S of the batch is ill-conditioned, :func:`meas_space_step`.
+    S = M + R̃ is positive definite by construction (M ⪰ 0, R̃ > 0); the KF update that forms the
+    final gain checks the final S itself.
     """
 
     def __init__(self, M: Array, nu: Array) -> None:
         B, m = nu.shape
-        self.M, self.nu, self.m = M, nu, m
-        if m <= 3:
+        self.B, self.m, self.M, self.nu = B, m, M, nu
+        self.dM = diag(M).copy()
+        if m == 2:
+            b = M[:, 0, 1:]  # (B, 1)
+            self.b2 = b * b
+            self.c = b * nu[:, ::-1]  # b (ν1, ν0)
+            self.A1 = np.concatenate([self.dM[:, :1] ** 2, self.b2], axis=1)  # (d0², b²): × s1
+            self.A0 = np.concatenate([self.b2, self.dM[:, 1:] ** 2], axis=1)  # (b², d1²): × s0
+            self.C2 = 2.0 * self.b2 * self.dM  # 2 b² d_i
+        elif m == 3:
             self.Mf = np.ascontiguousarray(M).reshape(B, m * m)
-            self.dM = diag(M)
-            self.dpos = np.arange(m) * (m + 1)  # S_ii in the flattened S
+            self.E = np.eye(m * m)[:: m + 1]  # (m, m²): the diagonal entries of a flattened S
+            self.idx = cofactor_index(m)[0]
+            self.nu_f = np.tile(nu, (1, m))[:, np.arange(m * m).reshape(m, m)]  # (B, m, m): ν_k
             self.MM = (M[:, :, :, None] * M[:, :, None, :]).reshape(B, m, m * m)  # M_ij M_ik
 
     def step(self, Rt: Array) -> tuple[Array, Array, Array]:
@@ -140,16 +155,23 @@ class MeasSpace:
         m = self.m
         if m > 3:
             return meas_space_step(self.M, self.nu, Rt)
-        Sf = self.Mf.copy()
-        Sf[:, self.dpos] += Rt  # (18) S = H P⁻ Hᵀ + R̃
-        C = cofactors(Sf, m)  # adj(S)
-        det = np.einsum("bi,bi->b", Sf[:, :m], C[:, :m])
-        if not np.all(det > 1e-12 * np.prod(Sf[:, self.dpos], axis=-1)):  # ill-conditioned: LU
-            return meas_space_step(self.M, self.nu, Rt)
-        inv = (1.0 / det)[:, None]
-        resid = Rt * np.einsum("bij,bj->bi", C.reshape(-1, m, m), self.nu) * inv  # (19) R̃ S⁻¹ ν
-        hph = self.dM - np.einsum("bij,bj->bi", self.MM, C) * inv  # (20) diag(M − M S⁻¹ M)
-        return resid, hph, np.zeros(len(det), dtype=bool)
+        no_fix = np.zeros(self.B, dtype=bool)
+        if m == 1:
+            inv = 1.0 / (self.dM + Rt)  # 1/S
+            return Rt * self.nu * inv, self.dM - self.dM * self.dM * inv, no_fix
+        if m == 2:
+            s = self.dM + Rt  # (s0, s1)
+            inv = 1.0 / (s[:, :1] * s[:, 1:] - self.b2)  # 1/det S
+            resid = Rt * (s[:, ::-1] * self.nu - self.c) * inv
+            hph = self.dM - (self.A1 * s[:, 1:] + self.A0 * s[:, :1] - self.C2) * inv
+            return resid, hph, no_fix
+        Sf = self.Mf + Rt @ self.E  # S, flattened
+        G = Sf[:, self.idx]
+        C = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]  # cofactors (= adj S)
+        inv = (1.0 / np.einsum("bi,bi->b", Sf[:, :m], C[:, :m]))[:, None]  # 1/det S
+        resid = Rt * np.einsum("bij,bij->bi", C.reshape(-1, m, m), self.nu_f) * inv
+        hph = self.dM - np.einsum("bij,bj->bi", self.MM, C) * inv
+        return resid, hph, no_fix
 
 
 def _flags(down: Array, fixed: Array) -> Array:
@@ -288,11 +310,11 @@ class VBParams:
     )
 
 
-def _take(active: Array, new: Array, old: Array) -> Array:
-    """``new`` in the runs still iterating, ``old`` in the converged ones (run axis first)."""
-    if active.all():
-        return new
-    return np.where(active.reshape(-1, *(1,) * (new.ndim - 1)), new, old)
+def _where(mask: Array | None, new: Array, old: Array | float) -> Array:
+    """``new`` where ``mask`` holds, ``old`` elsewhere; ``mask`` None: ``new`` everywhere (the
+    usual case — every channel present, every run still iterating — costs no ``np.where``).
+    """
+    return new if mask is None else np.where(mask, new, old)
 
 
 class _VBBase(Filter):
@@ -335,9 +357,11 @@ class _VBBase(Filter):
         alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         beta = beta_minus  # β^(0) = β⁻
         resid = nu
+        present = None if ok.all() else ok  # channel mask (None: every channel present)
         # per-run convergence: a run whose β changed by < tol is frozen (its β, R̃ and weights
         # are those of its last iteration), so a run's result never depends on its batch
         active = np.ones(B, dtype=bool)
+        running = None  # the runs still iterating (None: all of them)
         iters, delta = np.zeros(B), np.zeros(B)
         fixed = np.zeros(B, dtype=bool)
         Rt_last = w_last = w = np.ones_like(nu)
@@ -345,24 +369,27 @@ class _VBBase(Filter):
             Rhat = beta / alpha  # (15) R̂^(it) = diag(β^(it)/α)
             if self.huber:
                 r_e = resid if (p.irls and it > 0) else nu  # (16) prior innovation (or IRLS)
-                w = np.where(ok, self._weights(r_e / np.sqrt(Rhat)), 1.0)  # (16) e = R̂^{-1/2} r; (9)
-            Rt = np.where(ok, Rhat / w, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2} (diagonal)
+                w = _where(present, self._weights(r_e / np.sqrt(Rhat)), 1.0)  # (16) e = R̂^{-1/2} r; (9)
+            Rt = _where(present, Rhat / w if self.huber else Rhat, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
             resid, hph, fix = ms.step(Rt)  # (18)–(20) from the prior, in measurement space
             fixed |= fix & active
             iters += active
-            Rt_last, w_last = _take(active, Rt, Rt_last), _take(active, w, w_last)
+            rows = None if running is None else running[:, None]
+            Rt_last, w_last = _where(rows, Rt, Rt_last), _where(rows, w, w_last)
             if not p.adapt:
                 break
             r2 = resid * resid
             if self.huber and p.robust_beta:  # navlab extension (off by default, §3.2)
                 r2 = r2 * self._weights(resid / np.sqrt(Rhat))
-            beta_new = np.where(ok, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21)
+            beta_new = _where(present, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21)
             d = np.max(np.abs(beta_new - beta) / beta, axis=-1)
-            delta, beta = _take(active, d, delta), _take(active, beta_new, beta)
+            delta, beta = _where(running, d, delta), _where(rows, beta_new, beta)
             if p.tol > 0:
                 active = active & (d >= p.tol)
-                if not active.any():
+                n_active = np.count_nonzero(active)
+                if n_active == 0:
                     break
+                running = None if n_active == B else active
         R_used = mask_missing(z, nu, diag_embed(Rt_last)).R  # the R in the last gain, R̃^(N−1)
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu, R_used)  # (18)–(20) in state space
         R_hat = diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
