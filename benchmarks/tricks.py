@@ -223,6 +223,15 @@ def _plain_state_space_vb():
         yield
 
 
+@contextlib.contextmanager
+def _plain_rows():
+    with (
+        swap("navlab.filters.huber_vb", "rowmax", lambda a: a.max(axis=-1)),
+        swap("navlab.filters.huber_vb", "rowsum", lambda a: a.sum(axis=-1)),
+    ):
+        yield
+
+
 def _plain_whiten():
     from navlab.linalg import mT, mv
 
@@ -233,11 +242,15 @@ def _plain_whiten():
     return swap("navlab.filters.huber_vb", "whiten", whiten)
 
 
-def _plain_take():
-    def take(active, new, old):
-        return np.where(active.reshape(-1, *(1,) * (new.ndim - 1)), new, old)
+def _plain_select():
+    """np.where with an all-true mask where the code passes None (every channel, every run)."""
 
-    return swap("navlab.filters.huber_vb", "_take", take)
+    def select(mask, new, old):
+        if mask is None:
+            mask = np.ones(np.shape(new)[:1] + (1,) * (np.ndim(new) - 1), dtype=bool)
+        return np.where(mask, new, old)
+
+    return swap("navlab.linalg", "select", select)
 
 
 @contextlib.contextmanager
@@ -401,10 +414,16 @@ TRICKS: list[Trick] = [
         _plain_state_space_vb,
     ),
     Trick(
-        "vb-take-all-active",
-        "huber_vb._take (no np.where while every run iterates)",
-        {"cv2d": ("vb-akf", "hakf"), "sins-gps": ("vb-akf",)},
-        _plain_take,
+        "select-none-masks",
+        "linalg.select (no np.where while every channel is present / every run iterates)",
+        {"cv2d": ("vb-akf", "hakf", "sage-husa"), "sins-gps": ("vb-akf",)},
+        _plain_select,
+    ),
+    Trick(
+        "vb-row-reductions",
+        "huber_vb.rowmax/rowsum (m ≤ 2 without a reduction)",
+        {"cv2d": ("vb-akf", "hakf", "student-t-kf")},
+        lambda: _plain_rows(),
     ),
     Trick(
         "whiten-diagonal",

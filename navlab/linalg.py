@@ -88,6 +88,13 @@ def bcast(a: Array, shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(a, shape)
 
 
+def select(mask: Array | None, new: Array, old: Array | float) -> Array:
+    """``np.where(mask, new, old)``, with ``mask`` None meaning "everywhere": the usual case —
+    every channel present, every run still iterating — then costs no ``np.where`` at all.
+    """
+    return new if mask is None else np.where(mask, new, old)
+
+
 def batched(A: Array, B: int) -> Array:
     """Matrix ``A`` (r, c) or (B, r, c) with a leading run axis: (B, r, c), a read-only view when
     ``A`` is shared (``.copy()`` it for a per-run array of one's own).
@@ -206,16 +213,29 @@ def cofactors(Sf: Array, m: int) -> Array:
     return G * sgn if m == 2 else G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]
 
 
+_ADJ2_SIGN = np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+
 def inv_small(S: Array) -> tuple[Array, Array]:
     """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det (closed form).
 
-    Returns (S⁻¹, ill) where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU);
-    an ill run's inverse is not meaningful.
+    m = 2: adj(S) = [[d, −b], [−c, a]], S with both axes reversed and the signs flipped, element
+    by element (no gather); m = 1, 3: the cofactors of :func:`cofactors`. Returns (S⁻¹, ill)
+    where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU); an ill run's inverse
+    is not meaningful.
     """
     B, m = S.shape[0], S.shape[-1]
+    if m == 2:
+        a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+        det = a * d - b * c
+        ill = ~(det > 1e-12 * (a * d))
+        inv = 1.0 / np.where(ill, 1.0, det)
+        return S[:, ::-1, ::-1] * _ADJ2_SIGN * inv[:, None, None], ill
     Sf = np.ascontiguousarray(S).reshape(B, m * m)
     cof = cofactors(Sf, m)
-    det = np.einsum("bi,bi->b", Sf[:, :m], cof[:, :m])
+    det = Sf[:, 0] * cof[:, 0]  # det S = Σ_j S_0j C_0j
+    for j in range(1, m):
+        det = det + Sf[:, j] * cof[:, j]
     ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
     inv = 1.0 / np.where(ill, 1.0, det)
     return cof.reshape(B, m, m) * inv[:, None, None], ill
@@ -259,15 +279,16 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
 def forward_subst(L: Array, v: Array) -> Array:
     """``L⁻¹ v`` for lower-triangular L (N, d, d) and v (N, d): y_i = (v_i − Σ_{j<i} L_ij y_j)/L_ii.
 
-    Row by row with the batch axis last (contiguous vectors of N): a LAPACK triangular solve per
-    matrix costs ≈ 10× more for small d; the same solution up to round-off.
+    Element by element over the batch (a LAPACK triangular solve per matrix costs ≈ 10× more for
+    the small d of a measurement update; the same solution up to round-off).
     """
-    Lt = np.moveaxis(L, 0, -1)  # (d, d, N)
-    vt = v.T
-    y = np.empty_like(vt)
-    for i in range(vt.shape[0]):
-        y[i] = (vt[i] - (Lt[i, :i] * y[:i]).sum(axis=0) if i else vt[i]) / Lt[i, i]
-    return y.T
+    y = np.empty_like(v)
+    for i in range(v.shape[-1]):
+        acc = v[:, i]
+        for j in range(i):
+            acc = acc - L[:, i, j] * y[:, j]
+        y[:, i] = acc / L[:, i, i]
+    return y
 
 
 # ------------------------------------------------------------------------------ the KF update
@@ -387,19 +408,22 @@ def quad(v: Array, S: Array) -> Array:
     v = np.asarray(v, dtype=float)
     S = np.asarray(S, dtype=float)
     d = v.shape[-1]
-    Sb = np.broadcast_to(S, (*v.shape, d))
     if d > 3:
+        Sb = np.broadcast_to(S, (*v.shape, d))
         return _quad_lu(v.reshape(-1, d), Sb.reshape(-1, d, d)).reshape(v.shape[:-1])
     # a singular or indefinite S legitimately gives inf/NaN in the shortcuts: redone by LU below
     with np.errstate(all="ignore"):
         if d <= 2:
-            q = _quad_closed(v, Sb)
+            q = np.asarray(_quad_closed(v, S))
         else:
             shared = S.ndim >= 3 and S.shape[-3] > 1 and S.strides[-3] == 0
             Sm = S[..., :1, :, :] if shared else S
             Sm = Sm.reshape((1,) * (v.ndim + 1 - Sm.ndim) + Sm.shape)  # one batch axis per v's
             q = np.asarray(_quad_ldl(np.moveaxis(v, -1, 0), np.moveaxis(Sm, (-2, -1), (0, 1))))
-            q = np.broadcast_to(q, v.shape[:-1]).copy()
+        q = np.broadcast_to(q, v.shape[:-1]).copy() if q.shape != v.shape[:-1] else q
+        if np.isfinite(q).all():
+            return q
+        Sb = np.broadcast_to(S, (*v.shape, d))
         redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(Sb).all(axis=(-2, -1))
     if redo.any():
         q[redo] = _quad_lu(v[redo], Sb[redo])

@@ -74,6 +74,7 @@ from navlab.linalg import (
     mask_missing,
     mT,
     mv,
+    select,
     solve_sym,
 )
 from navlab.params import param
@@ -172,6 +173,25 @@ class MeasSpace:
         resid = Rt * np.einsum("bij,bij->bi", C.reshape(-1, m, m), self.nu_f) * inv
         hph = self.dM - np.einsum("bij,bj->bi", self.MM, C) * inv
         return resid, hph, no_fix
+
+
+def rowmax(a: Array) -> Array:
+    """Max over the last axis of (B, m); for m ≤ 2 without a reduction (a speed trick of the VB
+    loops, ``benchmarks/tricks.py`` "vb-row-reductions": a reduction costs several small
+    operations' worth of numpy overhead, and the loops run it every iteration).
+    """
+    m = a.shape[-1]
+    if m == 1:
+        return a[:, 0]
+    return np.maximum(a[:, 0], a[:, 1]) if m == 2 else a.max(axis=-1)
+
+
+def rowsum(a: Array) -> Array:
+    """Sum over the last axis of (B, m); for m ≤ 2 without a reduction (see :func:`rowmax`)."""
+    m = a.shape[-1]
+    if m == 1:
+        return a[:, 0]
+    return a[:, 0] + a[:, 1] if m == 2 else a.sum(axis=-1)
 
 
 def _flags(down: Array, fixed: Array) -> Array:
@@ -310,13 +330,6 @@ class VBParams:
     )
 
 
-def _where(mask: Array | None, new: Array, old: Array | float) -> Array:
-    """``new`` where ``mask`` holds, ``old`` elsewhere; ``mask`` None: ``new`` everywhere (the
-    usual case — every channel present, every run still iterating — costs no ``np.where``).
-    """
-    return new if mask is None else np.where(mask, new, old)
-
-
 class _VBBase(Filter):
     """Shared machinery of ``vb-akf`` and ``hakf`` (S0 eqs. 11–21 with/without the Huber lines)."""
 
@@ -369,21 +382,22 @@ class _VBBase(Filter):
             Rhat = beta / alpha  # (15) R̂^(it) = diag(β^(it)/α)
             if self.huber:
                 r_e = resid if (p.irls and it > 0) else nu  # (16) prior innovation (or IRLS)
-                w = _where(present, self._weights(r_e / np.sqrt(Rhat)), 1.0)  # (16) e = R̂^{-1/2} r; (9)
-            Rt = _where(present, Rhat / w if self.huber else Rhat, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
+                w = select(present, self._weights(r_e / np.sqrt(Rhat)), 1.0)  # (16) e = R̂^{-1/2} r; (9)
+            Rt = select(present, Rhat / w if self.huber else Rhat, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
             resid, hph, fix = ms.step(Rt)  # (18)–(20) from the prior, in measurement space
-            fixed |= fix & active
+            if fix.any():
+                fixed |= fix & active
             iters += active
             rows = None if running is None else running[:, None]
-            Rt_last, w_last = _where(rows, Rt, Rt_last), _where(rows, w, w_last)
+            Rt_last, w_last = select(rows, Rt, Rt_last), select(rows, w, w_last)
             if not p.adapt:
                 break
             r2 = resid * resid
             if self.huber and p.robust_beta:  # navlab extension (off by default, §3.2)
                 r2 = r2 * self._weights(resid / np.sqrt(Rhat))
-            beta_new = _where(present, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21)
-            d = np.max(np.abs(beta_new - beta) / beta, axis=-1)
-            delta, beta = _where(running, d, delta), _where(rows, beta_new, beta)
+            beta_new = select(present, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21)
+            d = rowmax(np.abs(beta_new - beta) / beta)
+            delta, beta = select(running, d, delta), select(rows, beta_new, beta)
             if p.tol > 0:
                 active = active & (d >= p.tol)
                 n_active = np.count_nonzero(active)
@@ -573,13 +587,13 @@ class StudentTKF(Filter):
         dof_m = np.count_nonzero(mk.ok, axis=1).astype(float)
         Mw, nuw = whiten(mk.R, mk.M, mk.nu)  # by R0 = L Lᵀ: R_eff = I/λ̄ is diagonal
         ms = MeasSpace(batched(Mw, B), nuw)
-        lam = np.ones(B)
+        lam, ones = np.ones(B), np.ones(m)
         fixed = np.zeros(B, dtype=bool)
         for _ in range(p.iters):
             # KF update with R_eff = R0/λ̄ (whitened: I/λ̄): whitened z − H x⁺ and diag H P⁺ Hᵀ
-            resid, hph, fix = ms.step(np.broadcast_to(1.0 / lam[:, None], (B, m)))
+            resid, hph, fix = ms.step(ones / lam[:, None])
             fixed |= fix
-            tr = np.maximum(np.sum(resid * resid + hph, axis=-1), 0.0)  # tr(D R0⁻¹); missing add 0
+            tr = np.maximum(rowsum(resid * resid + hph), 0.0)  # tr(D R0⁻¹); missing channels add 0
             lam = (p.dof + dof_m) / (p.dof + tr)  # λ̄ = (ν_t + m)/(ν_t + tr(D R0⁻¹))
         Reff = mk.R / lam[:, None, None]  # R_eff = R0/λ̄
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, mk.nu, Reff)

@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 
 from navlab.errors import NavlabError
-from navlab.linalg import Array, bcast, diag, diag_embed, eigh_clamp, mT, sym
+from navlab.linalg import Array, bcast, diag, diag_embed, eigh_clamp, mT, select, sym
 
 # ------------------------------------------------------------------------------ weights
 
@@ -220,14 +220,15 @@ def sage_husa_R(
     simplified per-channel form of §4.9 (off-diagonals 0, each diagonal entry clamped).
     Returns ``(R̂_k (B, m, m), clamped (B, m))``.
     """
-    nu0 = np.where(ok, nu, 0.0)
+    present = None if ok.all() else ok  # (None: every channel present, nothing to keep)
+    nu0 = select(present, nu, 0.0)
     if diagonal:
         r = (1.0 - d) * diag(R_prev) + d * (nu0**2 - diag(HPHt))
-        r = np.where(ok, r, diag(R_prev))
+        r = select(present, r, diag(R_prev))
         clamped = (r < lo) | (r > hi)
         return diag_embed(np.minimum(np.maximum(r, lo), hi)), clamped
     new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
-    new = np.where(ok[:, :, None] & ok[:, None, :], new, R_prev)
+    new = select(None if present is None else ok[:, :, None] & ok[:, None, :], new, R_prev)
     return clamp_eig(new, lo, hi)
 
 

@@ -43,7 +43,6 @@ from navlab.filters.sage_husa.kernels import (
 from navlab.linalg import (
     Array,
     batched,
-    diag,
     forward_subst,
     joseph_from_gain,
     kf_gain,
@@ -143,7 +142,8 @@ class RAKF(Filter):
         # 3  abnormality test and prior-covariance inflation (traces over the present channels)
         nn = np.einsum("bi,bi->b", nu, nu)  # νᵀν
         trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
-        trR = np.sum(diag(Rm) * ok, axis=-1)  # tr R̂_k (a missing channel's unit R_ii left out)
+        trR = np.trace(Rm, axis1=-2, axis2=-1) - np.count_nonzero(~ok, axis=-1)  # tr R̂_k (a
+        # missing channel's unit R_ii taken out: exactly, the masked R_ii are 1.0)
         abnormal = nn > p.gamma_s * (trHPH + trR)
         lam = np.ones(B)
         if abnormal.any():  # (λ = 1 elsewhere: the products below are exact there)
