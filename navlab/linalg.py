@@ -8,18 +8,27 @@ filter written with these helpers handles both without branches.
 Why the kernels look the way they do: with B runs of tiny matrices, numpy's per-call overhead,
 not arithmetic, is the cost (a stacked LAPACK call on 2×2 systems costs ≈ 10× its arithmetic), so
 a few kernels take a shorter road than the textbook formula. Each states the formula it equals
-(to round-off) and is tested against it (tests/unit/test_linalg_kernels.py, with hypothesis over
-n, m and missing-channel patterns); ``benchmarks/tricks.py`` measures what each shortcut is worth
-inside the filters, and a shortcut stays only where it saves ≥ 10 % of some filter's time:
+(to round-off) and is tested against it (tests/contract/test_kernel_properties.py, hypothesis
+over B, n, m and missing-channel patterns). ``benchmarks/tricks.py`` measures what each shortcut
+is worth inside the filters; a shortcut stays only where it saves ≥ 10 % of some filter's time
+(the share quoted is the largest measured, on a shared 2-core machine):
 
-* :func:`PHt` — P Hᵀ and H P Hᵀ by indexing when H selects states, as two GEMMs over the batch
-  when H is shared;
-* :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3;
-* :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S;
-* :func:`predict_cov` — F P Fᵀ + Q as two GEMMs over the batch for a shared F;
-* :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape (closed form for
-  d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for d ≥ 4; the method never depends on the
-  batch, so a run's value is the same in any chunk).
+* :func:`selection`, :func:`PHt` — P Hᵀ and H P Hᵀ by indexing when H selects states (16 %,
+  chi2-kf on cv2d), H's structure cached by its content (26 %, kf);
+* :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3 (24 %,
+  rakf on cv2d);
+* :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S (18 %, kf);
+* :func:`shared_left` — M L for a shared M and stacked L as one GEMM on the stacked rows (12 %,
+  mfukf on gps-ins-rtk: the UKF's closed-form transform of a linear model);
+* :func:`bcast` — a broadcast view built directly (11 %, svd-ukf on cv2d);
+* :func:`select` — no ``np.where`` while the mask is everywhere true (31 %, hakf on cv2d);
+* :func:`chi2_threshold` — χ² quantiles from a cached table (43 %, chi2-kf);
+* :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape (27 %, chi2-kf on
+  cv2d): closed form for d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for d ≥ 4; the
+  method never depends on the batch, so a run's value is the same in any chunk.
+
+Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
+or H (7.5 %, −3 %), a hand-written forward substitution (4 %).
 """
 
 from __future__ import annotations
@@ -116,14 +125,6 @@ def shared_left(M: Array, A: Array) -> Array:
     return mT(_rows_times(At, M.T).reshape(B, q, M.shape[0]))
 
 
-def shared_right(A: Array, M: Array) -> Array:
-    """``A @ M`` for A (p, n) or (B, p, n) and a shared M (n, q), as one product on the stacked rows."""
-    if M.ndim != 2 or A.ndim != 3:
-        return A @ M
-    B, p, n = A.shape
-    return _rows_times(A.reshape(B * p, n), M).reshape(B, p, M.shape[1])
-
-
 def _rows_times(X: Array, M: Array) -> Array:
     """X (N, n) @ M (n, q) in row blocks of at most SERIAL_GEMM multiply-adds (same numbers)."""
     rows = max(1, SERIAL_GEMM // max(1, M.shape[0] * M.shape[1]))
@@ -159,31 +160,19 @@ def PHt(P: Array, H: Array) -> tuple[Array, Array]:
     """``U = P Hᵀ`` and ``M = H P Hᵀ = H U`` (P symmetric).
 
     By indexing when H selects states (exact: the products are with 1 and the sums with 0; a
-    stacked matmul costs ≈ 10× more); for a shared H and stacked P as two products on the stacked
-    rows (:func:`shared_right`).
+    stacked matmul costs several times more), the plain products otherwise.
     """
     sel = selection(H)
     if sel is not None:
         U = P[..., sel]
         return U, U[..., sel, :]
-    if H.ndim == 2 and P.ndim == 3:
-        U = shared_right(P, H.T)
-        return U, mT(shared_right(np.ascontiguousarray(mT(U)), H.T))  # (H U)ᵀ = Uᵀ Hᵀ rows
     U = P @ mT(H)
     return U, H @ U
 
 
 def predict_cov(F: Array, P: Array, Q: Array) -> Array:
-    """``F P Fᵀ + Q``, symmetrised (§1.1 step 2).
-
-    For a shared F and stacked P as two products on the stacked rows: X = P Fᵀ, then
-    Xᵀ Fᵀ = F Pᵀ Fᵀ = F P Fᵀ (P symmetric).
-    """
-    if F.ndim != 2 or P.ndim != 3:
-        return sym(F @ P @ mT(F) + Q)
-    X = shared_right(P, F.T)  # P Fᵀ
-    Z = shared_right(np.ascontiguousarray(mT(X)), F.T)  # (P Fᵀ)ᵀ Fᵀ = F P Fᵀ
-    return sym(Z + Q)
+    """``F P Fᵀ + Q``, symmetrised (§1.1 step 2)."""
+    return sym(F @ P @ mT(F) + Q)
 
 
 # ------------------------------------------------------------------------------ inverses and solves
@@ -274,21 +263,6 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
         except np.linalg.LinAlgError:
             fixed = np.ones(S.shape[:-2], dtype=bool)
         return np.linalg.solve(S + jitter, Y), fixed
-
-
-def forward_subst(L: Array, v: Array) -> Array:
-    """``L⁻¹ v`` for lower-triangular L (N, d, d) and v (N, d): y_i = (v_i − Σ_{j<i} L_ij y_j)/L_ii.
-
-    Element by element over the batch (a LAPACK triangular solve per matrix costs ≈ 10× more for
-    the small d of a measurement update; the same solution up to round-off).
-    """
-    y = np.empty_like(v)
-    for i in range(v.shape[-1]):
-        acc = v[:, i]
-        for j in range(i):
-            acc = acc - L[:, i, j] * y[:, j]
-        y[:, i] = acc / L[:, i, i]
-    return y
 
 
 # ------------------------------------------------------------------------------ the KF update

@@ -11,11 +11,12 @@ this module, in ALGORITHMS.md §1.1's numbering::
     6  P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ     kf_update (Joseph form)
 
 in terms of U = P⁻ Hᵀ and M = H P⁻ Hᵀ, which every filter needs anyway (its own tests of the
-innovation, its R̂). Speed tricks used here (navlab/linalg.py; worth measured by
+innovation, its R̂). Speed tricks used here (navlab/linalg.py, worth measured by
 ``benchmarks/tricks.py``): U and M by indexing for a selection H (:func:`~navlab.linalg.PHt`), the
 closed-form S⁻¹ for m ≤ 3 (:func:`~navlab.linalg.kf_gain`), the Joseph form from U and S
-(:func:`~navlab.linalg.joseph_from_gain`), a shared P (the same in every run while the gain does
-not depend on the data) kept unbatched.
+(:func:`~navlab.linalg.joseph_from_gain`), and a shared P (the same in every run while the gain
+does not depend on the data) kept unbatched. The plain transcriptions are
+:mod:`navlab.filters.reference.kalman`.
 
 References
 ----------

@@ -17,7 +17,6 @@ from navlab.linalg import (
     batched,
     bcast,
     cofactors,
-    forward_subst,
     inv_small,
     inv_spd,
     joseph_from_gain,
@@ -27,7 +26,6 @@ from navlab.linalg import (
     quad,
     selection,
     shared_left,
-    shared_right,
 )
 
 FAST = settings(max_examples=40, deadline=None)
@@ -212,24 +210,12 @@ def test_vb_measurement_space_step_fast_equals_plain(B, m, seed):
 
 
 @FAST
-@given(B=st.integers(1, 40), d=st.integers(1, 9), seed=seeds)
-def test_forward_substitution(B, d, seed):
-    rng = np.random.default_rng(seed)
-    L = np.linalg.cholesky(spd(rng, (B,), d))
-    v = rng.standard_normal((B, d))
-    y = forward_subst(L, v)
-    np.testing.assert_allclose((L @ y[..., None])[..., 0], v, rtol=1e-9, atol=1e-9)
-
-
-@FAST
 @given(B=st.sampled_from([1, 3, 120]), p=dims, n=st.integers(1, 16), q=dims, seed=seeds)
 def test_shared_products_and_views(B, p, n, q, seed):
-    """shared_left/right (one GEMM on the stacked rows, in row blocks) and the broadcast views."""
+    """shared_left (one GEMM on the stacked rows, in row blocks) and the broadcast views."""
     rng = np.random.default_rng(seed)
     M, A = rng.standard_normal((p, n)), rng.standard_normal((B, n, q))
     np.testing.assert_allclose(shared_left(M, A), M @ A, rtol=1e-12, atol=1e-12)
-    A2, M2 = rng.standard_normal((B, p, n)), rng.standard_normal((n, q))
-    np.testing.assert_allclose(shared_right(A2, M2), A2 @ M2, rtol=1e-12, atol=1e-12)
     v = bcast(M, (B, p, n))
     assert v.shape == (B, p, n) and not v.flags.writeable and np.array_equal(v[-1], M)
     assert batched(M, B).shape == (B, p, n) and batched(A, B) is A

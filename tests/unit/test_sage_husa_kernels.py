@@ -15,7 +15,7 @@ from navlab.filters.sage_husa import (
     igg3_weights,
     irakf_weights,
 )
-from navlab.linalg import eigh_clamp, forward_subst, sym
+from navlab.linalg import eigh_clamp, sym
 
 
 def _random_sym(rng, B, m, scale=1.0):
@@ -62,15 +62,6 @@ def test_eig_inside_is_never_wrong_when_true():
         inside = eig_inside(R, 0.2, 3.0)
         assert inside.any()
         assert np.all((w[inside] > 0.2) & (w[inside] < 3.0))
-
-
-@pytest.mark.parametrize("m", [1, 2, 3, 5])
-def test_forward_substitution_solves_the_triangular_system(m):
-    rng = np.random.default_rng(m)
-    L = np.linalg.cholesky(_random_sym(rng, 30, m))
-    v = rng.standard_normal((30, m))
-    e = forward_subst(L, v)
-    np.testing.assert_allclose((L @ e[..., None])[..., 0], v, rtol=1e-10, atol=1e-12)
 
 
 def _weights_reference(a, k0, k1, mid):

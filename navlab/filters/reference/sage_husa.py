@@ -9,13 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from navlab.filters.reference import Trace, plain, reference
-from navlab.filters.sage_husa.kernels import forgetting_weight
+from navlab.filters.sage_husa.kernels import forgetting_weight, rhat_bounds
 from navlab.linalg import eigh_clamp
-
-
-def _bounds(R0):
-    d = np.diag(R0)
-    return 0.01 * d.min(), 1e4 * d.max()  # §4.1 step 4
 
 
 def _sage_husa(R_prev, nu, HPH, o, d, lo, hi, diagonal=False):
@@ -38,7 +33,7 @@ def sage_husa(model, x0, P0, z, sides, p) -> Trace:
     x, P = np.array(x0, float), np.array(P0, float)
     R0 = np.asarray(model.R0, dtype=float)
     R = R0.copy()
-    lo, hi = _bounds(R0)
+    lo, hi = rhat_bounds(R0)
     xs, Ps, Rs = [], [], []
     for k in range(1, z.shape[0]):
         x, P = plain.kf_predict(model, x, P, k)
@@ -79,7 +74,7 @@ def irakf(model, x0, P0, z, sides, p) -> Trace:
     x, P = np.array(x0, float), np.array(P0, float)
     xs_, Ps_ = x.copy(), P.copy()  # the parallel standard KF
     R0 = np.asarray(model.R0, dtype=float)
-    lo, hi = _bounds(R0)
+    lo, hi = rhat_bounds(R0)
     m = z.shape[1]
     window: list = []
     out_x, out_P, out_R, out_w, out_f = [], [], [], [], []
@@ -138,7 +133,7 @@ def rrae(model, x0, P0, z, sides, p) -> Trace:
         raise NotImplementedError("the reference implements the equivalent-variance form")
     x, P = np.array(x0, float), np.array(P0, float)
     R0 = np.asarray(model.R0, dtype=float)
-    lo, hi = _bounds(R0)
+    lo, hi = rhat_bounds(R0)
     m = z.shape[1]
     window: list = []
     out = [[], [], [], [], []]
@@ -183,7 +178,7 @@ def rakf(model, x0, P0, z, sides, p) -> Trace:
     x, P = np.array(x0, float), np.array(P0, float)
     R0 = np.asarray(model.R0, dtype=float)
     R = R0.copy()
-    lo, hi = _bounds(R0)
+    lo, hi = rhat_bounds(R0)
     m = z.shape[1]
     out = [[], [], [], [], []]
     for k in range(1, z.shape[0]):
@@ -224,7 +219,7 @@ def rsshakf(model, x0, P0, z, sides, p) -> Trace:
     x, P = np.array(x0, float), np.array(P0, float)
     R0 = np.asarray(model.R0, dtype=float)
     R = np.diag(np.diag(R0))
-    lo, hi = _bounds(R0)
+    lo, hi = rhat_bounds(R0)
     m = z.shape[1]
     out = [[], [], [], [], []]
     for k in range(1, z.shape[0]):

@@ -199,11 +199,10 @@ class IRAKF(Filter):
         H = model.H(x_m, k)
         U, M = PHt(P_m, H)
         # 3  R̂ by RAE (eq. 3) or improved RAE (eq. 4)
-        use_prior = {
-            "always": np.ones(B, dtype=bool),
-            "never": np.zeros(B, dtype=bool),
-            "conditional": flag_s.any(axis=1),
-        }[p.improved_rae]
+        if p.improved_rae == "conditional":  # eq. 4 on the epochs the parallel SKF flags
+            use_prior = flag_s.any(axis=1)
+        else:
+            use_prior = np.full(B, p.improved_rae == "always")
         flags = np.zeros((B, m), dtype=np.int8)
         if state.win.full:
             HPH_ref = np.where(use_prior[:, None, None], M, PHt(state.P_post, H)[1])  # H P_ref Hᵀ

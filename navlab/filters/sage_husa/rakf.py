@@ -8,9 +8,6 @@ numbering::
     3  if νᵀν > γ_s tr(H P⁻ Hᵀ + R̂_k):  λ_k = max(1, (νᵀν − tr R̂_k)/tr(H P⁻ Hᵀ)),  P⁻ ← λ_k P⁻  (flag 5)
     4  S = H P⁻ Hᵀ + R̂_k = L_S L_Sᵀ ;  ν' = L_S ψ_c(L_S⁻¹ ν),  ψ_c(e) = clip(e, −c, c)   (flag 1)
     5  K = P⁻ Hᵀ S⁻¹ ;  x⁺ = x⁻ + K ν' ;  P⁺ = Joseph(P⁻, K, H, R̂_k)
-
-Speed trick kept (``benchmarks/tricks.py``): L_S⁻¹ν by :func:`navlab.linalg.forward_subst`
-instead of a LAPACK solve per epoch.
 """
 
 from __future__ import annotations
@@ -43,12 +40,10 @@ from navlab.filters.sage_husa.kernels import (
 from navlab.linalg import (
     Array,
     batched,
-    forward_subst,
     joseph_from_gain,
     kf_gain,
     mask_missing,
     mv,
-    solve_sym,
     sym,
 )
 from navlab.params import param
@@ -142,8 +137,9 @@ class RAKF(Filter):
         # 3  abnormality test and prior-covariance inflation (traces over the present channels)
         nn = np.einsum("bi,bi->b", nu, nu)  # νᵀν
         trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
-        trR = np.trace(Rm, axis1=-2, axis2=-1) - np.count_nonzero(~ok, axis=-1)  # tr R̂_k (a
-        # missing channel's unit R_ii taken out: exactly, the masked R_ii are 1.0)
+        trR = np.trace(Rm, axis1=-2, axis2=-1)  # tr R̂_k over the present channels: a missing
+        if Rm is not R:  # channel's masked R_ii is exactly 1.0, taken out again
+            trR = trR - np.count_nonzero(~ok, axis=-1)
         abnormal = nn > p.gamma_s * (trHPH + trR)
         lam = np.ones(B)
         if abnormal.any():  # (λ = 1 elsewhere: the products below are exact there)
@@ -161,8 +157,7 @@ class RAKF(Filter):
         S = sym(HPHt + Rm)
         L, sfix = sqrt_factor(S)  # S = L_S L_Sᵀ
         flag_fix(flags, sfix, overwrite=False)
-        # e = L_S⁻¹ ν; an eigen-factor (sfix) is not triangular: a general solve there
-        e = solve_sym(L, nu[..., None])[0][..., 0] if sfix.any() else forward_subst(L, nu)
+        e = np.linalg.solve(L, nu[..., None])[..., 0]  # e = L_S⁻¹ ν
         ae = np.abs(e)
         clip = (ae > p.c) & ok
         nu_c = mv(L, np.where(clip, p.c * np.sign(e), e))  # ν' = L_S ψ_c(e)
