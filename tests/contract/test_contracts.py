@@ -133,19 +133,38 @@ class DropChannel:
         return attr
 
 
+@pytest.mark.parametrize("outlier", [False, True], ids=["clean", "outlier"])
 @pytest.mark.parametrize(("fkey", "scenario"), CASES)
-def test_nan_channel_is_the_update_without_that_channel(fkey, scenario):
+def test_nan_channel_is_the_update_without_that_channel(fkey, scenario, outlier):
     """A channel with NaN gets a zero gain column: the posterior equals the update with that
-    channel removed from the model (first update from the same initial state).
+    channel removed from the model (first update from the same initial state) — also when another
+    channel carries a 30σ outlier, so that the robust branches (down-weighting, rejection,
+    covariance inflation) run with a channel missing.
     """
     data = scenario_data(scenario, "normal")
     i = 0
     z = data.z.copy()
+    if outlier:
+        j = data.z.shape[2] - 1
+        H = np.asarray(data.model.H(data.x0, 1))
+        Hj = H[..., j, :]
+        s_j = np.sqrt(np.einsum("...i,ij,...j->...", Hj, np.asarray(data.P0), Hj) + data.model.R0[j, j])
+        z[:, 1, j] = z[:, 1, j] + 30.0 * s_j
+        data = replace_z(data, z.copy())
     z[:, 1, i] = np.nan
     full = drive(filter_for(fkey, scenario), data, z=z, epochs=1)
     small = drive(filter_for(fkey, scenario), _drop(data, i), model=DropChannel(data.model, i), epochs=1)
-    assert_same_estimates(full, small, RUNS, 1e-8, "NaN channel vs channel removed")
+    # with a 30σ outlier the update is ill-conditioned (fading factors at their cap, a vague WLS
+    # prior): the two formulations then agree to a few 1e-5 only, round-off amplified
+    rel = 1e-4 if outlier else 1e-8
+    assert_same_estimates(full, small, RUNS, rel, "NaN channel vs channel removed")
     assert np.all(full.outs[0].innov[:, i] == 0.0)  # StepOut.innov: 0 on missing channels
+
+
+def replace_z(data, z):
+    import dataclasses
+
+    return dataclasses.replace(data, z=z)
 
 
 def _drop(data, i):

@@ -463,3 +463,28 @@ def test_irakf_variance_middle_zone_option():
         P = IKH @ P_m @ np.swapaxes(IKH, 1, 2) + K @ R_eff @ np.swapaxes(K, 1, 2)
         np.testing.assert_allclose(o.P, P, rtol=1e-10, atol=1e-12)
     assert seen
+
+
+def test_rakf_abnormality_test_ignores_a_missing_channel():
+    """RAKF's divergence test and inflation use tr R̂ over the PRESENT channels: with channel 0
+    missing, the update equals the update of the model without channel 0 (the masked unit R_00
+    was once counted in tr R̂, which moved λ and P⁻ whenever the test fired).
+    """
+    from navlab.filters.base import LinearModel
+
+    data = simulate("isolated", runs=4, epochs=3)
+    m = data.model
+    z = data.z.copy()
+    z[:, 1, 1] += 30.0 * np.sqrt(m.R0[1, 1] + data.P0[2, 2])  # fires the divergence test
+    z[:, 1, 0] = np.nan
+    f = make_filter("rakf", {"adapt": False})  # R̂ = R0: the test is not damped by R̂ absorbing it
+    small = LinearModel(m.F_, m.Q_, m.H_[1:], m.R0[1:, 1:])
+    outs = []
+    for model, zz, sl in ((m, z[:, 1], slice(None)), (small, z[:, 1, 1:], slice(1, None))):
+        st = f.predict(model, f.init(model, data.x0, data.P0), 1)
+        s = data.side(1)
+        side_k = SideInfo(s.R_true[:, sl], s.bias[:, sl], s.outlier[:, sl])
+        outs.append(f.update(model, st, 1, zz, side_k)[1])
+    assert np.all(outs[1].stats["lambda"] > 1.0)  # the inflation ran
+    np.testing.assert_allclose(outs[0].stats["lambda"], outs[1].stats["lambda"], rtol=1e-12)
+    np.testing.assert_allclose(outs[0].x, outs[1].x, rtol=1e-10, atol=1e-10)
