@@ -18,7 +18,8 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     STREAMLIT_SERVER_HEADLESS=true \
     STREAMLIT_BROWSER_GATHER_USAGE_STATS=false \
     STREAMLIT_SERVER_FILE_WATCHER_TYPE=none \
-    NAVLAB_DATA=/data
+    NAVLAB_DATA=/data \
+    NUMBA_CACHE_DIR=/opt/numba-cache
 
 # unprivileged runtime user (numeric uid/gid 1000; code stays root-owned and read-only for it)
 RUN groupadd --gid 1000 app \
@@ -35,6 +36,10 @@ COPY .streamlit/ .streamlit/
 COPY navlab/ navlab/
 COPY pages/ pages/
 COPY app.py ./
+
+# compile navlab's numba kernels now (a few seconds each), not on the app's first click; the cache
+# lives outside the read-only code folder and stays writable for uid 1000 (a new CPU recompiles)
+RUN python -m navlab.jit && chown -R 1000:1000 /opt/numba-cache
 
 USER 1000:1000
 EXPOSE 8501

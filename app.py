@@ -51,7 +51,7 @@ with right:
     st.subheader("Data sources")
     st.markdown(
         """
-- Simulated scenarios follow the papers (see `ALGORITHMS.md` for the equations and defaults).
+- Simulated scenarios follow the papers (see `docs/ALGORITHMS.md` for the equations and defaults).
 - **rtkx drive 0708** — car drive with a MEMS IMU and u-blox RTK, Boulder (rtklibexplorer/GNSS_IMU,
   BSD-3-Clause, © 2025 rtklibexplorer).
 - **smartLoc Berlin Potsdamer Platz** — urban GPS/GLONASS pseudoranges with NovAtel SPAN ground

@@ -2,10 +2,18 @@
 
 Same cv2d workload (100 epochs, the same simulated measurements) for 1, 100 and 1000 runs,
 measured side by side in one process; prints filter-steps per second and the ratio. Also times
-a default Compare run (cv2d, 100 runs, kf + oracle-kf + chi2-kf). Not a test: these machines
-are shared and noisy, so read the ratio, not the absolute figures.
+a default Compare run (cv2d, 100 runs, kf + oracle-kf + chi2-kf).
 
-    python benchmarks/throughput.py [--repeat 3] [--runs 1,100,1000]
+The whole pipeline (issue 13, target ≥ 60× FilterPy): simulate + filter + record + metrics,
+``run_experiment(spec).metrics()`` for `kf` on cv2d (100 epochs, the default mixture outliers)
+at two sizes (``--pipeline-runs``, default 1000 and 10 000 runs); the MARGINAL throughput is the
+extra steps over the extra time between them (what one more run costs, start-up costs cancel).
+Its split at the larger size: simulation (``Scenario.simulate``), the filter (``runtime_s``),
+metrics (``Results.metrics``) and the rest of ``run_experiment`` (driver + recorder), and the
+floor set by random-number generation (the same draws as the simulation, nothing else).
+Not a test: these machines are shared and noisy, so read the ratios, not the absolute figures.
+
+    python benchmarks/throughput.py [--repeat 3] [--runs 1,100,1000] [--pipeline-runs 1000,10000]
 """
 
 from __future__ import annotations
@@ -21,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 from navlab.experiment import ExperimentSpec, plan, run_experiment, run_filters
 from navlab.filters import make_filter
+from navlab.scenarios.base import run_streams
 
 
 def best_of(fn, repeat):
@@ -49,10 +58,86 @@ def filterpy_loop(data):
     return xs
 
 
+def rng_floor(runs: int, K: int, m: int, n: int, truth_dim: int, seed: int = 1) -> None:
+    """Only the draws of cv2d with mixture outliers: truth (K, 2), init (4), meas 2 × (K+1, m)."""
+    s = run_streams(seed, range(runs))
+    s.truth.standard_normal((K, truth_dim))
+    s.init.standard_normal(n)
+    s.meas.standard_normal((K + 1, m))
+    s.meas.random((K + 1, m))
+
+
+def pipeline(sizes: list[int], repeat: int) -> None:
+    spec0 = ExperimentSpec(filters=("kf",), runs=sizes[0], seed=1, epochs=100)
+    p = plan(spec0)
+    fp_runs = 300
+    data = p.scenario.simulate(p.schedule, p.outliers, range(fp_runs), 1)
+    t_fp, _ = best_of(lambda: filterpy_loop(data), repeat)
+    fp = fp_runs * data.K / t_fp
+    K, m, n = data.K, data.z.shape[2], data.x0.shape[1]
+    print(f"\nwhole pipeline, kf on cv2d ({K} epochs, mixture outliers); best of {repeat}")
+    print(f"FilterPy loop: {fp:,.0f} steps/s ({fp_runs} runs)")
+    print(f"{'runs':>6} {'pipeline s':>10} {'steps/s':>12} {'x FilterPy':>10}")
+    times = {}
+    for runs in sizes:
+        spec = spec0.replace(runs=runs)
+        t, _ = best_of(lambda: run_experiment(spec).metrics(), repeat)  # noqa: B023
+        times[runs] = t
+        print(f"{runs:6d} {t:10.3f} {runs * K / t:12,.0f} {runs * K / t / fp:10.1f}")
+    lo, hi = sizes[0], sizes[-1]
+    marg = (hi - lo) * K / (times[hi] - times[lo])
+    print(f"marginal {lo} -> {hi} runs: {marg:,.0f} steps/s = {marg / fp:.1f}x FilterPy (target 60x)")
+
+    # where the time goes at the larger size: timers inside one run_experiment (best of `repeat`)
+    spec = spec0.replace(runs=hi)
+    cls = type(p.scenario)
+    simulate = cls.simulate
+    best = None
+    for _ in range(repeat):
+        spent = []
+
+        def timed_simulate(self, *args, spent=spent):
+            t0 = time.perf_counter()
+            out = simulate(self, *args)
+            spent.append(time.perf_counter() - t0)
+            return out
+
+        cls.simulate = timed_simulate
+        try:
+            t0 = time.perf_counter()
+            res = run_experiment(spec)
+            t_run = time.perf_counter() - t0
+        finally:
+            cls.simulate = simulate
+        t0 = time.perf_counter()
+        res.metrics()
+        t_met = time.perf_counter() - t0
+        t_filt = sum(fr.runtime_s for fr in res.runs.values())
+        parts = (t_run + t_met, sum(spent), t_filt, t_run - sum(spent) - t_filt, t_met)
+        best = parts if best is None or parts[0] < best[0] else best
+        del res
+    total, t_sim, t_filt, rest, t_met = best
+    t_rng, _ = best_of(lambda: rng_floor(hi, K, m, n, 2), repeat)
+    print(f"split at {hi} runs (one run_experiment + metrics, {total:.3f} s):")
+    for name, t in (
+        ("simulation", t_sim),
+        ("  of which random draws", t_rng),
+        ("filter (kf)", t_filt),
+        ("driver + recorder", rest),
+        ("metrics", t_met),
+    ):
+        print(f"  {name:24s} {t:7.3f} s {100 * t / total:5.1f} %")
+    print(
+        f"random draws alone: {hi * K / t_rng:,.0f} steps/s = {hi * K / t_rng / fp:.0f}x FilterPy "
+        "(the ceiling of a pipeline that draws them)"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--runs", default="1,100,1000")
+    ap.add_argument("--pipeline-runs", default="1000,10000", help="two sizes ('' to skip)")
     a = ap.parse_args()
 
     print("cv2d, 100 epochs; steps = runs x epochs; best of", a.repeat)
@@ -69,6 +154,8 @@ def main() -> None:
     spec = ExperimentSpec(filters=("kf", "oracle-kf", "chi2-kf"), runs=100, seed=1)
     t, _ = best_of(lambda: run_experiment(spec), a.repeat)
     print(f"default compare run (cv2d, 100 runs x 100 epochs, 3 filters, with metrics): {t:.3f} s")
+    if a.pipeline_runs:
+        pipeline([int(r) for r in a.pipeline_runs.split(",")], a.repeat)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Command-line interface: ``python -m navlab list|run|reproduce|app``.
+"""Command-line interface: ``python -m navlab list|run|reproduce|sweep|tune|app``.
 
 Exit codes: 0 success; 2 a problem with the arguments, the configuration or an input file (one
 line on stderr saying what to change); 1 an unexpected internal error.
@@ -10,7 +10,6 @@ import argparse
 import json
 import logging
 import os
-import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -92,10 +91,9 @@ def _spec_from_args(a: argparse.Namespace):
 
     base: dict[str, Any] = {}
     if a.config:
-        try:
-            text = Path(a.config).read_text(encoding="utf-8")
-        except OSError as exc:
-            raise NavlabError(f"cannot read --config {a.config}: {exc.strerror}") from None
+        from navlab.io import MAX_JSON_BYTES, read_text
+
+        text = read_text(a.config, f"--config {a.config}", max_bytes=MAX_JSON_BYTES)
         base = ExperimentSpec.from_json(text).to_dict()
     overrides = {
         "scenario": a.scenario,
@@ -111,7 +109,10 @@ def _spec_from_args(a: argparse.Namespace):
     base.update({k: v for k, v in overrides.items() if v is not None})
     for item in a.set or []:
         if "=" not in item or "." not in item.split("=", 1)[0]:
-            raise NavlabError(f"--set takes GROUP.NAME=VALUE (e.g. kf.alpha=0.05), got {item!r}")
+            raise NavlabError(
+                f"--set takes GROUP.NAME=VALUE (e.g. chi2-kf.alpha=0.05 or outliers.contamination=0.2), "
+                f"got {item!r}"
+            )
         lhs, rhs = item.split("=", 1)
         group, name = lhs.split(".", 1)
         try:
@@ -165,6 +166,10 @@ def _run(a: argparse.Namespace) -> int:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
         except OSError as exc:
             raise NavlabError(f"cannot write --save-spec {a.save_spec}: {exc.strerror}") from None
+    from navlab.data.checks import run_messages  # real data: what was fed, checks, can it be trusted
+
+    for finding in run_messages(res):
+        print(f"navlab: {finding}", file=sys.stderr)
     return 0
 
 
@@ -210,12 +215,208 @@ def _reproduce(a: argparse.Namespace) -> int:
     return 0
 
 
-def _app(a: argparse.Namespace) -> int:
+def app_command(args: Sequence[str]) -> list[str]:
+    """The ``streamlit run app.py`` command line for ``navlab app ARGS`` (Streamlit's own flags,
+    e.g. ``--server.port 8611``, passed through; a leading ``--`` is dropped).
+    """
     app = Path(__file__).resolve().parent.parent / "app.py"
     if not app.exists():
         raise NavlabError(f"app.py not found next to the navlab package ({app})")
-    cmd = [sys.executable, "-m", "streamlit", "run", str(app), *a.streamlit_args]
-    return subprocess.call(cmd)
+    args = list(args)
+    if args[:1] == ["--"]:
+        args = args[1:]
+    return [sys.executable, "-m", "streamlit", "run", str(app), *args]
+
+
+def _app(args: Sequence[str]) -> int:
+    """Become the Streamlit server (exec): stopping ``navlab app`` stops the server."""
+    cmd = app_command(args)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(cmd[0], cmd)
+    return 0  # not reached
+
+
+def _floats(text: str, what: str) -> list[float]:
+    """'0,0.1,0.2' or 'LO:HI:N' (linear) or 'LO:HI:N:log' → values."""
+    import numpy as np
+
+    try:
+        if ":" in text:
+            parts = text.split(":")
+            lo, hi, n = float(parts[0]), float(parts[1]), int(parts[2])
+            log = len(parts) > 3 and parts[3] == "log"
+            if len(parts) > 4 or (len(parts) == 4 and not log) or n < 1:
+                raise ValueError
+            if log and lo <= 0:
+                raise NavlabError(f"{what} {text}: a log-spaced range needs a positive lower end")
+            return list(np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise NavlabError(
+            f"{what} takes comma-separated numbers (0,0.1,0.2) or LO:HI:N[:log], got {text!r}"
+        ) from None
+
+
+def _seeds(text: str | None, what: str) -> list[int] | None:
+    if text is None:
+        return None
+    try:
+        out = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise NavlabError(f"{what} takes comma-separated whole numbers (e.g. 11,12), got {text!r}") from None
+    if not out or any(v < 0 for v in out):
+        raise NavlabError(f"{what} takes comma-separated non-negative whole numbers, got {text!r}")
+    return out
+
+
+def _engine(a: argparse.Namespace):
+    """(store, executor) of the sweep/tune options."""
+    from navlab.cluster import executor
+    from navlab.store import Store
+
+    return Store.open(a.store), executor(a.scheduler)
+
+
+def _sweep(a: argparse.Namespace) -> int:
+    from navlab import sweep as SW
+    from navlab import tables
+
+    spec = _spec_from_args(a)
+    axes = []
+    for name, values, flag in ((a.param, a.values, "--values"), (a.param2, a.values2, "--values2")):
+        if name is None:
+            if values is not None:
+                raise NavlabError(f"{flag} needs its parameter ({flag.replace('values', 'param')})")
+            continue
+        if values is None:
+            raise NavlabError(f"{name}: give its values with {flag} (e.g. 0,0.1,0.2 or 0:0.3:7)")
+        p = SW.resolve(spec, name)
+        axes.append(SW.Axis(p, tuple(SW.check_values(p, _floats(values, flag)))))
+    if a.param is None:
+        raise NavlabError("--param GROUP.NAME is required (e.g. outliers.contamination)")
+    store, ex = _engine(a)
+    sw = SW.make_sweep(spec, axes)
+    out = SW.run_sweep(sw, store=store, executor=ex, on_progress=_progress(a.quiet, "tasks"))
+    df = out.rows
+    if a.format != "table":
+        _emit(df, a.format, a.out)
+        return 0
+    metric = a.metric or _headline_metric(spec)
+    d = df[df.metric == metric]
+    if d.empty:
+        raise NavlabError(
+            f"--metric {metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
+        )
+    d = d.assign(cell=[tables.cell(v, lo, hi) for v, lo, hi in zip(d.value, d.ci_lo, d.ci_hi, strict=True)])
+    p1 = axes[0].param
+    lines = [f"{metric} [95 % interval] against {p1.cli} — {p1.label}"]
+    if len(axes) == 1:
+        wide = d.pivot_table(index="param_value", columns="label", values="cell", aggfunc="first", sort=False)
+        wide.index.name = p1.cli
+        lines.append(tables.text_table(wide))
+    else:
+        p2 = axes[1].param
+        lines[0] += f", and {p2.cli} — {p2.label}"
+        for label, g in d.groupby("label", sort=False):
+            wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
+            wide.index.name = f"{p1.cli} \\ {p2.cli}"
+            wide.columns = [f"{c:.4g}" for c in wide.columns]
+            lines += ["", str(label), tables.text_table(wide)]
+    lines.append(
+        f"  {out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
+        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed}; intervals: BCa bootstrap "
+        "over runs (navlab run's)."
+    )
+    _write("\n".join(lines) + "\n", a.out)
+    return 0
+
+
+def _headline_metric(spec) -> str:
+    from navlab.scenarios.base import get_scenario_class
+
+    head = get_scenario_class(spec.scenario).headline
+    return f"rmse_{head[0] if head else 'pos'}"
+
+
+def _tune(a: argparse.Namespace) -> int:
+    from navlab import tune as TU
+
+    spec = _spec_from_args(a)
+    st = TU.setup(
+        spec,
+        budget=a.budget,
+        objective=a.objective,
+        train_seeds=_seeds(a.train_seeds, "--train-seeds"),
+        test_seeds=_seeds(a.test_seeds, "--test-seeds"),
+        train_runs=a.train_runs,
+        ranges=a.range or (),
+    )
+    store, ex = _engine(a)
+    r = TU.tune(st, store=store, executor=ex, on_progress=_progress(a.quiet, "tasks"))
+    if a.format == "table":
+        _write(TU.report(r).text(), a.out)
+    else:
+        _emit(r.rows, a.format, a.out)
+    if a.outdir:
+        out = Path(a.outdir)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            for k in spec.filters:
+                (out / f"tuned-{k}.json").write_text(r.tuned_spec(k).to_json(indent=1), encoding="utf-8")
+            (out / "tuned.json").write_text(r.tuned_spec().to_json(indent=1), encoding="utf-8")
+            r.rows.to_csv(out / "tune.csv", index=False)
+            TU.trials_frame(r).to_csv(out / "trials.csv", index=False)
+        except OSError as exc:
+            raise NavlabError(f"cannot write --outdir {a.outdir}: {exc.strerror}") from None
+        print(
+            f"wrote {len(spec.filters) + 1} configurations (tuned-FILTER.json, tuned.json: navlab run "
+            f"--config), tune.csv and trials.csv to {out}",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def _engine_options(p: argparse.ArgumentParser) -> None:
+    """Where sweep/tune tasks run and are kept."""
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="Dask scheduler (tcp://HOST:8786) to send the tasks to; 'local' (default, or "
+        "NAVLAB_DASK_SCHEDULER): an embedded cluster on this machine; 'serial': this process",
+    )
+    p.add_argument(
+        "--store",
+        metavar="DIR",
+        help="results store folder (default NAVLAB_STORE or ~/.cache/navlab/store; 'off': none)",
+    )
+    p.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    p.add_argument("--out", help="write the output to this file instead of stdout")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
+
+
+def _experiment_options(p: argparse.ArgumentParser) -> None:
+    """The options that define an experiment (run, sweep, tune)."""
+    p.add_argument("--config", help="experiment spec JSON (flags given here override it)")
+    p.add_argument("--scenario", help="scenario key (default cv2d)")
+    p.add_argument(
+        "--filters",
+        type=lambda s: [x.strip() for x in s.split(",") if x.strip()],
+        help="comma-separated filter keys",
+    )
+    p.add_argument("--runs", type=int, help="Monte Carlo runs")
+    p.add_argument("--seed", type=int, help="base seed")
+    p.add_argument("--epochs", type=int, help="number of epochs (default: the scenario's)")
+    p.add_argument("--noise-schedule", help="true R(t) schedule key")
+    p.add_argument("--outliers", help="outlier model key")
+    p.add_argument("--contamination", type=float, help="outlier ratio α (mixture)")
+    p.add_argument("--outlier-scale", type=float, help="outlier scale κ (in σ)")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="GROUP.NAME=VALUE",
+        help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -228,26 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--format", choices=["table", "json", "csv"], default="table")
 
     pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
-    pr.add_argument("--config", help="experiment spec JSON (flags given here override it)")
-    pr.add_argument("--scenario", help="scenario key (default cv2d)")
-    pr.add_argument(
-        "--filters",
-        type=lambda s: [x.strip() for x in s.split(",") if x.strip()],
-        help="comma-separated filter keys",
-    )
-    pr.add_argument("--runs", type=int, help="Monte Carlo runs")
-    pr.add_argument("--seed", type=int, help="base seed")
-    pr.add_argument("--epochs", type=int, help="number of epochs (default: the scenario's)")
-    pr.add_argument("--noise-schedule", help="true R(t) schedule key")
-    pr.add_argument("--outliers", help="outlier model key")
-    pr.add_argument("--contamination", type=float, help="outlier ratio α (mixture)")
-    pr.add_argument("--outlier-scale", type=float, help="outlier scale κ (in σ)")
-    pr.add_argument(
-        "--set",
-        action="append",
-        metavar="GROUP.NAME=VALUE",
-        help="a parameter: FILTER.NAME=V, noise.NAME=V, outliers.NAME=V, scenario.NAME=V",
-    )
+    _experiment_options(pr)
     pr.add_argument(
         "--compare-to",
         metavar="FILTER",
@@ -291,8 +473,50 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--outdir", help="directory for the verdicts, readings and RMSE curves (CSV)")
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
-    pa = sub.add_parser("app", help="start the Streamlit app")
-    pa.add_argument("streamlit_args", nargs=argparse.REMAINDER)
+    ps = sub.add_parser("sweep", help="sweep one or two parameters: every point's metrics with intervals")
+    _experiment_options(ps)
+    ps.add_argument("--param", metavar="GROUP.NAME", help="parameter to sweep, as in --set")
+    ps.add_argument("--values", help="its values: V1,V2,… or LO:HI:N[:log]")
+    ps.add_argument("--param2", metavar="GROUP.NAME", help="a second parameter (2-D sweep)")
+    ps.add_argument("--values2", help="the second parameter's values")
+    ps.add_argument("--metric", help="metric of the table output (default: the headline RMSE)")
+    _engine_options(ps)
+
+    pt = sub.add_parser("tune", help="tune every filter on the same budget; default vs tuned on test seeds")
+    _experiment_options(pt)
+    pt.add_argument(
+        "--budget",
+        type=int,
+        default=16,
+        help="candidates per filter (the default + BUDGET−1 Sobol points), successive halving (default 16)",
+    )
+    pt.add_argument(
+        "--objective",
+        help="metric to minimise on the training seeds (default rmse_pos: the headline RMSE); "
+        "consistent_<metric>: × a penalty when the ANEES leaves its χ² band",
+    )
+    pt.add_argument("--train-seeds", metavar="S,…", help="training seeds (default: --seed + 1)")
+    pt.add_argument("--test-seeds", metavar="S,…", help="test seeds, --runs runs each (default: --seed)")
+    pt.add_argument(
+        "--train-runs",
+        type=int,
+        default=32,
+        help="runs per training seed on the last successive-halving rung (default 32)",
+    )
+    pt.add_argument(
+        "--range",
+        action="append",
+        metavar="FILTER.NAME=LO:HI",
+        help="search range of a parameter (overrides its declared one, or adds one)",
+    )
+    pt.add_argument("--outdir", help="write tuned-FILTER.json configurations, tune.csv and trials.csv here")
+    _engine_options(pt)
+
+    sub.add_parser(
+        "app",
+        help="start the Streamlit app (Streamlit's flags pass through, e.g. --server.port 8611)",
+        add_help=False,
+    )
     return p
 
 
@@ -301,6 +525,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = "--debug" in argv
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        rest = [x for x in argv if x != "--debug"]
+        if rest[:1] == ["app"]:  # everything after "app" is Streamlit's
+            return _app(rest[1:])
         a = build_parser().parse_args(argv)
         if a.cmd == "list":
             _emit(_list(a.what), a.format, None)
@@ -309,8 +536,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _run(a)
         if a.cmd == "reproduce":
             return _reproduce(a)
-        if a.cmd == "app":
-            return _app(a)
+        if a.cmd == "sweep":
+            return _sweep(a)
+        if a.cmd == "tune":
+            return _tune(a)
         return 2
     except NavlabError as exc:
         print(f"navlab: error: {exc}", file=sys.stderr)

@@ -45,7 +45,8 @@ class ExperimentSpec:
     ----------
     scenario : registry key of the scenario.
     filters : registry keys of the filters, in display order.
-    runs, seed : Monte Carlo size and base seed (run r uses SeedSequence([seed, r])).
+    runs, seed : Monte Carlo size and base seed (run r draws the same numbers whatever the chunk it
+        is simulated in: navlab.scenarios.base.run_streams).
     epochs : number of epochs K (None: the scenario's default).
     noise_schedule, noise_params : the true R(t) schedule and its parameters.
     outliers, outlier_params : outlier model and its parameters (over the scenario's defaults).
@@ -115,11 +116,9 @@ class ExperimentSpec:
 
     @classmethod
     def from_json(cls, text: str | bytes) -> ExperimentSpec:
-        try:
-            d = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise NavlabError(f"the configuration is not valid JSON ({exc})") from None
-        return cls.from_dict(d)
+        from navlab.io import parse_json
+
+        return cls.from_dict(parse_json(text, "the configuration"))
 
     def replace(self, **changes: Any) -> ExperimentSpec:
         return dataclasses.replace(self, **changes)
@@ -682,7 +681,7 @@ def run_summary(
         groups=first.groups,
         window=first.window,
         has_truth=first.has_truth,
-        extras={k: v for k, v in first.extras.items() if k == "metrics"},
+        extras={k: v for k, v in first.extras.items() if k in ("metrics", "notes", "findings")},
         divergence_bound=first.divergence_bound,
         B=spec.runs,
         K=first.K,

@@ -42,10 +42,10 @@ from scipy.stats import chi2
 from navlab import stats as S
 from navlab.errors import NavlabError
 from navlab.linalg import Array
-from navlab.scenarios.base import MetricGroup
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results
+    from navlab.scenarios.base import MetricGroup
 
 RELIABLE_SHARE = 0.05  # a filter diverging in more runs than this share is "unreliable"
 NEES_BOUND = 1e6  # NEES above this at any window epoch: diverged
@@ -230,48 +230,73 @@ class RunStats:
         )
 
 
+def _window_masks(data: Any) -> dict[str, Array]:
+    """What every filter's statistics share: the window's truth and measurement masks (made once
+    per data object).
+    """
+    cache = data.__dict__.get("_window_masks")
+    if cache is None:
+        W = np.asarray(data.window, dtype=bool)
+        idx = np.flatnonzero(W)
+        if idx.size and idx[-1] - idx[0] + 1 == idx.size:  # contiguous: a slice (views, no copies)
+            W = slice(int(idx[0]), int(idx[-1]) + 1)
+        present = np.isfinite(data.z[:, W])  # (B, Kw, m): a measurement exists
+        mask = np.asarray(data.outlier_mask[:, W], dtype=bool) & present
+        cache = {
+            "W": W,
+            "present": present,
+            "measured": present.any(axis=2),  # (B, Kw)
+            "mask": mask,
+            "clean": present & ~mask,
+            "x_true": data.x_true[:, W] if data.has_truth else None,
+        }
+        data.__dict__["_window_masks"] = cache
+    return cache
+
+
 def run_stats(data: Any, fr: FilterRun) -> RunStats:
     """The per-run statistics of filter run ``fr`` on ``data`` (window ``data.window``)."""
-    W = np.asarray(data.window, dtype=bool)
+    dm = _window_masks(data)
+    W, present, mask, clean = dm["W"], dm["present"], dm["mask"], dm["clean"]
     B = data.B
     st = RunStats(
         key=fr.key,
         label=fr.label,
         diverged=np.asarray(fr.diverged, dtype=bool),
         runtime_s=float(fr.runtime_s),
-        epochs=int(W.sum()),
+        epochs=int(present.shape[1]),
         estimates_R=fr.R_hat is not None,
     )
     s = st.sums
     with np.errstate(over="ignore", invalid="ignore"):  # diverged runs hold inf/NaN: excluded later
         if data.has_truth:
+            e2 = (fr.x[:, W] - dm["x_true"]) ** 2  # (B, Kw, n): every component once
             for g, group in data.groups.items():
-                sq = sq_error(fr.x, data.x_true, group)[:, W]
+                sq = e2[..., group.idx[0]].copy()
+                for i in group.idx[1:]:
+                    sq += e2[..., i]
+                if group.scale != 1.0:
+                    sq *= group.scale**2
                 st.sq[g] = sq
                 st.sse[g] = sq.sum(axis=1)
-        present = np.isfinite(data.z[:, W])  # (B, Kw, m): a measurement exists
-        measured = present.any(axis=2)  # (B, Kw)
-        for name, v, where in (("nees", fr.nees, None), ("nis", fr.nis, measured)):
+        for name, v, where in (("nees", fr.nees, None), ("nis", fr.nis, dm["measured"])):
             if name == "nees" and not data.has_truth:
                 continue
             v = v[:, W]
             fin = np.isfinite(v)
             s[f"{name}_sum"] = np.where(fin, v, 0.0).sum(axis=1)
             s[f"{name}_cnt"] = fin.sum(axis=1).astype(float)
-            expected = np.ones_like(fin) if where is None else where
-            s[f"{name}_skip"] = (expected & ~fin).sum(axis=1).astype(float)
-        mask = np.asarray(data.outlier_mask[:, W], dtype=bool) & present
-        clean = present & ~mask
+            missing = ~fin if where is None else where & ~fin
+            s[f"{name}_skip"] = missing.sum(axis=1).astype(float)
         if fr.R_hat is not None:
-            ratio = np.sqrt(fr.R_hat[:, W] / data.R_true[:, W])
-            err = np.abs(ratio - 1.0)
+            err = np.abs(np.sqrt(fr.R_hat[:, W] / data.R_true[:, W]) - 1.0)
             fin = np.isfinite(err)
             for part, sel in (("clean", clean), ("cont", mask)):
                 s[f"rhat_{part}_sum"] = np.where(sel & fin, err, 0.0).sum(axis=(1, 2))
                 s[f"rhat_{part}_cnt"] = (sel & fin).sum(axis=(1, 2)).astype(float)
             s["rhat_skip"] = (present & ~fin).sum(axis=(1, 2)).astype(float)
         flags = fr.flags[:, W]
-        decided = np.isin(flags, OUTLIER_CODES)
+        decided = (flags >= OUTLIER_CODES[0]) & (flags <= OUTLIER_CODES[-1])  # codes 1–5
         s["detected"] = (decided & mask).sum(axis=(1, 2)).astype(float)
         s["false_alarm"] = (decided & clean).sum(axis=(1, 2)).astype(float)
         s["numfix"] = ((flags == NUMFIX_CODE) & present).sum(axis=(1, 2)).astype(float)
@@ -330,8 +355,7 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
     for g, group in data.groups.items() if data.has_truth else ():
         out[f"rmse_{g}"] = (S.Ratio(st.sse[g][runs], n_ep, sqrt=True), group.unit)
         if g in st.sq:  # per-epoch errors (not kept by a large summary run)
-            sq = st.sq[g][runs]
-            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(sq, np.ones_like(sq)), group.unit)
+            out[f"mean_rmse_{g}"] = (S.MeanSqrtRatio(st.sq[g][runs]), group.unit)
     for name, extra in data.extras.get("metrics", {}).items():
         if isinstance(extra, QuantileMetric) and name in st.samples:
             out[name] = (S.Quantile(st.samples[name][runs], extra.q), extra.unit)
@@ -384,7 +408,7 @@ def window_text(data: Any) -> str:
     return f"{span}, t = {t[k0]:.4g}–{t[k1]:.4g} s, {idx.size} epochs"
 
 
-def _row(key, label, metric, value, unit="", est: S.Estimate | None = None, runs_used=None, note=""):
+def row(key, label, metric, value, unit="", est: S.Estimate | None = None, runs_used=None, note=""):
     r = dict(filter=key, label=label, metric=metric, value=float(value), unit=unit)
     has = est is not None and est.has_ci
     r["ci_lo"] = est.lo if has else np.nan
@@ -474,39 +498,39 @@ class Summary:
                     e = self.estimate(key, metric)
                 else:
                     e = S.Estimate(est.point() if n else float("nan"), note="")
-                rows.append(_row(key, fr.label, metric, e.value, unit, e, n, label_note))
+                rows.append(row(key, fr.label, metric, e.value, unit, e, n, label_note))
             for name, skipped in (("nees_skipped", "nees_skip"), ("nis_skipped", "nis_skip")):
                 if skipped in st.sums:
-                    rows.append(_row(key, fr.label, name, st.sums[skipped][runs].sum(), "entries"))
+                    rows.append(row(key, fr.label, name, st.sums[skipped][runs].sum(), "entries"))
             if st.estimates_R:
                 skip = st.sums["rhat_skip"][runs].sum()
-                rows.append(_row(key, fr.label, "rhat_skipped", skip, "entries"))
+                rows.append(row(key, fr.label, "rhat_skipped", skip, "entries"))
             dofs = {"anees": _n_states(data), "anis": _n_channels(data)} if data.has_truth else {}
             dofs.setdefault("anis", _n_channels(data))
             curves = _consistency_curves(res, key, runs) if self.arrays else {}
             for name, dof in dofs.items():
                 lo, hi = chi2_band(dof, n)
-                rows.append(_row(key, fr.label, f"{name}_band_lo", lo))
-                rows.append(_row(key, fr.label, f"{name}_band_hi", hi))
+                rows.append(row(key, fr.label, f"{name}_band_lo", lo))
+                rows.append(row(key, fr.label, f"{name}_band_hi", hi))
                 if name in curves:  # needs the per-epoch averages (not in a summary run)
                     avg = curves[name]
                     fin = np.isfinite(avg)
                     inside = float(np.mean((avg[fin] >= lo) & (avg[fin] <= hi))) if fin.any() else np.nan
-                    rows.append(_row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
+                    rows.append(row(key, fr.label, f"{name}_in_band_pct", 100 * inside, "%", runs_used=n))
             for name, extra in data.extras.get("metrics", {}).items() if self.arrays else ():
                 if not isinstance(extra, QuantileMetric):  # a plain function: point value only
                     fn, unit = extra
                     v = fn(fr.x, data, runs) if n else float("nan")
-                    rows.append(_row(key, fr.label, name, v, unit, None, n, "no interval (point metric)"))
+                    rows.append(row(key, fr.label, name, v, unit, None, n, "no interval (point metric)"))
             note = "" if lost == 0 else _lost_note(jd, key)
-            rows.append(_row(key, fr.label, "diverged", lost, "runs", note=note))
-            rows.append(_row(key, fr.label, "runs", data.B, "runs"))
-            rows.append(_row(key, fr.label, "runs_judged", n, "runs"))
+            rows.append(row(key, fr.label, "diverged", lost, "runs", note=note))
+            rows.append(row(key, fr.label, "runs", data.B, "runs"))
+            rows.append(row(key, fr.label, "runs_judged", n, "runs"))
             B, K = data.B, data.K
             us = 1e6 * st.runtime_s / max(B * K, 1)
-            rows.append(_row(key, fr.label, "us_per_run_step", us, "µs"))
+            rows.append(row(key, fr.label, "us_per_run_step", us, "µs"))
             rate = B * K / st.runtime_s if st.runtime_s > 0 else np.nan
-            rows.append(_row(key, fr.label, "steps_per_s", rate, "1/s"))
+            rows.append(row(key, fr.label, "steps_per_s", rate, "1/s"))
         return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -589,21 +613,21 @@ def compare(res: Results, ref: str, metrics: list[str] | None = None) -> pd.Data
                 continue
             c, unit = got
             pvals[key] = c.p_value
-            r = _row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
+            r = row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
             r.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs=ref, p_value=c.p_value)
             part.append(r)
         adj = S.holm(pvals)
         for r in part:
             key = r["filter"]
             r["p_holm"] = adj.get(key, np.nan)
-            r["verdict"], extra = _verdict(metric, r, jd, key, ref)
+            r["verdict"], extra = verdict(metric, r, jd, key, ref)
             if extra:
                 r["note"] = "; ".join(x for x in (r["note"], extra) if x)
         rows += part
     return pd.DataFrame(rows, columns=COLUMNS + DIFF_COLUMNS)
 
 
-def _verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
+def verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
     if jd.reliable[ref] and not jd.reliable[key]:
         return "worse", f"{key} diverges in {jd.lost(key)} of {jd.n_runs} runs"
     if jd.reliable[key] and not jd.reliable[ref]:

@@ -23,6 +23,7 @@ def param(
     help: str = "",
     choices: tuple[Any, ...] | None = None,
     ui: bool = True,
+    tune: tuple[float, float] | None = None,
 ) -> Any:
     """Declare a parameter field with its admissible range and a help text.
 
@@ -38,8 +39,16 @@ def param(
         Allowed values for strings.
     ui : bool
         Whether the app offers a widget for it (tuples and rarely used options say False).
+    tune : (float, float), optional
+        Marks a hyper-parameter that fair tuning (:mod:`navlab.tune`) searches, and the range it
+        searches: inside [lo, hi], usually much narrower (an admissible γ ∈ [0.1, 1e12] is a
+        validity limit, not a search range). None: not tuned.
     """
-    meta = {"lo": lo, "hi": hi, "help": help, "choices": choices, "ui": ui}
+    if tune is not None:
+        t_lo, t_hi = tune
+        if not t_lo < t_hi or (lo is not None and t_lo < lo) or (hi is not None and t_hi > hi):
+            raise ValueError(f"tune range {tune} must be increasing and inside [{lo}, {hi}]")
+    meta = {"lo": lo, "hi": hi, "help": help, "choices": choices, "ui": ui, "tune": tune}
     if isinstance(default, (list, dict)):
         raise TypeError("use tuples for sequence defaults")
     return dataclasses.field(default=default, metadata=meta)
@@ -107,11 +116,11 @@ def build(cls: type, values: Mapping[str, Any] | None, owner: str) -> Any:
 
 
 def describe(cls: type) -> list[dict[str, Any]]:
-    """List the parameters of ``cls`` as dicts (name, default, lo, hi, help, choices, ui)."""
+    """List the parameters of ``cls`` as dicts (name, default, lo, hi, help, choices, ui, tune)."""
     out = []
     for f in dataclasses.fields(cls):
         d = {"name": f.name, "default": f.default}
-        d.update({k: f.metadata.get(k) for k in ("lo", "hi", "help", "choices", "ui")})
+        d.update({k: f.metadata.get(k) for k in ("lo", "hi", "help", "choices", "ui", "tune")})
         out.append(d)
     return out
 

@@ -158,12 +158,12 @@ class MeanSqrtRatio(Estimator):
     """``scale · mean_k √(Σ_r num_rk / Σ_r den_rk)`` over the epochs k with data.
 
     The mean over epochs of the per-epoch Monte Carlo RMSE (num = squared errors (N, K),
-    den = 1 where the run counts at epoch k).
+    den = 1 where the run counts at epoch k; ``den=None``: every run counts at every epoch).
     """
 
-    def __init__(self, num: Array, den: Array, *, scale: float = 1.0) -> None:
-        self.num = np.asarray(num, dtype=float)
-        self.den = np.asarray(den, dtype=float)
+    def __init__(self, num: Array, den: Array | None = None, *, scale: float = 1.0) -> None:
+        self.num = np.asarray(num)
+        self.den = None if den is None else np.asarray(den, dtype=float)
         self.scale = float(scale)
         self.n = int(self.num.shape[0])
 
@@ -174,23 +174,33 @@ class MeanSqrtRatio(Estimator):
         total = np.where(ok, r, 0.0).sum(axis=-1)
         return self.scale * np.where(cnt > 0, total / np.maximum(cnt, 1), np.nan)
 
+    def _den(self, W: Array | None) -> Array:
+        """Σ_r w_r den_rk: (K,) for the sample, (b, K) for resample weights W (b, N)."""
+        if self.den is not None:
+            return self.den.sum(axis=0) if W is None else W @ self.den
+        K = self.num.shape[1]
+        if W is None:
+            return np.full(K, float(self.n))
+        return np.broadcast_to(W.sum(axis=1)[:, None], (W.shape[0], K))
+
     def point(self) -> float:
-        return float(self._f(self.num.sum(axis=0), self.den.sum(axis=0)))
+        return float(self._f(self.num.sum(axis=0, dtype=float), self._den(None)))
 
     def boot(self, W: Array) -> Array:
-        return self._f(W @ self.num, W @ self.den)
+        return self._f(W @ self.num, self._den(W))
 
     def influence(self) -> Array | None:
-        D = self.den.sum(axis=0)
+        D = self._den(None)
         keep = D > 0
         if not keep.any():
             return None
-        R = self.num.sum(axis=0)[keep] / D[keep]
+        R = self.num.sum(axis=0, dtype=float)[keep] / D[keep]
         if not (R > 0).all():
             return None
         dbar = D[keep] / self.n
-        lin = (self.num[:, keep] - R * self.den[:, keep]) / dbar
-        return self.scale * (lin / (2.0 * np.sqrt(R))).mean(axis=1)
+        num = self.num if keep.all() else self.num[:, keep]
+        lin = num - R if self.den is None else num - R * self.den[:, keep]
+        return self.scale * (lin @ (1.0 / (2.0 * np.sqrt(R) * dbar))) / keep.sum()
 
 
 class MaxSqrtRatio(MeanSqrtRatio):
@@ -241,8 +251,9 @@ class Quantile(Estimator):
     def point(self) -> float:
         if self.sorted.size == 0:
             return float("nan")
-        # the lower quantile, as every resample takes it (smallest x with F(x) >= q)
-        return float(np.quantile(self.sorted, self.q, method="inverted_cdf"))
+        # the usual (interpolated) quantile; the resamples take the weighted lower quantile, which
+        # differs by less than one gap between neighbouring values
+        return float(np.quantile(self.sorted, self.q))
 
     def boot(self, W: Array) -> Array:
         return self._wq(W)

@@ -181,14 +181,14 @@ def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
     sm = sm or M.summary(res)
     jd = sm.judgement
     n_common = int(jd.common.sum())
-    methods = {sm.resampler(int(jd.judged[k].sum())).n for k in res.runs}
+    sizes = {int(jd.judged[k].sum()) for k in res.runs} - {0}  # a filter with no run has no row
     out = [f"Analysis window: {sm.window}."]
-    if min(methods, default=0) < S.MIN_RUNS:
+    if not sizes or min(sizes) < S.MIN_RUNS:
         out.append(f"Intervals: {S.TOO_FEW}.")
     else:
         how = (
             "delta method (normal) over runs"
-            if min(methods) >= S.DELTA_FROM
+            if min(sizes) >= S.DELTA_FROM
             else f"BCa bootstrap over runs (B = {S.N_BOOT}, seeded; the same resamples for every filter)"
         )
         out.append(f"[lo, hi]: 95 % interval, {how}.")

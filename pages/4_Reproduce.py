@@ -9,6 +9,7 @@ from navlab.reproduce import REPRODUCTIONS
 from navlab.reproduce.report import RULES, header
 from navlab.ui import reproduce as ui
 from navlab.ui.frame import frame
+from navlab.ui.runner import show_error
 
 frame(
     "Reproduce the papers",
@@ -30,17 +31,37 @@ if st.session_state["rep"] not in keys:
 c0, c1, c2, c3 = st.columns([3, 1, 1, 1])
 key = c0.selectbox("Reproduction", keys, key="rep", bind="query-params")
 rep = REPRODUCTIONS[key]
-seeds = int(c1.number_input("Seeds", 1, 100, step=1, key="rep_seeds", bind="query-params",
-                            help=f"Monte Carlo sets of the paper's run count; the CLI uses 20 "
-                            f"(the app starts with {ui.APP_SEEDS} for a quick first look)"))
+seeds = int(
+    c1.number_input(
+        "Seeds",
+        1,
+        100,
+        step=1,
+        key="rep_seeds",
+        bind="query-params",
+        help=f"Monte Carlo sets of the paper's run count; the CLI uses 20 "
+        f"(the app starts with {ui.APP_SEEDS} for a quick first look)",
+    )
+)
 st.session_state.setdefault(f"rep_runs_{key}", rep.default_runs)
-runs = int(c2.number_input("Runs per seed", 1, 5000, step=1, key=f"rep_runs_{key}", bind="query-params",
-                           help=f"the paper's count: {rep.default_runs}"))
+runs = int(
+    c2.number_input(
+        "Runs per seed",
+        1,
+        5000,
+        step=1,
+        key=f"rep_runs_{key}",
+        bind="query-params",
+        help=f"the paper's count: {rep.default_runs}",
+    )
+)
 seed = int(c3.number_input("Base seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params"))
 st.markdown(f"**{rep.title}**  \n{rep.paper}")
 if seeds < 20:
-    st.caption(f"{seeds} seeds: a first look. The CLI judges at 20 seeds "
-               f"(`python -m navlab reproduce {key}`); verdicts can change with more seeds.")
+    st.caption(
+        f"{seeds} seeds: a first look. The CLI judges at 20 seeds "
+        f"(`python -m navlab reproduce {key}`); verdicts can change with more seeds."
+    )
 
 config = (key, runs, seeds, seed)
 if st.button("Run", type="primary", icon=":material/play_arrow:", key="rep_run"):
@@ -49,17 +70,19 @@ if st.button("Run", type="primary", icon=":material/play_arrow:", key="rep_run")
         t0 = time.perf_counter()
         bar = st.progress(0.0, text="starting")
         try:
-            ui.cached_run(*config, on_progress=lambda d, n: bar.progress(min(1.0, d / max(n, 1)),
-                                                                          text=f"{d}/{n} runs"))
+            ui.cached_run(
+                *config, on_progress=lambda d, n: bar.progress(min(1.0, d / max(n, 1)), text=f"{d}/{n} runs")
+            )
         except NavlabError as exc:
             status.update(label=f"{label}: {exc}", state="error")
             st.error(str(exc))
         except Exception as exc:  # a broken reproduction must not take the page down
             status.update(label=f"{label} failed", state="error")
-            st.error(f"The reproduction '{key}' failed: {type(exc).__name__}: {exc}")
+            show_error(exc)
         else:
-            status.update(label=f"{label}: done in {time.perf_counter() - t0:.1f} s", state="complete",
-                          expanded=False)
+            status.update(
+                label=f"{label}: done in {time.perf_counter() - t0:.1f} s", state="complete", expanded=False
+            )
 
 if not ui.is_cached(*config):
     st.info("Press **Run** to judge the paper's claims (a repeated configuration comes from the cache).")
@@ -75,22 +98,40 @@ m4.metric("inconclusive", int(counts.get("inconclusive", 0)))
 
 st.subheader("The paper's claims")
 st.caption(header(o).replace("\n", "  \n"))
-st.dataframe(ui.style_verdicts(o), hide_index=True, width="stretch",
-             column_config={"claim": st.column_config.TextColumn("claim", width="large")})
+st.dataframe(
+    ui.style_verdicts(o),
+    hide_index=True,
+    width="stretch",
+    column_config={"claim": st.column_config.TextColumn("claim", width="large")},
+)
 with st.expander("Why each verdict (notes per claim) and the rules"):
     for i, note in enumerate(o.verdicts["note"], 1):
         if note:
             st.markdown(f"{i}. {note}")
     st.caption(RULES)
-st.plotly_chart(ui.claims_figure(o), width="stretch", config=ui.CONFIG,
-                alt="navlab's value relative to the paper's for every number claim")
-st.download_button("Verdicts (CSV)", o.verdicts.to_csv(index=False).encode(),
-                   file_name=f"navlab-reproduce-{key}-verdicts.csv", mime="text/csv", on_click="ignore")
+st.plotly_chart(
+    ui.claims_figure(o),
+    width="stretch",
+    config=ui.CONFIG,
+    alt="navlab's value relative to the paper's for every number claim",
+)
+st.download_button(
+    "Verdicts (CSV)",
+    o.verdicts.to_csv(index=False).encode(),
+    file_name=f"navlab-reproduce-{key}-verdicts.csv",
+    mime="text/csv",
+    on_click="ignore",
+)
 
 with st.expander("Detailed readings: every quantity of every filter, pooled over all seeds"):
     st.dataframe(ui.readings_table(o), hide_index=True, width="stretch")
-    st.download_button("Readings (CSV)", o.readings.to_csv(index=False).encode(),
-                       file_name=f"navlab-reproduce-{key}-readings.csv", mime="text/csv", on_click="ignore")
+    st.download_button(
+        "Readings (CSV)",
+        o.readings.to_csv(index=False).encode(),
+        file_name=f"navlab-reproduce-{key}-readings.csv",
+        mime="text/csv",
+        on_click="ignore",
+    )
 
 if o.curves:
     st.subheader("Curves")
@@ -99,5 +140,11 @@ if o.curves:
     for tab, name in zip(tabs, names, strict=True):
         with tab:
             st.plotly_chart(ui.curve_figure(o, name), width="stretch", config=ui.CONFIG, alt=f"Curves {name}")
-            st.download_button(f"Download {name}", o.curves[name].to_csv(index=False).encode(),
-                               file_name=name, mime="text/csv", on_click="ignore", key=f"dl_{name}")
+            st.download_button(
+                f"Download {name}",
+                o.curves[name].to_csv(index=False).encode(),
+                file_name=name,
+                mime="text/csv",
+                on_click="ignore",
+                key=f"dl_{name}",
+            )

@@ -8,6 +8,7 @@ from navlab.scenarios.base import get_scenario_class
 from navlab.ui import realdata as R
 from navlab.ui.frame import frame
 from navlab.ui.runner import result_store, show_error
+from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.widgets import BIND
 
 frame(
@@ -16,6 +17,8 @@ frame(
     "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
     "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.",
 )
+
+sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
@@ -48,7 +51,36 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     )
     seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed", bind=BIND)
     sp = {}
-    if is_drive:
+    if rec == "upload":  # your own drive: the data as recorded; synthetic noise/outliers are options
+        sp["use_receiver_sigmas"] = st.toggle(
+            "R from the receiver's σ (sigma_* columns)", True, key="rd_rxsig", bind=BIND
+        )
+        sp["sigma_m"] = st.number_input(
+            "GNSS σ without receiver σ (m)", 0.01, 100.0, 3.0, key="rd_sigma_own", bind=BIND
+        )
+        st.caption("Synthetic noise and outliers are off for your own data (options, to stress-test):")
+        sp["add_noise"] = st.toggle("Add synthetic noise of that σ", False, key="rd_addnoise", bind=BIND)
+        contamination = st.slider("Synthetic outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_own", bind=BIND)
+        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_own", bind=BIND)
+        with st.expander("Geometry and timing"):
+            sp["start"] = st.selectbox("Start", ["auto", "static", "moving"], key="rd_start", bind=BIND)
+            m1, m2, m3 = st.columns(3)
+            sp["mount_roll_deg"] = m1.number_input("IMU roll°", -180.0, 180.0, 0.0, key="rd_mroll", bind=BIND)
+            sp["mount_pitch_deg"] = m2.number_input("pitch°", -90.0, 90.0, 0.0, key="rd_mpitch", bind=BIND)
+            sp["mount_yaw_deg"] = m3.number_input("yaw°", -180.0, 180.0, 0.0, key="rd_myaw", bind=BIND)
+            l1, l2, l3 = st.columns(3)
+            sp["lever_right_m"] = l1.number_input(
+                "antenna right m", -100.0, 100.0, 0.0, key="rd_lr", bind=BIND
+            )
+            sp["lever_forward_m"] = l2.number_input("forward m", -100.0, 100.0, 0.0, key="rd_lf", bind=BIND)
+            sp["lever_up_m"] = l3.number_input("up m", -100.0, 100.0, 0.0, key="rd_lu", bind=BIND)
+            sp["gnss_time_offset_s"] = st.number_input(
+                "GNSS time offset (s)", -10.0, 10.0, 0.0, 0.01, key="rd_toff", bind=BIND
+            )
+            sp["gnss_rate_hz"] = st.number_input(
+                "GNSS epochs per second at most (0: as recorded)", 0.0, 100.0, 0.0, key="rd_grate", bind=BIND
+            )
+    elif is_drive:
         sp["sigma_m"] = st.number_input("GNSS σ (m)", 0.1, 100.0, 3.0, key="rd_sigma", bind=BIND)
         contamination = st.slider("Outlier ratio α", 0.0, 0.5, 0.1, 0.01, key="rd_alpha", bind=BIND)
         scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa", bind=BIND)
@@ -67,10 +99,13 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
 upload_error = None
 if rec == "upload":
     st.markdown(
-        "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`, "
-        "vehicle axes x right, y forward, z up), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m`, "
+        "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`: "
+        "specific force in m/s², rates in rad/s, vehicle axes x right, y forward, z up — or give the "
+        "mounting under *Geometry and timing*), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m` ellipsoidal, "
         "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
-        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). The drive must start at rest."
+        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). Both files on one time base `t_s`; a drive "
+        "may start at rest (aligned there) or in motion (initialised from the GNSS). The README "
+        "section *Your own drive* says what each column does."
     )
     u1, u2, u3 = st.columns(3)
     f_imu = u1.file_uploader("imu.csv", type=["csv", "txt"], key="rd_up_imu")
@@ -81,15 +116,15 @@ if rec == "upload":
         st.stop()
     try:
         folder = R.save_upload(
-            f_imu.getvalue(), f_gnss.getvalue(), f_truth.getvalue() if f_truth is not None else None
+            f_imu.getvalue(),
+            f_gnss.getvalue(),
+            f_truth.getvalue() if f_truth is not None else None,
+            uploads=session_uploads(),
         )
     except NavlabError as exc:
         st.error(str(exc))
         st.stop()
     sp["data_dir"] = str(folder)
-    sp["add_noise"] = st.toggle(
-        "Add the σ / outliers above to the uploaded GNSS", False, key="rd_addnoise", bind=BIND
-    )
 
 if not filters:
     st.warning("Choose at least one filter.")
@@ -107,6 +142,12 @@ spec = R.build_spec(
 )
 key = spec.to_json()
 store = result_store()
+if rec == "upload" and store.get(key) is None:  # plain-words checks before the run
+    try:
+        R.show_findings(st, R.prerun_findings(spec), expanded=True)
+    except NavlabError as exc:
+        st.error(str(exc).replace(sp["data_dir"] + "/", "uploaded "))
+        st.stop()
 
 c1, c2 = st.columns([1, 5])
 run_clicked = c1.button("Run", type="primary", key="rd_run")
@@ -139,6 +180,7 @@ else:
     if d.B > 1:
         run = st.number_input("Show run", 0, d.B - 1, 0, key="rd_show_run")
     st.subheader("Results")
+    R.show_findings(st, R.run_findings(res))
     st.dataframe(R.metrics_table(res).round(3), key="rd_table")
     st.caption(
         f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "

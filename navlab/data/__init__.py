@@ -13,6 +13,9 @@ from navlab.data.loaders import (
     PseudorangeRecording,
     data_root,
     load_generic,
+    load_pseudoranges,
+    read_pseudorange_csv,
+    read_smartloc,
     rtkx_drive_0708,
     smartloc_berlin_pp,
 )
@@ -22,6 +25,9 @@ __all__ = [
     "PseudorangeRecording",
     "data_root",
     "load_generic",
+    "load_pseudoranges",
+    "read_pseudorange_csv",
+    "read_smartloc",
     "rtkx_drive_0708",
     "smartloc_berlin_pp",
 ]

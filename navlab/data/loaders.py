@@ -28,7 +28,7 @@ import calendar
 import math
 import os
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +38,7 @@ import pandas as pd
 from navlab.errors import NavlabError
 from navlab.ins.align import RTKX_NOMINAL_C_BV, body_to_vehicle
 from navlab.ins.earth import G0_MPS2
+from navlab.io import read_text
 
 #: Environment variable naming the data directory (overrides ../shared/data).
 ENV_VAR = "NAVLAB_DATA"
@@ -90,7 +91,39 @@ def _recording_dir(name: str, path: str | os.PathLike | None) -> Path:
         return root
     raise NavlabError(
         f"recording folder '{name}' not found under {root}; set {ENV_VAR}=/path/to/data (the "
-        f"directory holding {name}/) or pass the data directory explicitly"
+        f"directory holding {name}/) or pass it: --set scenario.data_dir=/path/to/data"
+    )
+
+
+def is_offered(data_dir: str | os.PathLike, offered: Sequence[str | os.PathLike] = ()) -> bool:
+    """Whether ``data_dir`` lies inside the data root or one of the ``offered`` folders.
+
+    Symbolic links and ``..`` are resolved first, so a link inside the data root that points
+    elsewhere is not offered.
+    """
+    try:
+        p = Path(data_dir).expanduser().resolve()
+        roots = [data_root().resolve(), *(Path(o).resolve() for o in offered)]
+    except (OSError, RuntimeError, ValueError, TypeError):
+        return False
+    return any(p == r or r in p.parents for r in roots)
+
+
+def check_offered(data_dir: str | os.PathLike | None, offered: Sequence[str | os.PathLike] = ()) -> None:
+    """Refuse a ``data_dir`` from outside (a browser) that the deployment does not offer.
+
+    A configuration loaded in the app may name only the deployment's data root (``NAVLAB_DATA`` or
+    ``../shared/data``; an empty ``data_dir`` means it) and the session's own uploads
+    (``offered``). The message names neither the folder nor anything in it. The CLI, run by a
+    local user, does not call this: it may name any folder.
+    """
+    if data_dir in (None, "") or is_offered(str(data_dir), offered):
+        return
+    raise NavlabError(
+        "scenario_params.data_dir names a folder this server does not offer: in the app a "
+        "configuration can use only the recordings the deployment provides (leave data_dir "
+        "empty) or files uploaded in this session (Real data page, 'Upload your own drive'); "
+        "run other folders with the command line: python -m navlab run --config FILE"
     )
 
 
@@ -99,21 +132,12 @@ Range = tuple[float, float, str]
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
+    """The file's text through navlab's one decoding path (:func:`navlab.io.read_text`)."""
+    if not path.exists():
         raise NavlabError(
             f"{path}: file not found; check the data directory ({ENV_VAR} or --set scenario.data_dir=...)"
         )
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise NavlabError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        try:
-            text = raw.decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes everything
-            raise NavlabError(f"{path}: not a text file") from None
+    text = read_text(path)
     if not text.strip():
         raise NavlabError(f"{path}: the file is empty; give a file with data rows")
     return text
@@ -395,7 +419,8 @@ def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
             "vu_mps": pos.vu_mps,
         }
     )
-    truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m"]].reset_index(drop=True)
+    truth = gnss.loc[gnss.q == 1, ["t_s", "lat_deg", "lon_deg", "h_m", "vn_mps", "ve_mps", "vu_mps"]]
+    truth = truth.reset_index(drop=True)
     if len(truth) < 2:
         raise NavlabError(f"{d / 'gnss_1934_sf.pos'}: fewer than 2 RTK-fixed (Q=1) epochs")
     return DriveRecording(
@@ -411,15 +436,25 @@ def rtkx_drive_0708(path: str | os.PathLike | None = None) -> DriveRecording:
 
 # ---------------------------------------------------------------------------- generic CSV
 def _read_header_csv(
-    path: Path, required: tuple[str, ...], optional: tuple[str, ...], ranges: dict[str, Range]
+    path: Path,
+    required: tuple[str, ...],
+    optional: tuple[str, ...],
+    ranges: dict[str, Range],
+    lines: list[str] | None = None,
 ) -> pd.DataFrame:
-    lines = _read_text(path).splitlines()
+    if lines is None:
+        lines = _read_text(path).splitlines()
     hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
     if hdr_i is None:
         raise NavlabError(
             f"{path}: no header line; the first line must name the columns ({', '.join(required)})"
         )
-    header = [h.strip() for h in lines[hdr_i].split(",")]
+    if ";" in lines[hdr_i] and "," not in lines[hdr_i]:
+        raise NavlabError(
+            f"{path}: line {hdr_i + 1} (header) separates columns with ';'; save the file with "
+            "commas between columns and '.' as the decimal point"
+        )
+    header = [h.strip().strip('"').strip() for h in lines[hdr_i].split(",")]
     missing = [c for c in required if c not in header]
     if missing:
         raise NavlabError(
@@ -473,11 +508,11 @@ def load_generic(
     imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges)
     if len(imu) < 100:
         raise NavlabError(f"{imu_csv}: only {len(imu)} IMU rows; give at least 100 samples")
-    fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy()[:50].mean(axis=0))
+    fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy().mean(axis=0))
     if not 5.0 < fz < 15.0:
         raise NavlabError(
-            f"{imu_csv}: the first samples' specific force has magnitude {fz:.3g}, not ≈ 9.8 m/s²; "
-            "give f_*_mps2 in m/s² (multiply g by 9.80665) and start with the vehicle at rest"
+            f"{imu_csv}: the mean specific force has magnitude {fz:.3g}, not ≈ 9.8 m/s² (gravity); "
+            "give f_*_mps2 in m/s² (multiply g by 9.80665)"
         )
     imu["repeated"] = np.r_[False, np.all(np.diff(imu[list(IMU_COLS)].to_numpy(), axis=0) == 0, axis=1)]
     opt = ("sigma_n_m", "sigma_e_m", "sigma_u_m", "vn_mps", "ve_mps", "vu_mps")
@@ -491,7 +526,9 @@ def load_generic(
     gnss = gnss[list(GNSS_COLS)]
     truth = None
     if truth_csv is not None:
-        truth = _read_header_csv(Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), (), _POS_RANGES)
+        truth = _read_header_csv(
+            Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), ("vn_mps", "ve_mps", "vu_mps"), _POS_RANGES
+        )
     if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
         raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
     return DriveRecording(
@@ -515,24 +552,31 @@ def load_drive(data_dir: str | os.PathLike | None = None) -> DriveRecording:
     return rtkx_drive_0708(data_dir)
 
 
-# ---------------------------------------------------------------------------- smartLoc
+# ---------------------------------------------------------------------------- pseudoranges
+#: smartLoc's satellite-system codes (its readme: 1 GPS, 2 SBAS, 4 GLONASS, 8 Galileo, 16 QZSS,
+#: 32 BeiDou); the generic CSV also takes the RINEX letters.
+SYSTEM_CODES = {1: "GPS", 2: "SBAS", 4: "GLONASS", 8: "Galileo", 16: "QZSS", 32: "BeiDou"}
+SYSTEM_LETTERS = {"G": 1, "S": 2, "R": 4, "E": 8, "J": 16, "C": 32}
+
+
 @dataclass(frozen=True, eq=False)
 class PseudorangeRecording:
-    """Pseudoranges, odometry and ground truth of a smartLoc recording.
+    """Pseudoranges, odometry and ground truth (smartLoc files or the generic pseudorange CSV).
 
     Attributes
     ----------
     pr : DataFrame ``t_s, pseudorange_m, var_m2, sat_x_m, sat_y_m, sat_z_m, sat_id, system,
-        elevation_deg, cn0_dbhz`` (system: 1 GPS, 4 GLONASS, …; satellite ECEF at transmit time).
+        elevation_deg, cn0_dbhz`` (system: :data:`SYSTEM_CODES`; satellite ECEF at transmit time;
+        var_m2 / elevation_deg / cn0_dbhz NaN where the file does not give them).
     odom : DataFrame ``t_s, speed_mps, yaw_rate_radps`` (yaw rate about the vehicle up axis,
-        counter-clockwise positive).
-    truth : DataFrame ``t_s, x_m, y_m, z_m`` (ECEF, SPAN).
+        counter-clockwise positive), or None.
+    truth : DataFrame ``t_s, x_m, y_m, z_m`` (ECEF), or None.
     """
 
     name: str
     pr: pd.DataFrame
-    odom: pd.DataFrame
-    truth: pd.DataFrame
+    odom: pd.DataFrame | None
+    truth: pd.DataFrame | None
     source: str
 
     @property
@@ -552,61 +596,219 @@ PR_NAMES = (
     "elevation_deg",
     "cn0_dbhz",
 )
+_PR_RANGES: dict[str, Range] = {
+    "t_s": (-1e6, 1e9, "s"),
+    "pseudorange_m": (1.0e7, 6.0e7, "m"),
+    "var_m2": (1e-6, 1e10, "m²"),
+    "sat_x_m": (-5e7, 5e7, "m"),
+    "sat_y_m": (-5e7, 5e7, "m"),
+    "sat_z_m": (-5e7, 5e7, "m"),
+    "sat_id": (0, 1e4, ""),
+    "system": (1, 32, ""),
+    "elevation_deg": (-10.0, 90.0, "deg"),
+    "cn0_dbhz": (0.0, 80.0, "dBHz"),
+}
+_ECEF_RANGES: dict[str, Range] = {"x_m": (-7e6, 7e6, "m"), "y_m": (-7e6, 7e6, "m"), "z_m": (-7e6, 7e6, "m")}
+
+
+def _system_from_id(path: Path, sat_id: np.ndarray) -> np.ndarray:
+    """System codes of an export without a system column: ids < 100 GPS, 300–399 / 600–699 GLONASS."""
+    sys_ = np.where(
+        sat_id < 100,
+        1,
+        np.where(((sat_id >= 300) & (sat_id < 400)) | ((sat_id >= 600) & (sat_id < 700)), 4, 0),
+    )
+    bad = np.flatnonzero(sys_ == 0)
+    if bad.size:
+        raise NavlabError(
+            f"{path}: satellite id {sat_id[bad[0]]:.0f} (pseudorange row {bad[0] + 1}) cannot be assigned "
+            "to a system without the system column (ids below 100 are read as GPS, 300–399 and 600–699 as "
+            "GLONASS); give the column (1 GPS, 2 SBAS, 4 GLONASS, 8 Galileo, 16 QZSS, 32 BeiDou)"
+        )
+    return sys_
+
+
+def _check_pr(path: Path, pr: np.ndarray) -> None:
+    """Satellite ECEF positions at GNSS orbit radius; system codes among smartLoc's."""
+    r = np.linalg.norm(pr[:, 3:6], axis=1)
+    bad = np.flatnonzero((r < 1.9e7) | (r > 3.0e7))
+    if bad.size:
+        raise NavlabError(
+            f"{path}: pseudorange row {bad[0] + 1} has a satellite {r[bad[0]]:.4g} m from "
+            "the Earth's centre (expected 2.0e7–2.6e7); the satellite position must be ECEF metres"
+        )
+    codes = pr[:, 7]
+    bad = np.flatnonzero(~np.isin(codes, list(SYSTEM_CODES)))
+    if bad.size:
+        raise NavlabError(
+            f"{path}: pseudorange row {bad[0] + 1} has system code {codes[bad[0]]:g}, not one of "
+            + ", ".join(f"{c} {n}" for c, n in SYSTEM_CODES.items())
+        )
+
+
+def _check_truth(path: Path, gt: np.ndarray) -> None:
+    rg = np.linalg.norm(gt[:, 1:4], axis=1)
+    bad = np.flatnonzero(np.abs(rg - 6.37e6) > 5e4)
+    if bad.size:
+        raise NavlabError(
+            f"{path}: truth row {bad[0] + 1} is {rg[bad[0]]:.4g} m from the Earth's "
+            "centre, not on the ground; give ECEF metres (or lat_deg, lon_deg, h_m)"
+        )
+
+
+def read_smartloc(f_in: Path, f_gt: Path | None = None, name: str | None = None) -> PseudorangeRecording:
+    """Read a smartLoc ``*_Input.txt`` (and ``*_GT.txt``): the format of the smartLoc readme and
+    its preprocessed variants.
+
+    Accepted: ``pseudorange3`` lines (time, pseudorange, variance, satellite ECEF x y z, id,
+    system, elevation, C/N0) and the same as ``range3`` lines (the RTKLIB-postprocessed smartLoc
+    export); ``range3`` lines of the older web export without the system column (9 fields: the
+    system is read from the id, :func:`_system_from_id`); any of smartLoc's system codes
+    (:data:`SYSTEM_CODES`); ``odom3`` lines (optional: without them the scenario uses a
+    constant-velocity model); a ``*_GT.txt`` with ``point3`` lines (optional: no truth, no errors).
+    """
+    lines = _read_text(f_in).splitlines()
+    first = {ln.split(None, 1)[0] for ln in lines if ln.strip() and not ln.lstrip().startswith(("#", "%"))}
+    kw = "pseudorange3" if "pseudorange3" in first else "range3" if "range3" in first else None
+    if kw is None:
+        raise NavlabError(
+            f"{f_in}: no 'pseudorange3' or 'range3' lines found; this is not a smartLoc input file"
+        )
+    sample = next(ln.split() for ln in lines if ln.split()[:1] == [kw])
+    if len(sample) - 1 >= 10:
+        pr = _parse_rows(f_in, PR_NAMES, sep=None, keyword=kw, lines=lines, ranges=_PR_RANGES)
+    else:
+        names9 = tuple(n for n in PR_NAMES if n != "system")
+        raw = _parse_rows(f_in, names9, sep=None, keyword=kw, lines=lines, ranges=_PR_RANGES)
+        pr = np.column_stack([raw[:, :7], _system_from_id(f_in, raw[:, 6]), raw[:, 7:]])
+    _check_pr(f_in, pr)
+    _check_increasing(f_in, pr[:, 0], "pseudorange time")
+    odom = None
+    if "odom3" in first:
+        od = _parse_rows(
+            f_in,
+            ("t_s", "vx", "vy", "vz", "wx", "wy", "wz"),
+            sep=None,
+            keyword="odom3",
+            lines=lines,
+            ranges={"vx": (-100.0, 100.0, "m/s"), "wz": (-10.0, 10.0, "rad/s")},
+        )
+        _check_increasing(f_in, od[:, 0], "odometry time")
+        odom = pd.DataFrame({"t_s": od[:, 0], "speed_mps": od[:, 1], "yaw_rate_radps": od[:, 6]})
+    truth = None
+    if f_gt is not None:
+        gt = _parse_rows(f_gt, ("t_s", "x_m", "y_m", "z_m"), sep=None, keyword="point3", ranges=_ECEF_RANGES)
+        _check_truth(f_gt, gt)
+        _check_increasing(f_gt, gt[:, 0])
+        truth = pd.DataFrame(gt, columns=("t_s", "x_m", "y_m", "z_m"))
+    pr_df = pd.DataFrame(pr, columns=PR_NAMES)
+    pr_df["sat_id"] = pr_df.sat_id.astype(int)
+    pr_df["system"] = pr_df.system.astype(int)
+    nm = name or f_in.name.removesuffix(".txt")
+    src = SMARTLOC_SOURCE if nm == SMARTLOC_DIR else f"{nm}: smartLoc-format files ({f_in.name})"
+    return PseudorangeRecording(nm, pr_df, odom, truth, src)
 
 
 def smartloc_berlin_pp(path: str | os.PathLike | None = None) -> PseudorangeRecording:
     """Load smartLoc Berlin Potsdamer Platz (``*_Input.txt`` and ``*_GT.txt``)."""
     d = _recording_dir(SMARTLOC_DIR, path)
-    f_in = d / "Berlin_Potsdamer_Platz_Input.txt"
-    f_gt = d / "Berlin_Potsdamer_Platz_GT.txt"
-    lines = _read_text(f_in).splitlines()
-    pr_ranges = {
-        "t_s": (-1e6, 1e7, "s"),
-        "pseudorange_m": (1.0e7, 6.0e7, "m"),
-        "var_m2": (1e-6, 1e10, "m²"),
-        "sat_x_m": (-5e7, 5e7, "m"),
-        "sat_y_m": (-5e7, 5e7, "m"),
-        "sat_z_m": (-5e7, 5e7, "m"),
-        "system": (1, 32, ""),
-        "elevation_deg": (-10.0, 90.0, "deg"),
-        "cn0_dbhz": (0.0, 80.0, "dBHz"),
-    }
-    pr = _parse_rows(f_in, PR_NAMES, sep=None, keyword="pseudorange3", lines=lines, ranges=pr_ranges)
-    od = _parse_rows(
-        f_in,
-        ("t_s", "vx", "vy", "vz", "wx", "wy", "wz"),
-        sep=None,
-        keyword="odom3",
-        lines=lines,
-        ranges={"vx": (-100.0, 100.0, "m/s"), "wz": (-10.0, 10.0, "rad/s")},
+    rec = read_smartloc(
+        d / "Berlin_Potsdamer_Platz_Input.txt", d / "Berlin_Potsdamer_Platz_GT.txt", SMARTLOC_DIR
     )
-    gt = _parse_rows(
-        f_gt,
-        ("t_s", "x_m", "y_m", "z_m"),
-        sep=None,
-        keyword="point3",
-        ranges={"x_m": (-7e6, 7e6, "m"), "y_m": (-7e6, 7e6, "m"), "z_m": (-7e6, 7e6, "m")},
+    if rec.odom is None or rec.truth is None:
+        raise NavlabError(f"{d}: the Berlin recording must hold odom3 lines and its GT file")
+    return rec
+
+
+def read_pseudorange_csv(folder: str | os.PathLike) -> PseudorangeRecording:
+    """Load the generic pseudorange CSV format (README 'Your own pseudoranges').
+
+    ``pseudoranges.csv`` (required): ``t_s, sat_id, system, pseudorange_m, sat_x_m, sat_y_m,
+    sat_z_m`` and optionally ``var_m2, elevation_deg, cn0_dbhz`` — one row per satellite and
+    epoch (rows of one epoch share ``t_s``); ``system`` is a smartLoc code (1 GPS, 2 SBAS,
+    4 GLONASS, 8 Galileo, 16 QZSS, 32 BeiDou) or a RINEX letter (G, S, R, E, J, C); the satellite
+    position is ECEF at TRANSMIT time (the model applies the Earth-rotation correction) and the
+    pseudorange is corrected for the satellite clock and the atmosphere.
+    ``odometry.csv`` (optional): ``t_s, speed_mps, yaw_rate_radps`` (counter-clockwise positive).
+    ``truth.csv`` (optional): ``t_s`` and ``x_m, y_m, z_m`` (ECEF) or ``lat_deg, lon_deg, h_m``.
+    """
+    d = Path(folder).expanduser()
+    f_pr = d / "pseudoranges.csv"
+    lines = _read_text(f_pr).splitlines()
+    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if hdr_i is not None:  # RINEX system letters -> smartLoc codes before the numeric parse
+        header = [h.strip().strip('"') for h in lines[hdr_i].split(",")]
+        if "system" in header:
+            j = header.index("system")
+            for i in range(hdr_i + 1, len(lines)):
+                parts = lines[i].split(",")
+                if len(parts) > j and parts[j].strip().upper() in SYSTEM_LETTERS:
+                    parts[j] = str(SYSTEM_LETTERS[parts[j].strip().upper()])
+                    lines[i] = ",".join(parts)
+    req = ("t_s", "sat_id", "system", "pseudorange_m", "sat_x_m", "sat_y_m", "sat_z_m")
+    opt = ("var_m2", "elevation_deg", "cn0_dbhz")
+    prd = _read_header_csv(f_pr, req, opt, _PR_RANGES, lines=lines)
+    for c in opt:
+        if c not in prd.columns:
+            prd[c] = np.nan
+    prd = prd[list(PR_NAMES)]
+    _check_pr(f_pr, prd.to_numpy())
+    prd["sat_id"] = prd.sat_id.astype(int)
+    prd["system"] = prd.system.astype(int)
+    odom = None
+    if (d / "odometry.csv").exists():
+        odom = _read_header_csv(
+            d / "odometry.csv",
+            ("t_s", "speed_mps", "yaw_rate_radps"),
+            (),
+            {"speed_mps": (-100.0, 100.0, "m/s"), "yaw_rate_radps": (-10.0, 10.0, "rad/s")},
+        )
+    truth = None
+    f_gt = d / "truth.csv"
+    if f_gt.exists():
+        header = next(
+            (ln for ln in _read_text(f_gt).splitlines() if ln.strip() and not ln.lstrip().startswith("#")), ""
+        )
+        if "x_m" in [h.strip().strip('"') for h in header.split(",")]:
+            truth = _read_header_csv(f_gt, ("t_s", "x_m", "y_m", "z_m"), (), _ECEF_RANGES)
+        else:
+            from navlab.ins.earth import geodetic_to_ecef
+
+            g = _read_header_csv(f_gt, ("t_s", "lat_deg", "lon_deg", "h_m"), (), _POS_RANGES)
+            xyz = geodetic_to_ecef(
+                np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()), g.h_m.to_numpy()
+            )
+            truth = pd.DataFrame({"t_s": g.t_s, "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2]})
+        _check_truth(f_gt, truth.to_numpy())
+    return PseudorangeRecording(
+        d.name, prd.reset_index(drop=True), odom, truth, f"{d.name}: generic pseudorange CSV"
     )
-    r = np.linalg.norm(pr[:, 3:6], axis=1)
-    bad = np.flatnonzero((r < 1.9e7) | (r > 3.0e7))
-    if bad.size:
-        raise NavlabError(
-            f"{f_in}: pseudorange row {bad[0] + 1} has a satellite {r[bad[0]]:.4g} m from "
-            "the Earth's centre (expected 2.0e7–2.6e7); columns 5-7 must be ECEF metres"
-        )
-    rg = np.linalg.norm(gt[:, 1:4], axis=1)
-    bad = np.flatnonzero(np.abs(rg - 6.37e6) > 5e4)
-    if bad.size:
-        raise NavlabError(
-            f"{f_gt}: point3 row {bad[0] + 1} is {rg[bad[0]]:.4g} m from the Earth's "
-            "centre, not on the ground; columns 3-5 must be ECEF metres"
-        )
-    _check_increasing(f_in, pr[:, 0], "pseudorange time")
-    _check_increasing(f_in, od[:, 0], "odometry time")
-    _check_increasing(f_gt, gt[:, 0])
-    pr_df = pd.DataFrame(pr, columns=PR_NAMES)
-    pr_df["sat_id"] = pr_df.sat_id.astype(int)
-    pr_df["system"] = pr_df.system.astype(int)
-    odom = pd.DataFrame({"t_s": od[:, 0], "speed_mps": od[:, 1], "yaw_rate_radps": od[:, 6]})
-    truth = pd.DataFrame(gt, columns=("t_s", "x_m", "y_m", "z_m"))
-    return PseudorangeRecording(SMARTLOC_DIR, pr_df, odom, truth, SMARTLOC_SOURCE)
+
+
+def load_pseudoranges(data_dir: str | os.PathLike | None = None) -> PseudorangeRecording:
+    """The Berlin recording (default), a generic pseudorange CSV folder, or one smartLoc sequence.
+
+    ``data_dir`` may be the data root, the Berlin folder, a folder with ``pseudoranges.csv``
+    (:func:`read_pseudorange_csv`) or a folder holding one smartLoc sequence (``*_Input.txt`` and
+    optionally ``*_GT.txt``, :func:`read_smartloc`).
+    """
+    if data_dir:
+        d = Path(data_dir).expanduser()
+        if (d / "pseudoranges.csv").exists():
+            return read_pseudorange_csv(d)
+        if not (d / SMARTLOC_DIR).is_dir() and d.name != SMARTLOC_DIR and d.is_dir():
+            inputs = sorted(d.glob("*_Input.txt"))
+            if len(inputs) > 1:
+                raise NavlabError(
+                    f"{d}: {len(inputs)} smartLoc sequences ({', '.join(p.name for p in inputs)}); put one "
+                    "sequence (its *_Input.txt and *_GT.txt) per folder"
+                )
+            if inputs:
+                f_in = inputs[0]
+                stem = f_in.name.removesuffix("_Input.txt")
+                f_gt = d / f"{stem}_GT.txt"
+                return read_smartloc(f_in, f_gt if f_gt.exists() else None, stem)
+            raise NavlabError(
+                f"{d}: neither pseudoranges.csv (generic format) nor a smartLoc *_Input.txt in this folder"
+            )
+    return smartloc_berlin_pp(data_dir)

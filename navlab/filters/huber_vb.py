@@ -191,7 +191,7 @@ def _flags(down: Array, fixed: Array) -> Array:
 class HuberParams:
     """Huber KF options (ALGORITHMS.md §2)."""
 
-    gamma: float = param(1.345, lo=0.1, hi=1e12, help=_GAMMA_HELP)
+    gamma: float = param(1.345, lo=0.1, hi=1e12, tune=(0.2, 20.0), help=_GAMMA_HELP)
     normalize: str = param(
         "R",
         choices=("R", "S"),
@@ -297,6 +297,7 @@ class VBParams:
         _RHO_DEFAULT,
         lo=1e-3,
         hi=1.0,
+        tune=(0.7, 0.9999),
         help="forgetting factor ρ of α, β (1 = stationary R; 1 − e⁻⁴ ≈ 0.982: memory ≈ 55 epochs)",
     )
     iters: int = param(10, lo=1, hi=100, help="VB iterations N per epoch")
@@ -446,7 +447,7 @@ class VBAKF(_VBBase):
 class HAKFParams(VBParams):
     """HAKF options (ALGORITHMS.md §3.2): the AKF's plus the Huber threshold and two extensions."""
 
-    gamma: float = param(1.345, lo=0.1, hi=1e12, help=_GAMMA_HELP)
+    gamma: float = param(1.345, lo=0.1, hi=1e12, tune=(0.2, 20.0), help=_GAMMA_HELP)
     robust_beta: bool = param(
         False,
         help="navlab extension (not in the paper): Huber-weight the residual fed to β (eq. 21)",
@@ -510,7 +511,13 @@ class HAKF(_VBBase):
 class StudentTParams:
     """Student-t VB KF options (ALGORITHMS.md §1.6)."""
 
-    dof: float = param(5.0, lo=0.1, hi=1e15, help="degrees of freedom ν_t of the noise (∞: the Gaussian KF)")
+    dof: float = param(
+        5.0,
+        lo=0.1,
+        hi=1e15,
+        tune=(0.5, 100.0),
+        help="degrees of freedom ν_t of the noise (∞: the Gaussian KF)",
+    )
     iters: int = param(5, lo=1, hi=100, help="VB iterations N_t per epoch")
     flag_below: float = param(
         0.5, lo=0.0, hi=1.0, help="flag the epoch as down-weighted when λ̄ is below this"

@@ -197,11 +197,15 @@ class OracleKF(Filter):
 class Chi2Params:
     """χ²-gated KF options (ALGORITHMS.md §1.5)."""
 
-    alpha: float = param(0.01, lo=1e-6, hi=0.5, help="false-alarm probability of the NIS gate")
+    alpha: float = param(
+        0.01, lo=1e-6, hi=0.5, tune=(1e-4, 0.2), help="false-alarm probability of the NIS gate"
+    )
     per_channel: bool = param(
         False, help="gate each channel on |ν_i|/√S_ii > c_gate instead of the whole epoch"
     )
-    c_gate: float = param(3.0, lo=0.5, hi=100.0, help="per-channel gate in innovation sigmas")
+    c_gate: float = param(
+        3.0, lo=0.5, hi=100.0, tune=(1.5, 10.0), help="per-channel gate in innovation sigmas"
+    )
 
 
 @register

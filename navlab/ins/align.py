@@ -26,6 +26,7 @@ from navlab.ins.earth import dcm_to_euler, earth_rate_enu, euler_to_dcm, normal_
 __all__ = [
     "RTKX_NOMINAL_C_BV",
     "AlignmentResult",
+    "align_moving",
     "align_static",
     "body_to_vehicle",
     "course_heading",
@@ -91,21 +92,25 @@ def vehicle_tilt_from_static(f_b_mean_mps2, C_bv=None):
     return float(np.degrees(np.arcsin(fv[1] / n))), float(np.degrees(np.arctan2(-fv[0], fv[2])))
 
 
-def triad_attitude(f_b_mean, heading_rad: float, forward_b=(0.0, 1.0, 0.0)):
-    """``C_b^n`` from the static specific-force direction and a vehicle heading (TRIAD).
+def triad_attitude(f_b_mean, heading_rad: float, forward_b=(0.0, 1.0, 0.0), f_n=None):
+    """``C_b^n`` from the mean specific-force direction and a vehicle heading (TRIAD).
 
-    The body direction of ``f_b_mean`` is mapped to ENU up; the horizontal part of the
-    vehicle forward axis ``forward_b`` (expressed in body) is mapped to heading
-    ``heading_rad`` (clockwise from north).
+    The body direction of ``f_b_mean`` is mapped to the navigation direction of ``f_n``
+    (default ENU up: a vehicle at rest); the part of the vehicle forward axis ``forward_b``
+    (expressed in body) perpendicular to it is mapped to the heading ``heading_rad``
+    (clockwise from north), likewise made perpendicular to ``f_n``.
 
     Parameters
     ----------
     f_b_mean : array_like (3,)
-        Mean static specific force in body (any unit).
+        Mean specific force in body (any unit).
     heading_rad : float
         Heading of the vehicle forward axis [rad].
     forward_b : array_like (3,)
         Vehicle forward axis in body coordinates (``C_bv.T @ [0, 1, 0]``).
+    f_n : array_like (3,), optional
+        The same mean specific force in ENU, ``a^n + (0, 0, g)`` when the vehicle accelerates
+        (default ``(0, 0, 1)``: at rest).
 
     Returns
     -------
@@ -119,13 +124,11 @@ def triad_attitude(f_b_mean, heading_rad: float, forward_b=(0.0, 1.0, 0.0)):
         raise NavlabError("forward axis is (almost) vertical in the static data; check the mounting matrix.")
     fw_h /= np.linalg.norm(fw_h)
     Bm = np.column_stack([np.cross(fw_h, up_b), fw_h, up_b])  # right, forward, up in body
-    Nm = np.column_stack(
-        [
-            [np.cos(heading_rad), -np.sin(heading_rad), 0.0],
-            [np.sin(heading_rad), np.cos(heading_rad), 0.0],
-            [0, 0, 1.0],
-        ]
-    )
+    up_n = np.array([0.0, 0.0, 1.0]) if f_n is None else np.asarray(f_n, dtype=float) / np.linalg.norm(f_n)
+    fw_n = np.array([np.sin(heading_rad), np.cos(heading_rad), 0.0])
+    fw_n = fw_n - up_n * (up_n @ fw_n)
+    fw_n /= np.linalg.norm(fw_n)
+    Nm = np.column_stack([np.cross(fw_n, up_n), fw_n, up_n])
     return Nm @ Bm.T
 
 
@@ -207,6 +210,61 @@ def align_static(f_b_mps2, w_b_radps, lat_rad: float, h_m: float, heading_rad: f
         f_b_std_mps2=f.std(axis=0),
         w_b_std_radps=w.std(axis=0),
         accel_norm_minus_gravity_mps2=float(np.linalg.norm(f_mean) - g),
+        n_samples=int(f.shape[0]),
+    )
+
+
+def align_moving(
+    f_b_mps2, w_b_radps, a_n_mps2, lat_rad: float, h_m: float, heading_rad: float, C_bv=None
+) -> AlignmentResult:
+    """Coarse alignment while the vehicle moves (no static segment to align on).
+
+    Assumptions (stated, as the issue asks): over the averaging window (≈ 1 s) (1) the vehicle's
+    acceleration is ``a_n_mps2``, the change of the GNSS velocity over the window (zero when
+    only positions are known: then the tilt is only as good as a / g of the real acceleration);
+    (2) the vehicle turns little, so the mean specific force in body is that of the mean
+    attitude; (3) no side slip: the vehicle heading is the GNSS course ``heading_rad``. Roll and
+    pitch then come from TRIAD with the mean specific force ``f^n = a^n + (0, 0, g)``. The gyro
+    biases cannot be measured in motion: they are returned as zero (the caller's P0 says how
+    uncertain that is).
+
+    Parameters
+    ----------
+    f_b_mps2, w_b_radps : array_like (N, 3)
+        IMU samples over the window [m/s^2], [rad/s].
+    a_n_mps2 : array_like (3,)
+        Mean ENU acceleration over the window [m/s^2].
+    lat_rad, h_m : float
+        Position (for gravity).
+    heading_rad : float
+        Vehicle heading (course over ground) [rad], clockwise from north.
+    C_bv : array_like (3, 3), optional
+        IMU body to vehicle RFU.
+
+    Returns
+    -------
+    AlignmentResult
+    """
+    f = np.asarray(f_b_mps2, dtype=float)
+    w = np.asarray(w_b_radps, dtype=float)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape != w.shape or f.shape[0] < 2:
+        raise NavlabError("an alignment in motion needs at least 2 IMU samples before the first epoch.")
+    C_bv = np.eye(3) if C_bv is None else np.asarray(C_bv, dtype=float)
+    g = float(normal_gravity(lat_rad, h_m))
+    f_mean = f.mean(axis=0)
+    f_n = np.asarray(a_n_mps2, dtype=float) + np.array([0.0, 0.0, g])
+    C_bn = triad_attitude(f_mean, heading_rad, C_bv.T @ np.array([0.0, 1.0, 0.0]), f_n=f_n)
+    pitch, roll, heading = dcm_to_euler(C_bn @ C_bv.T)
+    return AlignmentResult(
+        C_bn=C_bn,
+        pitch_deg=float(np.degrees(pitch)),
+        roll_deg=float(np.degrees(roll)),
+        heading_deg=float(np.degrees(heading)),
+        gyro_bias_radps=np.zeros(3),
+        f_b_mean_mps2=f_mean,
+        f_b_std_mps2=f.std(axis=0),
+        w_b_std_radps=w.std(axis=0),
+        accel_norm_minus_gravity_mps2=float(np.linalg.norm(f_mean) - np.linalg.norm(f_n)),
         n_samples=int(f.shape[0]),
     )
 

@@ -1,4 +1,4 @@
-"""WGS-84 Earth model, frames and small rotation helpers (pure numpy, batched).
+"""WGS-84 Earth model, frames and small rotation helpers (numpy, batched).
 
 Conventions (ALGORITHMS.md section 8.0):
 
@@ -16,11 +16,17 @@ The ellipsoid is WGS-84 (a = 6378137 m, f = 1/298.257223563). ALGORITHMS.md quot
 PSINS value f = 1/298.257; the difference changes R_M, R_N by < 1e-9 relative and
 positions converted through ECEF by < 1 mm, which is why the exact WGS-84 value is used
 here (smartLoc ECEF coordinates are WGS-84).
+
+The rotation-vector conversions are called a few times per epoch per filter on a handful of runs
+(≈ 25 µs of numpy overhead each); they run compiled (navlab.jit, one loop per matrix) when numba
+is available, with the numpy path as the reference the tests compare with.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from navlab.jit import Kernel, carray
 
 #: WGS-84 semi-major axis [m].
 WGS84_A_M = 6378137.0
@@ -265,6 +271,44 @@ def skew(v):
     return S
 
 
+def _rotvec_to_dcm_numpy(phi: np.ndarray) -> np.ndarray:
+    a2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    a = np.sqrt(a2)
+    small = a2 < 1e-16
+    a_safe = np.where(small, 1.0, a)
+    s1 = np.where(small, 1.0 - a2 / 6.0, np.sin(a_safe) / a_safe)
+    s2 = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(a_safe)) / (a_safe * a_safe))
+    S = skew(phi)
+    return np.eye(3) + s1 * S + s2 * (S @ S)
+
+
+def _rotvec_to_dcm_runs(phi, E):  # pragma: no cover - compiled by numba
+    """E[i] = exp([φ_i ×]) = I + sin(a)/a [φ×] + (1 − cos a)/a² [φ×]², a = |φ_i| (Rodrigues)."""
+    for i in range(phi.shape[0]):
+        x, y, z = phi[i, 0], phi[i, 1], phi[i, 2]
+        a2 = x * x + y * y + z * z
+        if a2 < 1e-16:
+            s1 = 1.0 - a2 / 6.0
+            s2 = 0.5 - a2 / 24.0
+        else:
+            a = np.sqrt(a2)
+            s1 = np.sin(a) / a
+            s2 = (1.0 - np.cos(a)) / (a * a)
+        # [φ×]² = φ φᵀ − a² I
+        E[i, 0, 0] = 1.0 + s2 * (-(y * y) - z * z)
+        E[i, 1, 1] = 1.0 + s2 * (-(x * x) - z * z)
+        E[i, 2, 2] = 1.0 + s2 * (-(x * x) - y * y)
+        E[i, 0, 1] = -s1 * z + s2 * x * y
+        E[i, 1, 0] = s1 * z + s2 * x * y
+        E[i, 0, 2] = s1 * y + s2 * x * z
+        E[i, 2, 0] = -s1 * y + s2 * x * z
+        E[i, 1, 2] = -s1 * x + s2 * y * z
+        E[i, 2, 1] = s1 * x + s2 * y * z
+
+
+_ROTVEC_TO_DCM = Kernel(_rotvec_to_dcm_runs)
+
+
 def rotvec_to_dcm(phi_rad):
     """Rotation vector to rotation matrix, ``exp([phi x])`` (Rodrigues, batched).
 
@@ -277,21 +321,18 @@ def rotvec_to_dcm(phi_rad):
     -------
     numpy.ndarray
         Shape ``(..., 3, 3)``. Accurate for small angles (series used below 1e-8 rad).
+        Compiled (navlab.jit) when numba is available; the numpy path is the reference.
     """
     phi = np.asarray(phi_rad, dtype=float)
-    a2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    a = np.sqrt(a2)
-    small = a2 < 1e-16
-    a_safe = np.where(small, 1.0, a)
-    s1 = np.where(small, 1.0 - a2 / 6.0, np.sin(a_safe) / a_safe)
-    s2 = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(a_safe)) / (a_safe * a_safe))
-    S = skew(phi)
-    return np.eye(3) + s1 * S + s2 * (S @ S)
+    kernel = _ROTVEC_TO_DCM.get()
+    if kernel is None:
+        return _rotvec_to_dcm_numpy(phi)
+    E = np.empty((*phi.shape[:-1], 3, 3))
+    kernel(carray(phi).reshape(-1, 3), E.reshape(-1, 3, 3))
+    return E
 
 
-def dcm_to_rotvec(C):
-    """Rotation matrix to rotation vector [rad] (inverse of `rotvec_to_dcm`, angles < pi)."""
-    C = np.asarray(C, dtype=float)
+def _dcm_to_rotvec_numpy(C: np.ndarray) -> np.ndarray:
     tr = np.trace(C, axis1=-2, axis2=-1)
     ang = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
     w = 0.5 * np.stack(
@@ -300,6 +341,35 @@ def dcm_to_rotvec(C):
     sa = np.sin(ang)[..., None]
     scale = np.where(sa > 1e-12, ang[..., None] / np.where(sa > 1e-12, sa, 1.0), 1.0)
     return w * scale
+
+
+def _dcm_to_rotvec_runs(C, phi):  # pragma: no cover - compiled by numba
+    """phi[i] = θ/sin θ · ½ (C − Cᵀ)^∨, cos θ = (tr C − 1)/2 (C[i] a rotation, θ < π)."""
+    for i in range(C.shape[0]):
+        c = (C[i, 0, 0] + C[i, 1, 1] + C[i, 2, 2] - 1.0) / 2.0
+        ang = np.arccos(min(max(c, -1.0), 1.0))
+        sa = np.sin(ang)
+        scale = ang / sa if sa > 1e-12 else 1.0
+        phi[i, 0] = 0.5 * (C[i, 2, 1] - C[i, 1, 2]) * scale
+        phi[i, 1] = 0.5 * (C[i, 0, 2] - C[i, 2, 0]) * scale
+        phi[i, 2] = 0.5 * (C[i, 1, 0] - C[i, 0, 1]) * scale
+
+
+_DCM_TO_ROTVEC = Kernel(_dcm_to_rotvec_runs)
+
+
+def dcm_to_rotvec(C):
+    """Rotation matrix to rotation vector [rad] (inverse of `rotvec_to_dcm`, angles < pi).
+
+    Compiled (navlab.jit) when numba is available; the numpy path is the reference.
+    """
+    C = np.asarray(C, dtype=float)
+    kernel = _DCM_TO_ROTVEC.get()
+    if kernel is None:
+        return _dcm_to_rotvec_numpy(C)
+    phi = np.empty(C.shape[:-1])
+    kernel(carray(C).reshape(-1, 3, 3), phi.reshape(-1, 3))
+    return phi
 
 
 def orthonormalize(C):

@@ -28,13 +28,14 @@ only see the noisy 1 Hz aiding.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from navlab.data.loaders import DriveRecording
 from navlab.errors import NavlabError
-from navlab.ins.align import AlignmentResult, align_static, course_heading, motion_start_time
+from navlab.ins.align import AlignmentResult, align_moving, align_static, course_heading, motion_start_time
 from navlab.ins.earth import dcm_to_rotvec, radii, rotvec_to_dcm, skew
 from navlab.ins.strapdown import (
     InsState,
@@ -125,20 +126,79 @@ def static_noise_densities(t_s: Array, f_b: Array, w_b: Array, tau_s: float = 1.
     return out[0], out[1]
 
 
+#: A priori PSDs of the motion the INS does not see while the IMU is silent (a bridged gap): a car
+#: accelerates by up to ≈ 2 m/s² and turns at up to ≈ 0.2 rad/s (11 °/s) in ordinary driving.
+GAP_ACCEL_MPS2 = 2.0
+GAP_RATE_RADPS = 0.2
+
+
+def gap_Qc(gap_share: float) -> Array:
+    """Extra continuous PSD (12×12, the noise inputs of ``ImuNoise.Qc``: gyro, accelerometer white
+    noise, then the two bias random walks) for the share of an aiding interval the IMU did not
+    cover: the INS coasts on interpolated samples there while the vehicle may accelerate or turn.
+    """
+    return np.diag(
+        np.r_[[GAP_RATE_RADPS**2 * gap_share] * 3, [GAP_ACCEL_MPS2**2 * gap_share] * 3, np.zeros(6)]
+    )
+
+
+def bridge_gaps(t: Array, f: Array, w: Array, factor: float = 5.0, min_gap_s: float = 0.05):
+    """Fill IMU time gaps by linear interpolation on the nominal sample interval.
+
+    A gap is an interval longer than ``factor`` times the median interval and ``min_gap_s``.
+    Returns ``(t, f, w, gaps)`` with ``gaps`` a list of ``(start_s, length_s)``. The strapdown
+    mechanisation then coasts through the gap on interpolated samples; the caller raises the
+    process noise over it (:func:`gap_Qc`) because the INS does not know what happened there.
+    """
+    t = np.asarray(t, float)
+    d = np.diff(t)
+    if d.size == 0:
+        return t, f, w, []
+    dt = float(np.median(d))
+    big = np.flatnonzero(d > max(factor * dt, min_gap_s))
+    if not big.size:
+        return t, f, w, []
+    gaps = [(float(t[i]), float(d[i])) for i in big]
+    t_new = [np.arange(t[i] + dt, t[i + 1] - 0.5 * dt, dt) for i in big]
+    tt = np.concatenate([t, *t_new])
+    order = np.argsort(tt, kind="stable")
+    tt = tt[order]
+    ff = np.stack([np.interp(tt, t, f[:, j]) for j in range(3)], -1)
+    ww = np.stack([np.interp(tt, t, w[:, j]) for j in range(3)], -1)
+    return tt, ff, ww, gaps
+
+
+def gap_time_per_block(t_epochs: Array, gaps: list[tuple[float, float]]) -> Array:
+    """Seconds of bridged IMU gap inside each aiding interval (t_{k−1}, t_k]: (K+1,)."""
+    out = np.zeros(len(t_epochs))
+    for g0, L in gaps:
+        g1 = g0 + L
+        lo = np.maximum(t_epochs[:-1], g0)
+        hi = np.minimum(t_epochs[1:], g1)
+        out[1:] += np.clip(hi - lo, 0.0, None)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class DriveSetup:
     """A drive cut into aiding epochs, with the IMU in body axes and the initial alignment.
 
     Attributes
     ----------
-    t : (K+1,) epoch times [s] (epoch 0 = end of the static alignment window).
+    t : (K+1,) epoch times [s] (epoch 0 = the start of the filters).
     lat0_rad, lon0_rad, h0_m : origin of the local N, E, U metres.
-    p_true : (K+1, 3) reference positions N, E, U [m] (NaN if no truth).
+    p_true : (K+1, 3) reference positions N, E, U [m] of the GNSS antenna (NaN if no truth).
     v_true : (K+1, 3) reference velocities E, N, U [m/s] (NaN if unknown).
-    gnss_pos : (K+1, 3) the recording's own GNSS positions N, E, U at the epochs.
+    gnss_pos : (K+1, 3) the recording's own GNSS positions N, E, U at the epochs (NaN: no fix).
+    gnss_sigma : (K+1, 3) the receiver's 1-σ of those fixes, N, E, U [m] (NaN: not given).
     t_imu, f_b, w_b : IMU samples [s], [m/s²], [rad/s] (body axes).
-    align : static alignment at epoch 0.
+    align : alignment at epoch 0 (static or in motion, see ``start``).
     x0 : (15,) initial total state; P0 : (15, 15).
+    start : "static" (aligned on a static segment) or "moving" (initialised from GNSS).
+    lever_arm_v : (3,) GNSS antenna relative to the IMU in the vehicle frame (right, forward, up) [m].
+    gap_s : (K+1,) seconds of bridged IMU gap per aiding interval.
+    notes : plain-words remarks made while preparing (gaps bridged, seconds skipped …).
+    gnss_time_offset_s : the offset added to the GNSS time stamps.
     """
 
     t: Array
@@ -157,6 +217,12 @@ class DriveSetup:
     C0: Array
     C_bv: Array = field(default_factory=lambda: np.eye(3))
     vib_g: Array | None = None  # (K+1,) gyro vibration per block: rms raw std × √dt [rad/√s]
+    gnss_sigma: Array | None = None
+    start: str = "static"
+    lever_arm_v: Array = field(default_factory=lambda: np.zeros(3))
+    gap_s: Array | None = None
+    notes: tuple[str, ...] = ()
+    gnss_time_offset_s: float = 0.0
 
     @property
     def K(self) -> int:
@@ -239,6 +305,32 @@ def velocity_lag_s(t_s: Array, p_neu: Array, v_enu: Array, max_lag_s: float = 0.
     return float(lags[int(np.argmin(cost))])
 
 
+def differenced_velocity(t: Array, pos_enu: Array, window_s: float) -> Array:
+    """ENU velocity from centred differences of positions over ``window_s`` (ends one-sided)."""
+    i1 = np.searchsorted(t, t + window_s / 2).clip(max=len(t) - 1)
+    i0 = np.searchsorted(t, t - window_s / 2)
+    dt_ = np.maximum(t[i1] - t[i0], 1e-9)[:, None]
+    return (pos_enu[i1] - pos_enu[i0]) / dt_
+
+
+def interp_with_gaps(t_out: Array, t_in: Array, x: Array, max_gap_s: float) -> Array:
+    """Linear interpolation of x (N, d) at t_out; NaN outside t_in or inside gaps > ``max_gap_s``."""
+    out = np.stack(
+        [np.interp(t_out, t_in, x[:, i], left=np.nan, right=np.nan) for i in range(x.shape[1])], -1
+    )
+    j = np.searchsorted(t_in, t_out).clip(1, len(t_in) - 1)
+    span = t_in[j] - t_in[j - 1]
+    exact = np.isclose(t_in[j - 1], t_out) | np.isclose(t_in[j], t_out)
+    out[(span > max_gap_s) & ~exact] = np.nan
+    return out
+
+
+#: Speed [m/s] above which the GNSS course is the vehicle heading (measured velocities / velocities
+#: differenced from fixes), and the shortest static segment aligned on [s].
+HEADING_SPEED_MPS = (2.0, 3.0)
+MIN_STATIC_S = 2.0
+
+
 def prepare_drive(
     rec: DriveRecording,
     rate_hz: float = 1.0,
@@ -246,48 +338,41 @@ def prepare_drive(
     static_margin_s: float = 2.0,
     heading_deg: float | None = None,
     imu_rate_hz: float = 20.0,
+    *,
+    recorded: bool = False,
+    gnss_time_offset_s: float = 0.0,
+    start: str = "auto",
+    lever_arm_v_m=(0.0, 0.0, 0.0),
 ) -> DriveSetup:
-    """Cut a drive into aiding epochs and align the INS on the static start.
+    """Cut a drive into aiding epochs and initialise the INS (static alignment or in motion).
 
-    Epoch 0 is ``static_margin_s`` before the vehicle starts moving (on the GNSS time grid);
-    roll and pitch come from the mean static specific force, the gyro biases from the mean static
-    rate, the heading from the GNSS course once moving (``heading_deg`` overrides it).
+    Epochs: with ``recorded`` the GNSS epochs as recorded (at most ``rate_hz`` of them per second
+    when ``rate_hz`` > 0; epochs without a fix are inserted at the nominal interval inside GNSS
+    gaps); otherwise a grid of ``rate_hz`` (the aiding is made from the truth on it).
+
+    Start (``start``): ``"auto"`` aligns on a static segment when the recording begins with at
+    least :data:`MIN_STATIC_S` s at rest (plus ``static_margin_s``), else initialises in motion;
+    ``"static"`` insists on a static segment, ``"moving"`` always initialises in motion. A static
+    start takes roll and pitch from the mean static specific force, the gyro biases from the mean
+    static rate and the heading from the GNSS course once moving (``heading_deg`` overrides it).
+    An in-motion start begins at the first epoch where the vehicle moves faster than
+    :data:`HEADING_SPEED_MPS`: position from the fix, velocity from the GNSS velocity (or
+    differenced fixes), heading from the course, roll and pitch from the specific force minus the
+    GNSS acceleration (:func:`navlab.ins.align.align_moving`), biases unknown — with a P0 that says
+    so.
+
+    ``gnss_time_offset_s`` is added to the GNSS time stamps (and not to the truth's);
+    ``lever_arm_v_m`` is the antenna position relative to the IMU in the vehicle frame.
+    IMU time gaps are bridged (:func:`bridge_gaps`) and reported in ``notes``.
     """
+    if start not in ("auto", "static", "moving"):
+        raise NavlabError(f"start must be 'auto', 'static' or 'moving', got {start!r}")
+    notes: list[str] = []
     g = rec.gnss
     imu = rec.imu
+    tg = g.t_s.to_numpy() + float(gnss_time_offset_s)
     v_enu = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
     lat0, lon0, h0 = np.radians(g.lat_deg.iloc[0]), np.radians(g.lon_deg.iloc[0]), float(g.h_m.iloc[0])
-    tg = g.t_s.to_numpy()
-    vel_measured = not np.isnan(v_enu).all()
-    if not vel_measured:  # generic files without velocity: smoothed differences of positions
-        src = rec.truth if rec.truth is not None else g
-        ts = src.t_s.to_numpy()
-        R_Mh, R_Nh = radii(lat0, h0)
-        pos = np.stack(
-            [
-                np.radians(src.lon_deg.to_numpy()) * R_Nh * np.cos(lat0),
-                np.radians(src.lat_deg.to_numpy()) * R_Mh,
-                src.h_m.to_numpy(),
-            ],
-            -1,
-        )
-        win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
-        i1 = np.searchsorted(ts, ts + win / 2).clip(max=len(ts) - 1)
-        i0 = np.searchsorted(ts, ts - win / 2)
-        dt_ = np.maximum(ts[i1] - ts[i0], 1e-9)[:, None]
-        v_src = (pos[i1] - pos[i0]) / dt_
-        v_enu = np.stack([np.interp(tg, ts, v_src[:, i]) for i in range(3)], -1)
-    t_move = motion_start_time(tg, v_enu, 0.3 if vel_measured else 1.0, 1.0 if vel_measured else 3.0)
-    t_imu = imu.t_s.to_numpy()
-    t_epoch0 = np.floor((t_move - static_margin_s) * rate_hz) / rate_hz
-    t_epoch0 = max(t_epoch0, np.ceil(max(tg[0], t_imu[0]) * rate_hz) / rate_hz)
-    t_end = min(tg[-1], t_imu[-1])
-    K_avail = int(np.floor((t_end - t_epoch0) * rate_hz + 1e-9))
-    if K_avail < 2:
-        raise NavlabError("the drive is too short after the static start for a 1 Hz filter")
-    K = K_avail if not epochs else min(int(epochs), K_avail)
-    t = t_epoch0 + np.arange(K + 1) / rate_hz
-    setup_origin = dict(lat0_rad=lat0, lon0_rad=lon0, h0_m=h0)
     R_Mh, R_Nh = radii(lat0, h0)
 
     def local(df):
@@ -300,34 +385,161 @@ def prepare_drive(
             -1,
         )
 
-    def interp(tt, x):
-        return np.stack([np.interp(t, tt, x[:, i], left=np.nan, right=np.nan) for i in range(x.shape[1])], -1)
-
-    gnss_pos = interp(tg, local(g))
+    p_g = local(g)
+    vel_measured = bool(np.isfinite(v_enu).all(axis=1).mean() > 0.9)
+    if not vel_measured:  # generic files without velocity: smoothed differences of positions
+        src_t = rec.truth.t_s.to_numpy() if rec.truth is not None else tg
+        src_p = local(rec.truth) if rec.truth is not None else p_g
+        win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
+        v_src = differenced_velocity(src_t, src_p[:, [1, 0, 2]], win)
+        v_enu = np.stack([np.interp(tg, src_t, v_src[:, i]) for i in range(3)], -1)
+    else:
+        v_enu = np.where(np.isfinite(v_enu), v_enu, 0.0)
+    speed = np.hypot(v_enu[:, 0], v_enu[:, 1])
+    t_imu = imu.t_s.to_numpy()
+    f_b = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()
+    w_b = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()
+    t_imu, f_b, w_b, gaps = bridge_gaps(t_imu, f_b, w_b)
+    if gaps:
+        longest = max(gaps, key=lambda gl: gl[1])
+        notes.append(
+            f"IMU: {len(gaps)} time gap(s) bridged by linear interpolation (longest {longest[1]:.2f} s at "
+            f"t = {longest[0]:.2f} s); the INS coasts through them with raised process noise, so expect "
+            "larger errors there"
+            + ("; a gap this long is better cut out of the recording" if longest[1] > 10 else "")
+        )
+    t_begin = max(tg[0], t_imu[0])
+    try:
+        t_move = motion_start_time(tg, v_enu, 0.3 if vel_measured else 1.0, 1.0 if vel_measured else 3.0)
+    except NavlabError:  # never moves: align on the first seconds, filter the rest
+        t_move = float(min(tg[-1], t_begin + MIN_STATIC_S + static_margin_s))
+    static_ok = t_move - static_margin_s - t_begin >= MIN_STATIC_S
+    if start == "static" and not static_ok:
+        raise NavlabError(
+            f"no static segment: the vehicle already moves at {t_move - t_begin:.1f} s after the start; "
+            f"a static start needs {MIN_STATIC_S + static_margin_s:g} s at rest (start 'auto' or 'moving' "
+            "initialises in motion)"
+        )
+    moving_start = start == "moving" or (start == "auto" and not static_ok)
+    # ---- epoch 0 and the epoch times
+    if moving_start:
+        v_min = HEADING_SPEED_MPS[0] if vel_measured else HEADING_SPEED_MPS[1]
+        cand = np.flatnonzero((speed >= v_min) & (tg >= t_imu[0] + 1.0))
+        if not cand.size:
+            raise NavlabError(
+                f"the vehicle never moves faster than {v_min:g} m/s after the IMU starts, and there is no "
+                "static segment to align on: navlab cannot initialise the INS on this recording"
+            )
+        t_first = float(tg[cand[0]])
+        if t_first - t_begin > 1.5:
+            notes.append(
+                f"start: no static segment; the first {t_first - t_begin:.1f} s (until the vehicle first "
+                f"moves faster than {v_min:g} m/s, so that the course gives the heading) are skipped"
+            )
+    if recorded:
+        t_fix = tg
+        if rate_hz and rate_hz > 0:  # thin the recorded epochs to at most rate_hz
+            keep, last = [], -np.inf
+            for i, ti in enumerate(t_fix):
+                if ti - last >= 1.0 / rate_hz - 1e-6:
+                    keep.append(i)
+                    last = ti
+            t_fix = t_fix[keep]
+        t_epoch0 = (
+            t_first
+            if moving_start
+            else float(t_fix[max(0, np.searchsorted(t_fix, t_move - static_margin_s, side="right") - 1)])
+        )
+        t_fix = t_fix[t_fix >= t_epoch0 - 1e-9]
+        t_fix = t_fix[t_fix <= t_imu[-1]]
+        if len(t_fix) < 3:
+            raise NavlabError("the drive is too short after its start: fewer than 3 GNSS epochs")
+        nominal = float(np.median(np.diff(t_fix)))
+        parts = [t_fix[:1]]
+        for a, b in itertools.pairwise(t_fix):
+            if b - a > 1.5 * nominal:
+                parts.append(np.arange(a + nominal, b - 0.5 * nominal, nominal))
+            parts.append(np.array([b]))
+        t = np.concatenate(parts)
+        n_missing = len(t) - len(t_fix)
+        if n_missing:
+            notes.append(
+                f"GNSS: {n_missing} epoch(s) without a fix inside gaps of the recording (nominal interval "
+                f"{nominal:.3g} s); the filters predict through them"
+            )
+        if epochs:
+            t = t[: int(epochs) + 1]
+        fix_here = np.isin(np.round(t, 6), np.round(t_fix, 6))
+    else:
+        if moving_start:
+            t_epoch0 = np.ceil(t_first * rate_hz - 1e-9) / rate_hz
+        else:
+            t_epoch0 = np.floor((t_move - static_margin_s) * rate_hz) / rate_hz
+            t_epoch0 = max(t_epoch0, np.ceil(t_begin * rate_hz) / rate_hz)
+        t_end = min(tg[-1], t_imu[-1])
+        K_avail = int(np.floor((t_end - t_epoch0) * rate_hz + 1e-9))
+        if K_avail < 2:
+            raise NavlabError("the drive is too short after its start for a 1 Hz filter")
+        K = K_avail if not epochs else min(int(epochs), K_avail)
+        t = t_epoch0 + np.arange(K + 1) / rate_hz
+        fix_here = np.ones(len(t), bool)
+    K = len(t) - 1
+    if K < 2:
+        raise NavlabError("the drive is too short after its start: give more GNSS epochs")
+    setup_origin = dict(lat0_rad=lat0, lon0_rad=lon0, h0_m=h0)
+    dtg = float(np.median(np.diff(tg)))
+    gnss_pos = interp_with_gaps(t, tg, p_g, max(1.5 * dtg, 1.0))
+    gnss_pos[~fix_here] = np.nan
+    sig_cols = g[["sigma_n_m", "sigma_e_m", "sigma_u_m"]].to_numpy()
+    gnss_sigma = (
+        interp_with_gaps(t, tg, sig_cols, max(1.5 * dtg, 1.0)) if np.isfinite(sig_cols).all() else None
+    )
     if rec.truth is not None:
-        p_true = interp(rec.truth.t_s.to_numpy(), local(rec.truth))
-        # the receiver's velocities lag its positions (rtkx: 0.12 s, 0.1 m/s rms): the velocity
-        # truth is read at t + lag so that rmse_vel and NEES measure the filters, not the lag
-        lag = velocity_lag_s(tg, local(g), v_enu) if vel_measured else 0.0
-        t_v = np.minimum(t + lag, tg[-1])
-        v_true = np.stack([np.interp(t_v, tg, v_enu[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
+        tt = rec.truth.t_s.to_numpy()
+        p_true = interp_with_gaps(t, tt, local(rec.truth), max(1.5 * float(np.median(np.diff(tt))), 1.0))
+        tcols = ("ve_mps", "vn_mps", "vu_mps")
+        if all(c in rec.truth.columns for c in tcols):
+            # the receiver's velocities lag its positions (rtkx: 0.12 s, 0.1 m/s rms): the velocity
+            # truth is read at t + lag so that rmse_vel and NEES measure the filters, not the lag
+            vt = rec.truth[list(tcols)].to_numpy()
+            lag = velocity_lag_s(tt, local(rec.truth), vt)
+            t_v = np.minimum(t + lag, tt[-1])
+            v_true = np.stack([np.interp(t_v, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
+        else:
+            vt = differenced_velocity(tt, local(rec.truth)[:, [1, 0, 2]], 2.0 * float(np.median(np.diff(tt))))
+            v_true = np.stack([np.interp(t, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
     else:
         p_true = np.full((K + 1, 3), np.nan)
         v_true = np.full((K + 1, 3), np.nan)
-    f_b = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()
-    w_b = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()
-    static = (t_imu < t_epoch0) & (t_imu >= t_imu[0])
-    if static.sum() < 100:
-        raise NavlabError(
-            f"only {static.sum()} IMU samples before the vehicle moves (at {t_move:.1f} s); "
-            "the recording must start with the vehicle at rest for at least 2 s"
+    C_bv = np.asarray(rec.C_bv, float)
+    if moving_start:
+        heading = (
+            course_heading(v_enu[np.searchsorted(tg, t[0] - 1e-9)])
+            if heading_deg is None
+            else np.radians(heading_deg)
         )
-    if heading_deg is None:
-        moving = (tg > t_move) & (np.hypot(v_enu[:, 0], v_enu[:, 1]) > (0.7 if vel_measured else 2.0))
-        heading = float(course_heading(v_enu[np.flatnonzero(moving)[0]]))
+        win = (t_imu >= t[0] - 1.0) & (t_imu < t[0])
+        v1 = np.stack([np.interp(t[0], tg, v_enu[:, i]) for i in range(3)])
+        v0 = np.stack([np.interp(t[0] - 1.0, tg, v_enu[:, i]) for i in range(3)])
+        a_n = (v1 - v0) / 1.0 if vel_measured else np.zeros(3)
+        a_n[2] = 0.0  # a car: no sustained vertical acceleration
+        al = align_moving(f_b[win], w_b[win], a_n, lat0, h0, float(heading), C_bv=C_bv)
     else:
-        heading = np.radians(heading_deg)
-    al = align_static(f_b[static], w_b[static], lat0, h0, heading, C_bv=rec.C_bv)
+        static = (t_imu < t[0]) & (t_imu >= t_imu[0])
+        if static.sum() < 100:
+            raise NavlabError(
+                f"only {static.sum()} IMU samples before the vehicle moves (at {t_move:.1f} s); "
+                "a static start needs the vehicle at rest for at least 2 s"
+            )
+        moving = np.flatnonzero((tg > t_move) & (speed > (0.7 if vel_measured else 2.0)))
+        if heading_deg is not None:
+            heading = np.radians(heading_deg)
+        elif moving.size:
+            heading = float(course_heading(v_enu[moving[0]]))
+        else:
+            heading = 0.0
+            notes.append("start: the vehicle never moves, so its heading is unknown (taken as north, σ 30°)")
+        al = align_static(f_b[static], w_b[static], lat0, h0, heading, C_bv=C_bv)
     # vibration per aiding block, from the raw samples (before they are averaged)
     dt_raw = float(np.median(np.diff(t_imu)))
     edges = np.searchsorted(t_imu, t)
@@ -336,22 +548,48 @@ def prepare_drive(
         wk = w_b[edges[k - 1] : edges[k]]
         if len(wk) > 2:
             vib_g[k] = np.sqrt(np.mean(wk.var(axis=0)) * dt_raw)
+    gap_s = gap_time_per_block(t, gaps)
     if imu_rate_hz:
         t_imu, f_b, w_b = downsample_imu(t_imu, f_b, w_b, float(t[0]), imu_rate_hz)
-    p0 = gnss_pos[0] if np.isnan(p_true[0]).any() else p_true[0]
-    # only the accelerometer bias along gravity is observable at rest: |f| − g along f
-    ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
-    x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
-    sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
-    P0 = np.diag(
-        np.r_[
-            np.radians([0.5, 0.5, sig_head]) ** 2,
-            [0.1**2] * 3,
-            [1.0**2] * 3,
-            [np.radians(0.05) ** 2] * 3,
-            [0.1**2] * 3,
-        ]
-    )
+    lever = np.asarray(lever_arm_v_m, float)
+    if moving_start:
+        # position from the first fix (σ: the receiver's, else 3 m), velocity from the GNSS
+        p0 = gnss_pos[0] if np.isfinite(gnss_pos[0]).all() else np.nan_to_num(p_true[0])
+        sig_p = (
+            gnss_sigma[0] if gnss_sigma is not None and np.isfinite(gnss_sigma[0]).all() else np.full(3, 3.0)
+        )
+        v0_ = np.stack([np.interp(t[0], tg, v_enu[:, i]) for i in range(3)])
+        sig_v = 0.2 if vel_measured else float(np.sqrt(2) * np.max(sig_p[:2]) / 5.0)
+        sp0 = max(float(np.hypot(v0_[0], v0_[1])), 0.1)
+        sig_head = np.degrees(np.hypot(np.arctan(sig_v / sp0), np.radians(2.0)))  # + side slip / mount yaw
+        sig_tilt = 1.5 if vel_measured else 6.0  # deg: σ_a/g of the acceleration assumption
+        x0 = np.r_[np.zeros(3), v0_, p0, np.zeros(3), np.zeros(3)]
+        P0 = np.diag(
+            np.r_[
+                np.radians([sig_tilt, sig_tilt, sig_head]) ** 2,
+                [sig_v**2] * 3,
+                sig_p**2,
+                [np.radians(0.3) ** 2] * 3,  # gyro bias unknown: consumer MEMS turn-on bias ≲ 0.5 °/s
+                [0.15**2] * 3,  # accelerometer bias unknown: ≈ 15 mg
+            ]
+        )
+    else:
+        p0 = gnss_pos[0] if np.isnan(p_true[0]).any() else p_true[0]
+        # only the accelerometer bias along gravity is observable at rest: |f| − g along f
+        ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
+        x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
+        sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
+        if heading_deg is None and not moving.size:
+            sig_head = 30.0
+        P0 = np.diag(
+            np.r_[
+                np.radians([0.5, 0.5, sig_head]) ** 2,
+                [0.1**2] * 3,
+                [1.0**2] * 3,
+                [np.radians(0.05) ** 2] * 3,
+                [0.1**2] * 3,
+            ]
+        )
     return DriveSetup(
         t=t,
         **setup_origin,
@@ -365,8 +603,14 @@ def prepare_drive(
         x0=x0,
         P0=P0,
         C0=al.C_bn,
-        C_bv=np.asarray(rec.C_bv, float),
+        C_bv=C_bv,
         vib_g=vib_g,
+        gnss_sigma=gnss_sigma,
+        start="moving" if moving_start else "static",
+        lever_arm_v=lever,
+        gap_s=gap_s,
+        notes=tuple(notes),
+        gnss_time_offset_s=float(gnss_time_offset_s),
     )
 
 
@@ -411,7 +655,7 @@ def run_closed_loop(
     B = 1 if z is None else z.shape[0]
     s = init_state(
         *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
-        np.zeros(3),
+        setup.x0[3:6],
         np.broadcast_to(setup.C0, (B, 3, 3)),
         B=B,
         bias_g_radps=setup.x0[9:12],
@@ -420,9 +664,9 @@ def run_closed_loop(
     )
     P = np.broadcast_to(setup.P0, (B, 15, 15)).copy()
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, float) ** 2, (3,)))
-    H = np.zeros((3, 15))
-    H[:, 6:9] = np.eye(3)
     vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
+    gap = setup.gap_s if setup.gap_s is not None else np.zeros(K + 1)
+    lever_b = setup.C_bv.T @ setup.lever_arm_v
     out = {
         k: np.full((B, K + 1, *shape), np.nan)
         for k, shape in (
@@ -451,17 +695,22 @@ def run_closed_loop(
         F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
         T = float(setup.t[k] - setup.t[k - 1])
         Phi = expm_batched(F * T)
-        _, Qd = discretise(F, G, noise.Qc(vib[k]), T)
+        _, Qd = discretise(F, G, noise.Qc(vib[k]) + gap_Qc(gap[k] / T), T)
         P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd
         out["fn"][:, k] = blk.f_n_mean_mps2
         if z is not None:
             zk = z[:, k]
             ok = np.isfinite(zk).all(axis=1)
             if ok.any():
-                p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m)
+                u = (s.C_bn @ lever_b)[:, [1, 0, 2]]  # antenna offset C_bn l^b, N E U
+                H = np.zeros((B, 3, 15))
+                H[:, :, 6:9] = np.eye(3)
+                H[:, :, 0:3] = skew(s.C_bn @ lever_b)[:, [1, 0, 2]]  # δ(C l) = (C l) × φ
+                p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m) + u
                 nu = np.where(ok[:, None], p_ins - np.nan_to_num(zk), 0.0)  # error-state innovation
-                S = H @ P @ H.T + R
-                Kg = np.linalg.solve(S, (P @ H.T).swapaxes(-1, -2)).swapaxes(-1, -2)
+                Ht = H.swapaxes(-1, -2)
+                S = H @ P @ Ht + R
+                Kg = np.linalg.solve(S, (P @ Ht).swapaxes(-1, -2)).swapaxes(-1, -2)
                 Kg = Kg * ok[:, None, None]
                 dx = (Kg @ nu[:, :, None])[:, :, 0]
                 IKH = np.eye(15) - Kg @ H
@@ -475,9 +724,15 @@ def run_closed_loop(
 class InsGnssModel:
     """Total-state loosely coupled INS/GNSS model for navlab's filters (see the module docstring).
 
-    Measurements: GNSS positions z = p + v (N, E, U metres), R0 = diag(σ²), and, with
-    ``nhc_sigma_mps`` > 0, the non-holonomic constraints of a car — zero velocity along the
-    vehicle's right and up axes, z = 0 = [C_bv C_bnᵀ v]_{x,z} + v_nhc (two more channels).
+    Measurements: GNSS antenna positions z = p + C_bn l^b + v (N, E, U metres; l^b the lever arm
+    of the setup, zero by default), R0 = diag(σ²), and, with ``nhc_sigma_mps`` > 0, the
+    non-holonomic constraints of a car — zero velocity along the vehicle's right and up axes,
+    z = 0 = [C_bv C_bnᵀ v]_{x,z} + v_nhc (two more channels).
+
+    With ``gnss_sigma_k`` (K+1, 3) — the receiver's own per-epoch 1-σ — the GNSS channels are
+    WHITENED: z/σ_k and h/σ_k, so every filter's nominal R0 = I for them although σ changes per
+    epoch (the smartloc-berlin convention; an adaptive filter's R̂ is then a variance multiplier
+    of the receiver's σ²). The caller divides z by :attr:`scale` (:meth:`whiten`).
     """
 
     n = 15
@@ -490,29 +745,47 @@ class InsGnssModel:
         sigma_m: Array,
         noise: ImuNoise = ImuNoise(),
         nhc_sigma_mps: float = 0.0,
+        gnss_sigma_k: Array | None = None,
     ) -> None:
         self.setup = setup
         self.C_ref = ref.C_bn[0]  # (K+1, 3, 3)
         self.nhc = nhc_sigma_mps > 0
         self.m = 5 if self.nhc else 3
-        sig2 = np.asarray(sigma_m, float) ** 2
+        K = setup.K
+        sig2 = np.asarray(sigma_m, float) ** 2 * np.ones(3)
+        self.scale = np.ones((K + 1, self.m))
+        if gnss_sigma_k is not None:
+            sk = np.asarray(gnss_sigma_k, float)
+            self.scale[:, :3] = np.where(np.isfinite(sk) & (sk > 0), sk, np.sqrt(sig2))
+            sig2 = np.ones(3)
+        self.whitened = gnss_sigma_k is not None
         self.R0 = np.diag(np.r_[sig2, [nhc_sigma_mps**2] * 2] if self.nhc else sig2)
+        self.lever_b = setup.C_bv.T @ np.asarray(setup.lever_arm_v, float)
+        self.has_lever = bool(np.any(self.lever_b != 0))
         self._H = np.zeros((3, 15))
         self._H[:, 6:9] = np.eye(3)
-        K = setup.K
         lat, _, h = setup.from_local(ref.p[0])
         self.Phi = np.empty((K + 1, 15, 15))
         self.Qd = np.empty((K + 1, 15, 15))
         self.Phi[0], self.Qd[0] = np.eye(15), np.zeros((15, 15))
         vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
+        gap = setup.gap_s if setup.gap_s is not None else np.zeros(K + 1)
         for k in range(1, K + 1):
             F, G = error_model_FG(
                 lat[k - 1], h[k - 1], ref.v[0, k - 1], ref.f_n_mean[0, k], self.C_ref[k - 1]
             )
             T = float(setup.t[k] - setup.t[k - 1])
-            _, Qd = discretise(F, G, noise.Qc(vib[k]), T)
+            _, Qd = discretise(F, G, noise.Qc(vib[k]) + gap_Qc(gap[k] / T), T)
             self.Phi[k] = SIGN @ expm_batched(F[0] * T) @ SIGN
             self.Qd[k] = SIGN @ Qd[0] @ SIGN
+
+    def whiten(self, z: Array) -> Array:
+        """Measurements (B, K+1, m) in the model's units (divided by :attr:`scale`)."""
+        return z / self.scale[None]
+
+    def fixes(self, z: Array) -> Array:
+        """The GNSS positions N, E, U [m] (B, K+1, 3) in measurements ``z`` of this model."""
+        return z[..., :3] * self.scale[None, : z.shape[1], :3]
 
     def F(self, k: int) -> Array:
         return self.Phi[k]
@@ -527,28 +800,43 @@ class InsGnssModel:
         s, _ = propagate_block(s, st.t_imu[sl], st.f_b[sl], st.w_b[sl], t_end_s=float(st.t[k]))
         return _total_from_state(st, s, self.C_ref[k])
 
+    def _C_bn(self, x: Array | None, k: int) -> Array:
+        """(B, 3, 3) C_bn = exp(−[a×]) C_ref,k (the reference attitude when x is None)."""
+        if x is None:
+            return self.C_ref[k][None]
+        return rotvec_to_dcm(-x[:, 0:3]) @ self.C_ref[k]
+
     def _C_vn(self, x: Array, k: int) -> Array:
-        """(B, 3, 3) rotation ENU -> vehicle, C_bv C_bnᵀ with C_bn = exp(−[a×]) C_ref,k."""
-        C_bn = rotvec_to_dcm(-x[:, 0:3]) @ self.C_ref[k]
-        return self.setup.C_bv @ np.swapaxes(C_bn, -1, -2)
+        """(B, 3, 3) rotation ENU -> vehicle, C_bv C_bnᵀ."""
+        return self.setup.C_bv @ np.swapaxes(self._C_bn(x, k), -1, -2)
 
     def H(self, x: Array | None, k: int) -> Array:
-        if not self.nhc:
+        if not (self.nhc or self.has_lever or self.whitened):
             return self._H
-        B = x.shape[0]
-        Cvn = self._C_vn(x, k)[:, [0, 2]]  # right and up rows
-        H = np.zeros((B, 5, 15))
+        B = 1 if x is None else x.shape[0]
+        H = np.zeros((B, self.m, 15))
         H[:, 0:3, 6:9] = np.eye(3)
-        H[:, 3:5, 3:6] = Cvn
-        # C_bnᵀ v = C_refᵀ exp([a×]) v ≈ C_refᵀ (v + a × v) → ∂/∂a = −C_vn [v×]
-        H[:, 3:5, 0:3] = -Cvn @ skew(x[:, 3:6])
-        return H
+        if self.has_lever:
+            # C_bn l ≈ (I − [a×]) C_ref l = u + u × a with u = C_bn l → ∂/∂a = [u×] (rows N, E, U)
+            u = self._C_bn(x, k) @ self.lever_b
+            H[:, 0:3, 0:3] = skew(u)[:, [1, 0, 2]]
+        if self.nhc:
+            Cvn = self._C_vn(x, k)[:, [0, 2]]  # right and up rows
+            v = np.zeros((B, 3)) if x is None else x[:, 3:6]
+            H[:, 3:5, 3:6] = Cvn
+            # C_bnᵀ v = C_refᵀ exp([a×]) v ≈ C_refᵀ (v + a × v) → ∂/∂a = −C_vn [v×]
+            H[:, 3:5, 0:3] = -Cvn @ skew(v)
+        H = H / self.scale[k][None, :, None]
+        return H[0] if x is None else H
 
     def h(self, x: Array, k: int) -> Array:
-        if not self.nhc:
-            return x[:, 6:9]
-        v_v = (self._C_vn(x, k) @ x[:, 3:6, None])[:, :, 0]
-        return np.concatenate([x[:, 6:9], v_v[:, [0, 2]]], axis=1)
+        p = x[:, 6:9]
+        if self.has_lever:
+            p = p + (self._C_bn(x, k) @ self.lever_b)[:, [1, 0, 2]]
+        if self.nhc:
+            v_v = (self._C_vn(x, k) @ x[:, 3:6, None])[:, :, 0]
+            p = np.concatenate([p, v_v[:, [0, 2]]], axis=1)
+        return p / self.scale[k][None] if self.whitened else p
 
 
 #: Process noise of the reference solution: looser than the filters' (it is aided at 5 cm and must
@@ -561,19 +849,26 @@ REFERENCE_NOISE = ImuNoise(
 def reference_solution(setup: DriveSetup, noise: ImuNoise = REFERENCE_NOISE) -> ClosedLoopResult:
     """Closed-loop EKF aided by the truth positions (σ = 5 cm): the linearisation reference.
 
-    Without truth, the recording's own GNSS positions are used (σ = 2 m).
+    Without truth, the recording's own GNSS positions are used (σ: the receiver's median σ, else 2 m).
     """
     if np.isfinite(setup.p_true).all(axis=1).mean() > 0.5:
         return run_closed_loop(setup, setup.p_true[None], 0.05, noise)
-    return run_closed_loop(setup, setup.gnss_pos[None], 2.0, noise)
+    sig = 2.0
+    if setup.gnss_sigma is not None and np.isfinite(setup.gnss_sigma).any():
+        sig = np.maximum(np.nanmedian(setup.gnss_sigma, axis=0), 0.05)
+    return run_closed_loop(setup, setup.gnss_pos[None], sig, noise)
 
 
 __all__ = [
+    "GAP_ACCEL_MPS2",
+    "GAP_RATE_RADPS",
     "STATE_NAMES",
     "ClosedLoopResult",
     "DriveSetup",
     "ImuNoise",
     "InsGnssModel",
+    "bridge_gaps",
+    "gap_Qc",
     "prepare_drive",
     "reference_solution",
     "run_closed_loop",

@@ -1,15 +1,18 @@
-"""Outlier models: draw the measurement noise of one run, contamination included.
+"""Outlier models: draw the measurement noise of a batch of runs, contamination included.
 
-Each model returns, per epoch and channel, the noise actually added, the variance it was drawn
-with (given to the oracle KF), the known additive mean (bias) and a mask of contaminated entries
-(ground truth for detection rates). Magnitudes are in units of the channel's true σ at that epoch,
-so a model fits every scenario; epochs are absolute indices 1 … K.
+Each model returns, per run, epoch and channel, the noise actually added, the variance it was
+drawn with (given to the oracle KF), the known additive mean (bias) and a mask of contaminated
+entries (ground truth for detection rates). Magnitudes are in units of the channel's true σ at that
+epoch, so a model fits every scenario; epochs are absolute indices 1 … K. The draws come from the
+batch's measurement stream (:class:`navlab.scenarios.base.RunStream`: ``standard_normal``,
+``random``, ``chisquare`` with per-run shapes, returning (B, *shape)), so run r's noise does not
+depend on the other runs of the batch.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, NamedTuple
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -19,9 +22,12 @@ from navlab.linalg import Array
 from navlab.params import param
 from navlab.registry import Registry
 
+if TYPE_CHECKING:
+    from navlab.scenarios.base import RunStream
+
 
 class NoiseDraw(NamedTuple):
-    """One run's measurement noise, each (K+1, m)."""
+    """A batch's measurement noise, each (B, K+1, m)."""
 
     noise: Array
     var: Array
@@ -30,7 +36,7 @@ class NoiseDraw(NamedTuple):
 
 
 class OutlierModel:
-    """Base class. ``draw(rng, std)`` with std (K+1, m) the true σ of the schedule."""
+    """Base class. ``draw(stream, std)`` with std (K+1, m) the true σ of the schedule."""
 
     key: ClassVar[str] = ""
     label: ClassVar[str] = ""
@@ -57,14 +63,17 @@ class OutlierModel:
         sel[[int(c) for c in chans]] = True
         return sel
 
-    def draw(self, rng: np.random.Generator, std: Array) -> NoiseDraw:
+    def draw(self, stream: RunStream, std: Array) -> NoiseDraw:
+        """Noise of the batch's runs (each (B, K+1, m)) from its measurement stream."""
         raise NotImplementedError
 
     @staticmethod
-    def _gaussian(rng: np.random.Generator, std: Array) -> NoiseDraw:
-        n = rng.standard_normal(std.shape)
-        zeros = np.zeros_like(std)
-        return NoiseDraw(std * n, std**2, zeros, zeros.astype(bool))
+    def _gaussian(stream: RunStream, std: Array) -> NoiseDraw:
+        n = stream.standard_normal(std.shape)
+        shape = n.shape
+        return NoiseDraw(
+            std * n, np.broadcast_to(std**2, shape), np.zeros(shape), np.zeros(shape, dtype=bool)
+        )
 
 
 #: Every outlier model, by key, in the order they are offered.
@@ -76,8 +85,8 @@ class NoOutliers(OutlierModel):
     key, label = "none", "No outliers"
     summary = "Gaussian noise with the schedule's σ only."
 
-    def draw(self, rng, std):
-        return self._gaussian(rng, std)
+    def draw(self, stream, std):
+        return self._gaussian(stream, std)
 
 
 _CH = "contaminated channel indices (empty = all channels)"
@@ -98,13 +107,13 @@ class Mixture(OutlierModel):
     summary = "Each entry is, with probability α, drawn with κ times the σ (HAKF eq. 32)."
     Params = MixtureParams
 
-    def draw(self, rng, std):
+    def draw(self, stream, std):
         p = self.params
-        n = rng.standard_normal(std.shape)
-        hit = (rng.random(std.shape) < p.contamination) & self.channel_mask(std.shape[1])
-        hit[0] = False  # epoch 0 carries no measurement
+        n = stream.standard_normal(std.shape)
+        hit = (stream.random(std.shape) < p.contamination) & self.channel_mask(std.shape[1])
+        hit[:, 0] = False  # epoch 0 carries no measurement
         s = np.where(hit, p.scale * std, std)
-        return NoiseDraw(s * n, s**2, np.zeros_like(std), hit)
+        return NoiseDraw(s * n, s**2, np.zeros(n.shape), hit)
 
 
 @dataclass(frozen=True)
@@ -134,17 +143,20 @@ class Isolated(OutlierModel):
             raise NavlabError(f"outlier model '{self.key}': stop must not be before start")
         return np.arange(p.start, min(p.stop, K) + 1, p.every)
 
-    def draw(self, rng, std):
+    def draw(self, stream, std):
         p = self.params
-        base = self._gaussian(rng, std)
+        base = self._gaussian(stream, std)
         K = std.shape[0] - 1
-        mask = np.zeros(std.shape, dtype=bool)
+        mask = np.zeros(std.shape, dtype=bool)  # the same epochs and channels in every run
         mask[np.ix_(self.epochs(K), np.flatnonzero(self.channel_mask(std.shape[1])))] = True
-        extra = rng.standard_normal(std.shape)  # drawn for every entry: same stream layout
+        extra = stream.standard_normal(std.shape)  # drawn for every entry: same stream layout
         bias = np.where(mask, p.mean * std, 0.0)
         noise = base.noise + np.where(mask, bias + p.scale * std * extra, 0.0)
         var = base.var + np.where(mask, (p.scale * std) ** 2, 0.0)
-        return NoiseDraw(noise, var, bias, mask)
+        B = len(stream)
+        return NoiseDraw(
+            noise, var, np.broadcast_to(bias, (B, *std.shape)), np.broadcast_to(mask, (B, *std.shape))
+        )
 
 
 @dataclass(frozen=True)
@@ -190,15 +202,15 @@ class StudentT(OutlierModel):
     summary = "Heavy-tailed noise: Student-t with ν degrees of freedom and scale σ."
     Params = StudentTParams
 
-    def draw(self, rng, std):
+    def draw(self, stream, std):
         p = self.params
-        n = rng.standard_normal(std.shape)
-        g = rng.chisquare(p.dof, std.shape)
+        n = stream.standard_normal(std.shape)
+        g = stream.chisquare(p.dof, std.shape)
         sel = self.channel_mask(std.shape[1])
         mult = np.where(sel, np.sqrt(p.dof / g), 1.0)
-        mult[0] = 1.0
+        mult[:, 0] = 1.0
         s = std * mult
-        return NoiseDraw(s * n, s**2, np.zeros_like(std), mult > p.mask_at)
+        return NoiseDraw(s * n, s**2, np.zeros(n.shape), mult > p.mask_at)
 
 
 def make_outliers(key: str, params: dict[str, Any] | None = None) -> OutlierModel:

@@ -111,7 +111,7 @@ def mean_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, hel
     def feats(data, fr):
         return {"sq": err(data, fr)[:, win(data)].astype(np.float32)}
 
-    return Quantity(name, unit, feats, lambda f: S.MeanSqrtRatio(f["sq"], np.ones_like(f["sq"])), help=help)
+    return Quantity(name, unit, feats, lambda f: S.MeanSqrtRatio(f["sq"]), help=help)
 
 
 def peak_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:
@@ -121,7 +121,7 @@ def peak_rmse(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, hel
     def feats(data, fr):
         return {"sq": err(data, fr)[:, win(data)].astype(np.float32)}
 
-    return Quantity(name, unit, feats, lambda f: S.MaxSqrtRatio(f["sq"], np.ones_like(f["sq"])), help=help)
+    return Quantity(name, unit, feats, lambda f: S.MaxSqrtRatio(f["sq"]), help=help)
 
 
 def mean_norm(name: str, unit: str, err: ErrFn, win: WindowFn | None = None, help: str = "") -> Quantity:

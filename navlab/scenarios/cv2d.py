@@ -21,6 +21,7 @@ from navlab.scenarios.base import (
     Scenario,
     ScenarioData,
     draw_measurement_noise,
+    propagate,
     register_scenario,
     run_streams,
 )
@@ -76,15 +77,11 @@ class Cv2d(Scenario):
         K = p.epochs
         F, Q, H, R0, Gam = cv2d_matrices(p.dt, p.sigma_q2, p.sigma_r2)
         P0 = np.diag([p.p0_pos, p.p0_vel, p.p0_pos, p.p0_vel])
-        streams = [run_streams(seed, r) for r in runs]
-        B = len(streams)
+        streams = run_streams(seed, runs)
         # truth: x_k = F x_{k-1} + Γ w_{k-1}, w ~ N(0, σ_q² I₂)
-        w = np.stack([s.truth.standard_normal((K, 2)) for s in streams]) * np.sqrt(p.sigma_q2)
-        x = np.empty((B, K + 1, 4))
-        x[:, 0] = X0
-        for k in range(1, K + 1):
-            x[:, k] = x[:, k - 1] @ F.T + w[:, k - 1] @ Gam.T
-        x0 = X0 + np.stack([s.init.standard_normal(4) for s in streams]) * np.sqrt(np.diag(P0))
+        w = streams.truth.standard_normal((K, 2)) * np.sqrt(p.sigma_q2)
+        x = propagate(X0, F, w, Gam)
+        x0 = X0 + streams.init.standard_normal(4) * np.sqrt(np.diag(P0))
         std = schedule.std(np.sqrt(np.diag(R0)), K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
         z = x @ H.T + noise

@@ -7,7 +7,7 @@ schedule (nominal σ, default 3 m per axis), its outlier model (default: 10 % of
 and optional outages.
 
 Monte Carlo on real data: run r is an independent noise/outlier injection on the SAME real IMU
-and trajectory (SeedSequence([seed, r]) as for the simulations); the truth is identical in every
+and trajectory (run r's streams as for the simulations, ``run_streams``); the truth is identical in every
 run. The filters are navlab's registered filters on the total-state closed-loop model of
 :class:`navlab.ins.lc.InsGnssModel`; only the GNSS update strategy differs between them.
 
@@ -30,9 +30,14 @@ velocities lag the RTK positions; navlab.ins.lc.velocity_lag_s measures it from 
 attitude and sensor biases from the reference solution (the closed-loop EKF aided by the RTK truth
 at σ = 5 cm), so the attitude "error" is relative to that reference.
 
-A folder in the generic CSV format (imu.csv, gnss.csv[, truth.csv]; see navlab.data.loaders) can
-be given with ``data_dir``: its GNSS positions are then the aiding (noise is still added unless
-``add_noise`` is false) and truth.csv, if present, the truth.
+Your own drive: scenario ``own-drive`` (:class:`OwnDrive`) runs a folder in the generic CSV format
+(imu.csv, gnss.csv[, truth.csv]; navlab.data.loaders) with the same model, but the user's data as
+they are: the GNSS epochs and fixes as recorded (no synthetic noise or outliers unless asked for),
+the receiver's per-epoch σ as the per-epoch R (whitened channels, ``use_receiver_sigmas``), an
+in-motion start when there is no static segment, and the mounting rotation, lever arm and GNSS
+time offset as parameters. Plain-words checks before the run (``extras["findings"]``,
+navlab.data.checks) and after it (navlab.data.checks.trust_check) say when the data or the result
+cannot be right.
 """
 
 from __future__ import annotations
@@ -44,7 +49,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from navlab.data.loaders import load_drive
+from navlab.linalg import Array
+from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param
 from navlab.scenarios.base import (
@@ -57,23 +63,18 @@ from navlab.scenarios.base import (
 )
 
 
-def h_err_median(x_hat, data: ScenarioData, ok_runs) -> float:
-    """Median horizontal position error [m] over the window's epochs and the non-diverged runs."""
+def horizontal_error(x_hat, data: ScenarioData):
+    """Horizontal position error [m] per run and epoch (B, K+1)."""
     idx = list(data.groups["hpos"].idx)
-    e = np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)[ok_runs][:, data.window]
-    e = e[np.isfinite(e)]
-    return float(np.median(e)) if e.size else float("nan")
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)
 
 
-def h_err_p90(x_hat, data: ScenarioData, ok_runs) -> float:
-    """90th percentile of the horizontal position error [m]."""
-    idx = list(data.groups["hpos"].idx)
-    e = np.linalg.norm(x_hat[..., idx] - data.x_true[..., idx], axis=-1)[ok_runs][:, data.window]
-    e = e[np.isfinite(e)]
-    return float(np.quantile(e, 0.9)) if e.size else float("nan")
-
-
-REAL_METRICS = {"h_err_median": (h_err_median, "m"), "h_err_p90": (h_err_p90, "m")}
+# median and 90 % of the horizontal error, pooled over the window's epochs and the judged runs
+REAL_METRICS = {
+    "h_err_median": QuantileMetric(horizontal_error, 0.5, "m", "median horizontal error"),
+    "h_err_p90": QuantileMetric(horizontal_error, 0.9, "m", "90 % horizontal error"),
+}
 
 
 def _fingerprint(data_dir: str) -> tuple:
@@ -93,18 +94,71 @@ def _fingerprint(data_dir: str) -> tuple:
         return ()
 
 
-def drive_setup(data_dir: str, epochs: int, imu_rate_hz: float):
-    """(recording, setup, reference) for a drive — cached while its files are unchanged."""
-    return _drive_setup(data_dir, _fingerprint(data_dir), epochs, imu_rate_hz)
+def drive_setup(data_dir: str, epochs: int, imu_rate_hz: float, **options):
+    """(recording, setup, reference) for a drive — cached while its files are unchanged.
+
+    ``options`` (all hashable): ``own`` (a generic-CSV folder: recorded epochs), ``rate_hz``,
+    ``gnss_time_offset_s``, ``start``, ``lever_arm_v_m`` (tuple), ``mount_deg`` (roll, pitch,
+    yaw of the IMU in the vehicle frame; own recordings only).
+    """
+    return _drive_setup(data_dir, _fingerprint(data_dir), epochs, imu_rate_hz, tuple(sorted(options.items())))
 
 
 @lru_cache(maxsize=4)
-def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: float):
+def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: float, options: tuple):
+    import dataclasses
+    from pathlib import Path
+
+    from navlab.data.loaders import load_generic, rtkx_drive_0708
+    from navlab.errors import NavlabError
+    from navlab.ins.align import body_to_vehicle
     from navlab.ins.lc import prepare_drive, reference_solution
 
-    rec = load_drive(data_dir or None)
-    setup = prepare_drive(rec, epochs=epochs, imu_rate_hz=imu_rate_hz)
+    o = dict(options)
+    own = bool(o.pop("own", False))
+    mount = o.pop("mount_deg", (0.0, 0.0, 0.0))
+    d = Path(data_dir).expanduser() if data_dir else None
+    generic = d is not None and ((d / "imu.csv").exists() or (d / "gnss.csv").exists())
+    if own:
+        if d is None:
+            raise NavlabError(
+                "own-drive needs a folder: set scenario.data_dir=FOLDER holding imu.csv, gnss.csv and "
+                "optionally truth.csv (the generic CSV format, see the README 'Your own drive')"
+            )
+        if not generic:
+            raise NavlabError(
+                f"{d}: no imu.csv or gnss.csv in this folder; own-drive reads the generic CSV format "
+                "(README 'Your own drive')"
+            )
+        truth = d / "truth.csv"
+        rec = load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None, name=d.name)
+        roll, pitch, yaw = (float(a) for a in mount)
+        rec = dataclasses.replace(rec, C_bv=body_to_vehicle(pitch, yaw, roll, nominal=np.eye(3)))
+        setup = prepare_drive(rec, epochs=epochs, imu_rate_hz=imu_rate_hz, recorded=True, **o)
+    else:
+        if generic:
+            raise NavlabError(
+                "drive0708 is the bundled rtkx_drive_0708 recording; run a folder in the generic CSV "
+                "format with --scenario own-drive (the Real data page: 'Upload your own drive')"
+            )
+        rec = rtkx_drive_0708(data_dir or None)
+        setup = prepare_drive(rec, epochs=epochs, imu_rate_hz=imu_rate_hz, **o)
     return rec, setup, reference_solution(setup)
+
+
+def fill_rows(x: Array) -> Array:
+    """(K+1, d) with NaN rows filled by linear interpolation over the epochs (edges held)."""
+    ok = np.isfinite(x).all(axis=1)
+    if ok.all() or not ok.any():
+        return x
+    k = np.arange(len(x))
+    return np.stack([np.interp(k, k[ok], x[ok, i]) for i in range(x.shape[1])], -1)
+
+
+_START_HELP = (
+    "'auto': align on a static start when the recording begins with ≥ 2 s at rest, else start in "
+    "motion from GNSS; 'static' / 'moving' force one"
+)
 
 
 @dataclass(frozen=True)
@@ -155,8 +209,57 @@ class Drive0708Params:
     accel_bias_rw: float = param(
         1e-3, lo=0.0, hi=1.0, help="accelerometer-bias random walk (m/s²/√s), consumer MEMS class"
     )
+    start: str = param("auto", choices=("auto", "static", "moving"), help=_START_HELP)
+    eval_from_s: float = param(
+        0.0,
+        lo=0.0,
+        hi=1e7,
+        help="errors count from this time on the recording's own time base t_s (0: from epoch 1)",
+    )
+    data_dir: str = param("", help="data directory (default ../shared/data or $NAVLAB_DATA)", ui=False)
+
+
+@dataclass(frozen=True)
+class OwnDriveParams(Drive0708Params):
+    epochs: int = param(0, lo=0, hi=1000000, help="GNSS epochs to use (0: all)")
+    sigma_m: float = param(
+        3.0,
+        lo=0.01,
+        hi=1000.0,
+        help="GNSS position σ per axis (m) when gnss.csv has no sigma_* columns (or they are ignored); "
+        "also the σ of the synthetic noise when add_noise is on",
+    )
+    add_noise: bool = param(
+        False, help="add synthetic noise (σ = sigma_m) to the recorded fixes (outliers: set a contamination)"
+    )
+    use_receiver_sigmas: bool = param(
+        True, help="the receiver's per-epoch sigma_n/e/u_m set the per-epoch R (off: σ = sigma_m throughout)"
+    )
+    gnss_rate_hz: float = param(
+        0.0, lo=0.0, hi=100.0, help="use at most this many GNSS epochs per second (0: as recorded)"
+    )
+    gnss_time_offset_s: float = param(
+        0.0,
+        lo=-10.0,
+        hi=10.0,
+        help="added to gnss.csv's t_s (GNSS latency; the page and the CLI print the lag that best aligns "
+        "the GNSS course with the IMU's yaw rate)",
+    )
+    mount_roll_deg: float = param(
+        0.0, lo=-180.0, hi=180.0, help="IMU roll in the vehicle frame (deg): 180 for an IMU with z down"
+    )
+    mount_pitch_deg: float = param(0.0, lo=-90.0, hi=90.0, help="IMU pitch in the vehicle frame (deg)")
+    mount_yaw_deg: float = param(
+        0.0,
+        lo=-180.0,
+        hi=180.0,
+        help="IMU yaw in the vehicle frame (deg, clockwise: IMU y axis to the right)",
+    )
+    lever_right_m: float = param(0.0, lo=-100.0, hi=100.0, help="GNSS antenna right of the IMU (m)")
+    lever_forward_m: float = param(0.0, lo=-100.0, hi=100.0, help="GNSS antenna ahead of the IMU (m)")
+    lever_up_m: float = param(0.0, lo=-100.0, hi=100.0, help="GNSS antenna above the IMU (m)")
     data_dir: str = param(
-        "", help="data directory (default ../shared/data or $NAVLAB_DATA), or a generic-CSV folder", ui=False
+        "", help="folder with imu.csv, gnss.csv[, truth.csv] (generic CSV format)", ui=False
     )
 
 
@@ -180,13 +283,29 @@ class Drive0708(Scenario):
     linear = False  # nonlinear model (no probe run needed by the app)
     headline = ("pos", "hpos")
 
+    own: ClassVar[bool] = False
+
+    def _setup(self):
+        p = self.params
+        opts: dict = {"start": p.start}
+        if self.own:
+            opts.update(
+                own=True,
+                rate_hz=float(p.gnss_rate_hz),
+                gnss_time_offset_s=float(p.gnss_time_offset_s),
+                lever_arm_v_m=(float(p.lever_right_m), float(p.lever_forward_m), float(p.lever_up_m)),
+                mount_deg=(float(p.mount_roll_deg), float(p.mount_pitch_deg), float(p.mount_yaw_deg)),
+            )
+        return drive_setup(p.data_dir, int(p.epochs), float(p.imu_rate_hz), **opts)
+
     def simulate(
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
     ) -> ScenarioData:
+        from navlab.data.checks import aiding_note, check_drive
         from navlab.ins.lc import STATE_NAMES, ImuNoise, InsGnssModel
 
         p = self.params
-        rec, setup, ref = drive_setup(p.data_dir, int(p.epochs), float(p.imu_rate_hz))
+        rec, setup, ref = self._setup()
         K = setup.K
         sigma = np.full(3, p.sigma_m)
         noise = ImuNoise(
@@ -196,23 +315,33 @@ class Drive0708(Scenario):
             float(p.accel_bias_rw),
             float(p.vib_gyro_factor),
         )
-        model = InsGnssModel(setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps)
-        streams = [run_streams(seed, r) for r in runs]
+        rx_sigma = None
+        if self.own and p.use_receiver_sigmas and setup.gnss_sigma is not None:
+            rx_sigma = setup.gnss_sigma if not p.add_noise else np.hypot(setup.gnss_sigma, p.sigma_m)
+        model = InsGnssModel(
+            setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma
+        )
+        streams = run_streams(seed, runs)
         B = len(streams)
         std = schedule.std(sigma, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
-        has_truth = bool(np.isfinite(setup.p_true).all())
-        base = (
-            setup.p_true
-            if has_truth and rec.truth is not None and rec.name.startswith("rtkx")
-            else setup.gnss_pos
-        )
-        z = base[None] + (noise if p.add_noise else 0.0)
+        if self.own:
+            # the recorded fixes as recorded; synthetic noise and outliers only when asked for
+            inject = np.where(mask, noise, 0.0) + (np.where(mask, 0.0, noise) if p.add_noise else 0.0)
+            z = setup.gnss_pos[None] + inject
+            clean_var = (rx_sigma if rx_sigma is not None else sigma) ** 2
+            var = np.where(
+                mask, var + (0.0 if p.add_noise else clean_var), np.broadcast_to(clean_var, var.shape)
+            )
+            std2 = np.broadcast_to(clean_var, (K + 1, 3)).copy()
+        else:  # rtkx: the aiding is made from the RTK truth (the recording has no second receiver)
+            z = setup.p_true[None] + (noise if p.add_noise else 0.0)
+            std2 = std**2
+        fixes = z.copy()  # the aiding positions the filters are fed (N, E, U m), epoch 0 included
         z[:, 0] = np.nan
         if p.outage_len_s > 0 and p.outage_start_s > 0:
             dt = setup.t - setup.t[0]
             z[:, (dt >= p.outage_start_s) & (dt < p.outage_start_s + p.outage_len_s)] = np.nan
-        std2 = std**2
         channels = ("p_N", "p_E", "p_U")
         if model.nhc:  # pseudo-measurements 0 = lateral / vertical vehicle velocity: real noise only
             nh = np.full((B, K + 1, 2), p.nhc_sigma_mps**2)
@@ -223,12 +352,42 @@ class Drive0708(Scenario):
             mask = np.concatenate([mask, np.zeros((B, K + 1, 2), bool)], axis=2)
             std2 = np.concatenate([std2, nh[0]], axis=1)
             channels += ("v_right", "v_up")
-        x_true = np.concatenate(
-            [np.zeros((K + 1, 3)), setup.v_true, setup.p_true, ref.bias_g[0], ref.bias_a[0]], axis=1
-        )
+        if model.whitened:  # per-epoch receiver σ: channels in units of σ_k (R0 = I)
+            z = model.whiten(z)
+            var = var / model.scale[None] ** 2
+            bias = bias / model.scale[None]
+            std2 = std2 / model.scale**2
+        truth_ok = np.isfinite(setup.p_true).all(axis=1)
+        has_truth = bool(truth_ok.mean() > 0.5)
+        # truth of the IMU point: the antenna truth minus the lever arm (reference attitude)
+        lever_neu = (ref.C_bn[0] @ (setup.C_bv.T @ setup.lever_arm_v))[:, [1, 0, 2]]
+        p_true = fill_rows(setup.p_true) - lever_neu
+        v_true = fill_rows(setup.v_true)
+        x_true = np.concatenate([np.zeros((K + 1, 3)), v_true, p_true, ref.bias_g[0], ref.bias_a[0]], axis=1)
         x_true = np.broadcast_to(x_true, (B, K + 1, 15)).copy()
-        return ScenarioData(
+        x0 = np.broadcast_to(setup.x0, (B, 15)).copy()
+        if setup.start == "moving":  # each run starts at its own first fix (the filters' honest start)
+            first = fixes[:, 0] - lever_neu[0]
+            ok0 = np.isfinite(first).all(axis=1)
+            x0[ok0, 6:9] = first[ok0]
+        window = (np.arange(K + 1) >= 1) & (setup.t >= p.eval_from_s - 1e-9)
+        if has_truth:
+            window &= truth_ok
+        if not window.any():
+            from navlab.errors import NavlabError
+
+            raise NavlabError(
+                f"eval_from_s = {p.eval_from_s:g} s leaves no epoch to judge (the epochs run from "
+                f"{setup.t[0]:.1f} to {setup.t[-1]:.1f} s on the recording's time base)"
+            )
+        bound = None  # whitened channels: the error bound of the divergence rule in metres
+        if model.whitened:
+            from navlab.metrics import BOUND_SIGMAS
+
+            bound = BOUND_SIGMAS * float(np.median(np.max(model.scale[1:, :3], axis=1)))
+        data = ScenarioData(
             scenario=self.key,
+            divergence_bound=bound,
             t=setup.t - setup.t[0],
             model=model,
             x_true=x_true,
@@ -237,19 +396,20 @@ class Drive0708(Scenario):
             R_schedule=std2,
             outlier_mask=mask,
             bias=bias,
-            x0=np.broadcast_to(setup.x0, (B, 15)).copy(),
+            x0=x0,
             P0=setup.P0,
             runs=np.asarray(runs),
             state_names=STATE_NAMES,
             channel_names=channels,
-            channel_units=("m", "m", "m", "m/s", "m/s")[: len(channels)],
+            channel_units=(("σ",) * 3 if model.whitened else ("m",) * 3)
+            + ("m/s", "m/s")[: len(channels) - 3],
             groups={
                 "pos": MetricGroup((6, 7, 8), "m", "position (3-D)"),
                 "hpos": MetricGroup((6, 7), "m", "horizontal position"),
                 "vel": MetricGroup((3, 4, 5), "m/s", "velocity"),
                 "att": MetricGroup((0, 1, 2), "deg", "attitude vs reference", float(np.degrees(1.0))),
             },
-            window=np.arange(K + 1) >= 1,
+            window=window,
             has_truth=has_truth,
             extras={
                 "metrics": REAL_METRICS,
@@ -262,6 +422,31 @@ class Drive0708(Scenario):
                 ),
                 "xy_idx": (7, 6),  # east, north columns of the state for plots
                 "gnss_track": setup.gnss_pos,
+                "p_true_antenna": setup.p_true,
+                "fix_sigma_m": (rx_sigma if rx_sigma is not None else np.broadcast_to(sigma, (K + 1, 3))),
                 "t_abs_s": setup.t,
+                "start": setup.start,
             },
         )
+        data.extras["notes"] = [aiding_note(self, setup, rx_sigma), *setup.notes]
+        data.extras["findings"] = check_drive(rec, setup) if self.own else []
+        return data
+
+
+@register_scenario
+class OwnDrive(Drive0708):
+    key = "own-drive"
+    label = "Your own drive: IMU + GNSS in the generic CSV format"
+    paper = "your data (generic navlab CSV)"
+    summary = (
+        "Your own IMU and GNSS recording (imu.csv, gnss.csv[, truth.csv]): the fixes as recorded, the "
+        "receiver's σ per epoch, an in-motion start when there is no static segment, mounting, lever arm "
+        "and GNSS time offset as parameters, and checks that say when the result cannot be right."
+    )
+    Params = OwnDriveParams
+    outlier_defaults: ClassVar[dict] = {"mixture": {"contamination": 0.0}}
+    default_runs = 1
+    own = True
+    #: needs a folder of the user's files (data_dir): the Real data page uploads one; pages without
+    #: an upload (Compare, Sweep) should not offer it
+    user_data: ClassVar[bool] = True

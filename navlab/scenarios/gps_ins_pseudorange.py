@@ -37,6 +37,7 @@ from navlab.scenarios.base import (
     Scenario,
     ScenarioData,
     draw_measurement_noise,
+    propagate,
     register_scenario,
     run_streams,
 )
@@ -245,17 +246,13 @@ class GpsInsPseudorange(Scenario):
         P0 = np.diag(np.array([p.p0_pos] * 3 + [p.p0_vel] * 3 + [p.p0_cb, p.p0_cd]) ** 2)
         x_hat0 = np.array([0.0] * 6 + [CB0_M, CD0_MPS])
 
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         # truth error state: x_0 ~ N([0, …, c_b0, c_d0], P0); x_k = F x_{k−1} + w, w ~ N(0, Q)
         wq, Vq = np.linalg.eigh(Q)
         LQ = Vq * np.sqrt(np.clip(wq, 0.0, None))  # Q = LQ LQᵀ (Q may be singular)
-        e0 = np.stack([s.truth.standard_normal(8) for s in streams])
-        w = np.stack([s.truth.standard_normal((K, 8)) for s in streams]) @ LQ.T
-        x = np.empty((B, K + 1, 8))
-        x[:, 0] = x_hat0 + np.sqrt(np.diag(P0)) * e0
-        for k in range(1, K + 1):
-            x[:, k] = x[:, k - 1] @ F.T + w[:, k - 1]
+        e0 = streams.truth.standard_normal(8)
+        x = propagate(x_hat0 + np.sqrt(np.diag(P0)) * e0, F, streams.truth.standard_normal((K, 8)), LQ)
         x0 = np.broadcast_to(x_hat0, (B, 8)).copy()
 
         t = np.arange(K + 1) * p.dt

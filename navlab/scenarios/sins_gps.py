@@ -42,6 +42,7 @@ from navlab.scenarios.base import (
     Scenario,
     ScenarioData,
     draw_measurement_noise,
+    propagate,
     register_scenario,
     run_streams,
 )
@@ -246,17 +247,12 @@ class SinsGps(Scenario):
         K = p.epochs
         schedule, outliers = self.noise_models(schedule, outliers)
         Phi, Qd, H, P0, C = sins_gps_model(p)
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         # truth: x_0 ~ N(0, P0); x_k = Φ_k x_{k−1} + w_k, w_k ~ N(0, Q_k)
-        L0 = _scaled_sqrt(P0)
-        LQ = _scaled_sqrt(Qd[1:])
-        draws = np.stack([s.truth.standard_normal((K + 1, 15)) for s in streams])
-        w = (LQ[None] @ draws[:, 1:, :, None])[..., 0]  # (B, K, 15)
-        x = np.empty((B, K + 1, 15))
-        x[:, 0] = draws[:, 0] @ L0.T
-        for k in range(1, K + 1):
-            x[:, k] = x[:, k - 1] @ Phi[k].T + w[:, k - 1]
+        e0 = streams.truth.standard_normal(15)
+        e = streams.truth.standard_normal((K, 15))
+        x = propagate(e0 @ _scaled_sqrt(P0).T, Phi, e, _scaled_sqrt(Qd))
         r_nom = np.full(3, p.sigma_pos_m)
         std = schedule.std(r_nom, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)

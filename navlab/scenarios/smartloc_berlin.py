@@ -94,7 +94,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from navlab.data.loaders import SMARTLOC_SOURCE, smartloc_berlin_pp
+from navlab.data.loaders import SMARTLOC_DIR, SMARTLOC_SOURCE
 from navlab.ins.earth import OMEGA_IE_RADPS, ecef_to_geodetic, rot_ecef_to_enu
 from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
@@ -107,10 +107,10 @@ from navlab.scenarios.base import (
     register_scenario,
     run_streams,
 )
-from navlab.scenarios.drive0708 import REAL_METRICS
+from navlab.scenarios.drive0708 import REAL_METRICS, fill_rows
 
 C_LIGHT = 299792458.0
-STATE_NAMES = ("E", "N", "U", "d_E", "d_N", "cb_GPS", "cb_GLO", "cd")
+STATE_NAMES = ("E", "N", "U", "d_E", "d_N", "cb_GPS", "cb_GLO", "cd")  # Berlin: GPS + GLONASS
 SYSTEM_NAMES = {1: "G", 2: "S", 4: "R", 8: "E", 16: "J", 32: "C"}
 _EPS_NORM = 1e-12  # keeps ‖d‖ and its Jacobian finite at d = 0
 
@@ -130,14 +130,32 @@ class PrEpochs:
     speed: Array  # (K+1,)
     yaw_rate: Array  # (K+1,)
     truth_ecef: Array  # (K+1, 3)
+    clock_names: tuple[str, ...] = ("GPS", "GLO")  # one receiver clock per system; sys_idx indexes it
+    has_odometry: bool = True  # False: a constant-velocity model replaces the dead reckoning
+    has_truth: bool = True
+    name: str = "smartloc_berlin_pp"
+
+    def cut(self, K: int) -> PrEpochs:
+        """The first K+1 epochs."""
+        import dataclasses
+
+        per_epoch = ("t", "rho", "sat", "var_file", "el_deg", "cn0", "speed", "yaw_rate", "truth_ecef")
+        return dataclasses.replace(self, **{f: getattr(self, f)[: K + 1] for f in per_epoch})
+
+
+CLOCK_NAMES = {1: "GPS", 2: "SBAS", 4: "GLO", 8: "GAL", 16: "QZS", 32: "BDS"}
+
+
+def _folder(data_dir: str):
+    from navlab.data.loaders import SMARTLOC_DIR, data_root
+
+    d = data_root(data_dir or None)
+    return d / SMARTLOC_DIR if (d / SMARTLOC_DIR).is_dir() else d
 
 
 def load_epochs(data_dir: str) -> PrEpochs:
     """The recording on epoch grids, cached while its files are unchanged."""
-    from navlab.data.loaders import SMARTLOC_DIR, data_root
-
-    d = data_root(data_dir or None)
-    d = d / SMARTLOC_DIR if (d / SMARTLOC_DIR).is_dir() else d
+    d = _folder(data_dir)
     try:
         fp = tuple(sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in d.iterdir()))
     except OSError:
@@ -147,7 +165,9 @@ def load_epochs(data_dir: str) -> PrEpochs:
 
 @lru_cache(maxsize=2)
 def _load_epochs(data_dir: str, fingerprint: tuple) -> PrEpochs:
-    rec = smartloc_berlin_pp(data_dir or None)
+    from navlab.data.loaders import load_pseudoranges
+
+    rec = load_pseudoranges(data_dir or None)
     pr = rec.pr
     t = np.unique(pr.t_s.to_numpy())
     keys = sorted({(int(s), int(i)) for s, i in zip(pr.system, pr.sat_id, strict=True)})
@@ -165,16 +185,41 @@ def _load_epochs(data_dir: str, fingerprint: tuple) -> PrEpochs:
     var[ti, cj] = pr.var_m2
     el[ti, cj] = pr.elevation_deg
     cn0[ti, cj] = pr.cn0_dbhz
-    sys_idx = np.array([0 if s == 1 else 1 for s, _ in keys])
+    systems = sorted({s for s, _ in keys})
+    sys_idx = np.array([systems.index(s) for s, _ in keys])
     names = tuple(
         f"{SYSTEM_NAMES.get(s, '?')}{i:02d}" if s == 1 else f"{SYSTEM_NAMES.get(s, '?')}{i}" for s, i in keys
     )
     od = rec.odom
-    speed = np.interp(t, od.t_s, od.speed_mps)
-    yaw = np.interp(t, od.t_s, od.yaw_rate_radps)
+    if od is not None:
+        speed = np.interp(t, od.t_s, od.speed_mps)
+        yaw = np.interp(t, od.t_s, od.yaw_rate_radps)
+    else:
+        speed = yaw = np.zeros(K1)
     gt = rec.truth
-    truth = np.stack([np.interp(t, gt.t_s, gt[c]) for c in ("x_m", "y_m", "z_m")], -1)
-    return PrEpochs(t, rho, sat, var, el, cn0, sys_idx, names, speed, yaw, truth)
+    if gt is not None:
+        truth = np.stack(
+            [np.interp(t, gt.t_s, gt[c], left=np.nan, right=np.nan) for c in ("x_m", "y_m", "z_m")], -1
+        )
+    else:
+        truth = np.full((K1, 3), np.nan)
+    return PrEpochs(
+        t,
+        rho,
+        sat,
+        var,
+        el,
+        cn0,
+        sys_idx,
+        names,
+        speed,
+        yaw,
+        truth,
+        clock_names=tuple(CLOCK_NAMES[s] for s in systems),
+        has_odometry=od is not None,
+        has_truth=gt is not None and bool(np.isfinite(truth).all(axis=1).mean() > 0.5),
+        name=rec.name,
+    )
 
 
 def geometric_range(sat: Array, r: Array) -> tuple[Array, Array]:
@@ -198,17 +243,20 @@ def robust_ls_fix(
     iters: int = 15,
     height: float | None = None,
     sigma_height: float = 1.0,
+    n_sys: int | None = None,
 ) -> tuple[Array, Array]:
-    """Huber-reweighted weighted least squares fix of one epoch: (r ECEF (3,), clocks (2,)).
+    """Huber-reweighted weighted least squares fix of one epoch: (r ECEF (3,), clocks (n_sys,)).
 
-    With ``height`` the ellipsoidal height is pseudo-measured too (σ ``sigma_height``, never
-    down-weighted), once the geometry has converged.
+    One clock per satellite system (``sys_idx`` indexes them; ``n_sys`` default: the largest
+    index + 1). With ``height`` the ellipsoidal height is pseudo-measured too (σ
+    ``sigma_height``, never down-weighted), once the geometry has converged.
     """
     ok = np.isfinite(rho)
+    n_sys = int(n_sys) if n_sys else int(np.max(sys_idx)) + 1
     r = np.zeros(3) if r0 is None else np.array(r0, float)
-    clk = np.zeros(2)
+    clk = np.zeros(n_sys)
     w_h = np.ones(ok.sum())
-    S = np.eye(2)[sys_idx[ok]]
+    S = np.eye(n_sys)[sys_idx[ok]]
     has = S.sum(axis=0) > 0
     for it in range(iters):
         rng, e = geometric_range(sat[ok], r)
@@ -230,14 +278,29 @@ def robust_ls_fix(
     return r, clk
 
 
+#: C/N0 of the "elevation" model's zenith σ: with the C/N0 model's a, σ(45 dBHz, zenith) = 2.5 m.
+REFERENCE_CN0_DBHZ = 45.0
+
+
 def variance_model(ep: PrEpochs, which: str, a: float) -> Array:
-    """σ² per pseudorange: the file's column or a·10^(−C/N0/10)/sin²(el)."""
+    """σ² per pseudorange: the file's column, a·10^(−C/N0/10)/sin²(el), a·10^(−C/N0/10), or
+    ("elevation", for files without C/N0) a·10^(−45/10)/sin²(el).
+    """
     if which == "file":
         return ep.var_file
     if which == "cn0":
         return a * 10.0 ** (-ep.cn0 / 10.0)
     sin_el = np.sin(np.radians(np.clip(ep.el_deg, 5.0, 90.0)))
+    if which == "elevation":
+        return a * 10.0 ** (-REFERENCE_CN0_DBHZ / 10.0) / sin_el**2
     return a * 10.0 ** (-ep.cn0 / 10.0) / sin_el**2
+
+
+def elevations_deg(sat: Array, r: Array) -> Array:
+    """Elevation [deg] of satellites sat (..., ms, 3) seen from the ECEF point r (3,)."""
+    _, up = geodetic_up(np.asarray(r, float))
+    d = sat - r
+    return np.degrees(np.arcsin(np.clip((d @ up) / np.linalg.norm(d, axis=-1), -1.0, 1.0)))
 
 
 def _rot(th: Array) -> Array:
@@ -254,7 +317,12 @@ def geodetic_up(r: Array) -> tuple[Array, Array]:
 
 
 class PseudorangeModel:
-    """Odometry dead reckoning + whitened pseudoranges, ‖d‖ = 1 and height (module docstring)."""
+    """Odometry dead reckoning + whitened pseudoranges, ‖d‖ = 1 and height (module docstring).
+
+    State: E, N, U, d_E, d_N, one clock per satellite system (``ep.clock_names``), clock drift.
+    Without odometry (``ep.has_odometry`` false) d is the horizontal VELOCITY of a
+    constant-velocity model (white acceleration, PSD ``q_accel``) and there is no ‖d‖ channel.
+    """
 
     linear = False
 
@@ -274,6 +342,7 @@ class PseudorangeModel:
         sigma_norm: float,
         sigma_height: float | None,
         height_prior: tuple[float, float, float] | None = None,
+        q_accel: float = 1.0,
     ) -> None:
         self.ep = ep
         self.sigma = np.where(np.isfinite(sigma), sigma, 1.0)
@@ -283,30 +352,41 @@ class PseudorangeModel:
         self.ms = ep.rho.shape[1]
         self.sigma_norm = sigma_norm
         self.sigma_height = sigma_height
-        self.m = self.ms + 1 + (sigma_height is not None)
-        self.n = n = 8
+        self.odometry = bool(ep.has_odometry)
+        self.S = S = len(ep.clock_names)
+        self.m = self.ms + int(self.odometry) + (sigma_height is not None)
+        self.n = n = 6 + S
+        c = slice(5, 5 + S)  # clock states; 5 + S is the drift
         self.R0 = np.eye(self.m)
         K1 = len(ep.t)
         T = np.r_[0.0, np.diff(ep.t)]
-        s_bar = np.r_[0.0, 0.5 * (ep.speed[1:] + ep.speed[:-1])]
-        w_bar = np.r_[0.0, 0.5 * (ep.yaw_rate[1:] + ep.yaw_rate[:-1])]
-        th = w_bar * T
         F = np.broadcast_to(np.eye(n), (K1, n, n)).copy()
-        F[:, 3:5, 3:5] = _rot(th)
-        # the chord of the arc: length s̄T·sin(θ/2)/(θ/2), direction turned by θ/2
-        F[:, 0:2, 3:5] = (s_bar * T * np.sinc(th / (2 * np.pi)))[:, None, None] * _rot(th / 2)
-        F[:, 5, 7] = F[:, 6, 7] = T
         Q = np.zeros((K1, n, n))
-        Q[:, 0, 0] = Q[:, 1, 1] = (sigma_speed * T) ** 2 + q_pos * T
+        if self.odometry:
+            s_bar = np.r_[0.0, 0.5 * (ep.speed[1:] + ep.speed[:-1])]
+            w_bar = np.r_[0.0, 0.5 * (ep.yaw_rate[1:] + ep.yaw_rate[:-1])]
+            th = w_bar * T
+            F[:, 3:5, 3:5] = _rot(th)
+            # the chord of the arc: length s̄T·sin(θ/2)/(θ/2), direction turned by θ/2
+            F[:, 0:2, 3:5] = (s_bar * T * np.sinc(th / (2 * np.pi)))[:, None, None] * _rot(th / 2)
+            Q[:, 0, 0] = Q[:, 1, 1] = (sigma_speed * T) ** 2 + q_pos * T
+            Q[:, 3, 3] = Q[:, 4, 4] = q_heading * T
+        else:  # constant velocity: (E, N)_k = (E, N)_{k−1} + T v ; v random walk (white acceleration)
+            F[:, 0:2, 3:5] = T[:, None, None] * np.eye(2)
+            Q[:, 0, 0] = Q[:, 1, 1] = q_accel * T**3 / 3 + q_pos * T
+            Q[:, 0, 3] = Q[:, 3, 0] = Q[:, 1, 4] = Q[:, 4, 1] = q_accel * T**2 / 2
+            Q[:, 3, 3] = Q[:, 4, 4] = q_accel * T
         Q[:, 2, 2] = q_height * T
-        Q[:, 3, 3] = Q[:, 4, 4] = q_heading * T
-        # one oscillator: [cb_GPS, cb_GLO, cd] = [b, b + ISB, ḃ]
+        F[:, c, 5 + S] = T[:, None]
+        # one oscillator: every system's clock = the common clock b + its ISB, drift ḃ
         b = q_clock * T + q_drift * T**3 / 3
-        Q[:, 5:7, 5:7] = b[:, None, None]
-        Q[:, 6, 6] += q_isb * T
-        Q[:, 5, 7] = Q[:, 7, 5] = Q[:, 6, 7] = Q[:, 7, 6] = q_drift * T**2 / 2
-        Q[:, 7, 7] = q_drift * T
-        self.uk = np.zeros((K1, 8))
+        Q[:, c, c] = b[:, None, None]
+        for i in range(1, S):
+            Q[:, 5 + i, 5 + i] += q_isb * T
+        Q[:, c, 5 + S] = (q_drift * T**2 / 2)[:, None]
+        Q[:, 5 + S, c] = (q_drift * T**2 / 2)[:, None]
+        Q[:, 5 + S, 5 + S] = q_drift * T
+        self.uk = np.zeros((K1, n))
         if height_prior is not None:  # U − U_ref: Gauss–Markov (σ, τ) in the dynamics
             u_ref, sig_h, tau = height_prior
             phi = np.exp(-T / tau)
@@ -314,7 +394,7 @@ class PseudorangeModel:
             Q[:, 2, 2] = sig_h**2 * (1.0 - phi**2)
             self.uk[:, 2] = (1.0 - phi) * u_ref
         self.Fk, self.Qk = F, Q
-        self._sysmat = np.eye(2)[ep.sys_idx]  # (ms, 2)
+        self._sysmat = np.eye(S)[ep.sys_idx]  # (ms, S)
 
     def F(self, k: int) -> Array:
         return self.Fk[k]
@@ -331,9 +411,10 @@ class PseudorangeModel:
     def h(self, x: Array, k: int) -> Array:
         r = self.ecef(x)
         rng, _ = geometric_range(self.ep.sat[k][None], r)
-        pr = (rng + x[:, 5:7] @ self._sysmat.T) / self.sigma[k]
-        nd = np.sqrt(x[:, 3] ** 2 + x[:, 4] ** 2 + _EPS_NORM) / self.sigma_norm
-        cols = [pr, nd[:, None]]
+        pr = (rng + x[:, 5 : 5 + self.S] @ self._sysmat.T) / self.sigma[k]
+        cols = [pr]
+        if self.odometry:
+            cols.append(np.sqrt(x[:, 3:4] ** 2 + x[:, 4:5] ** 2 + _EPS_NORM) / self.sigma_norm)
         if self.sigma_height is not None:
             cols.append(geodetic_up(r)[0][:, None] / self.sigma_height)
         return np.concatenate(cols, axis=1)
@@ -346,11 +427,14 @@ class PseudorangeModel:
         ms = self.ms
         H = np.zeros((B, self.m, self.n))
         H[:, :ms, 0:3] = -e_enu / self.sigma[k][None, :, None]
-        H[:, :ms, 5:7] = self._sysmat[None] / self.sigma[k][None, :, None]
-        nd = np.sqrt(x[:, 3] ** 2 + x[:, 4] ** 2 + _EPS_NORM)
-        H[:, ms, 3:5] = x[:, 3:5] / nd[:, None] / self.sigma_norm
+        H[:, :ms, 5 : 5 + self.S] = self._sysmat[None] / self.sigma[k][None, :, None]
+        j = ms
+        if self.odometry:
+            nd = np.sqrt(x[:, 3] ** 2 + x[:, 4] ** 2 + _EPS_NORM)
+            H[:, j, 3:5] = x[:, 3:5] / nd[:, None] / self.sigma_norm
+            j += 1
         if self.sigma_height is not None:
-            H[:, ms + 1, 0:3] = geodetic_up(r)[1] @ self.C_ne / self.sigma_height
+            H[:, j, 0:3] = geodetic_up(r)[1] @ self.C_ne / self.sigma_height
         return H
 
 
@@ -359,8 +443,9 @@ class SmartlocParams:
     epochs: int = param(0, lo=0, hi=100000, help="epochs to use (0: all 1371)")
     variance_model: str = param(
         "cn0-elevation",
-        choices=("cn0-elevation", "cn0", "file"),
-        help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), or the file's column",
+        choices=("cn0-elevation", "cn0", "elevation", "file"),
+        help="pseudorange σ²: a·10^(−C/N0/10)/sin²(el), a·10^(−C/N0/10), a·10^(−4.5)/sin²(el) (no C/N0), "
+        "or the file's column",
     )
     cn0_a: float = param(2.0e5, lo=1.0, hi=1e9, help="a of the C/N0 model (m²): σ = 2.5 m at 45 dBHz, zenith")
     height_aiding: str = param(
@@ -397,6 +482,12 @@ class SmartlocParams:
     q_height: float = param(
         0.05, lo=0.0, hi=100.0, help="height random-walk PSD (m²/s; not with the map prior)"
     )
+    q_accel: float = param(
+        1.0,
+        lo=0.0,
+        hi=1e4,
+        help="without odometry: white-acceleration PSD of the constant-velocity model (m²/s³)",
+    )
     q_clock: float = param(0.1, lo=0.0, hi=1e6, help="clock white-frequency PSD (m²/s)")
     q_drift: float = param(0.1, lo=0.0, hi=1e6, help="clock random-walk-frequency PSD (m²/s³)")
     q_isb: float = param(1e-3, lo=0.0, hi=1e6, help="GPS–GLONASS inter-system bias random-walk PSD (m²/s)")
@@ -408,21 +499,28 @@ class SmartlocParams:
     )
     elevation_mask_deg: float = param(0.0, lo=0.0, hi=80.0, help="drop satellites below this elevation (deg)")
     cn0_mask_dbhz: float = param(0.0, lo=0.0, hi=60.0, help="drop pseudoranges below this C/N0 (dBHz)")
-    data_dir: str = param("", help="data directory (default ../shared/data or $NAVLAB_DATA)", ui=False)
+    data_dir: str = param(
+        "",
+        help="data directory (default ../shared/data or $NAVLAB_DATA), a smartLoc sequence's folder or a "
+        "folder with pseudoranges.csv (generic format)",
+        ui=False,
+    )
 
 
 def _truth_clocks(ep: PrEpochs) -> Array:
+    """Clock "truth" per system: the median of (ρ − range at the true position) over its satellites."""
+    S = len(ep.clock_names)
     rng, _ = geometric_range(ep.sat, ep.truth_ecef)
     res = ep.rho - rng
-    cb = np.full((len(ep.t), 2), np.nan)
-    for s in (0, 1):
+    cb = np.full((len(ep.t), S), np.nan)
+    for s in range(S):
         sel = ep.sys_idx == s
         r = res[:, sel]
         has = np.isfinite(r).any(axis=1)
         if has.any():
             cb[has, s] = np.nanmedian(r[has], axis=1)
     # fill a constellation absent at an epoch from its neighbours
-    for s in (0, 1):
+    for s in range(S):
         ok = np.isfinite(cb[:, s])
         cb[~ok, s] = np.interp(np.flatnonzero(~ok), np.flatnonzero(ok), cb[ok, s]) if ok.any() else 0.0
     return cb
@@ -464,28 +562,43 @@ class SmartlocBerlin(Scenario):
     def simulate(
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
     ) -> ScenarioData:
+        import dataclasses
+
+        from navlab.errors import NavlabError
+
         p = self.params
         ep = load_epochs(p.data_dir)
         K_all = len(ep.t) - 1
         K = K_all if not p.epochs else min(int(p.epochs), K_all)
-        var = variance_model(ep, p.variance_model, p.cn0_a)[: K + 1]
+        ep = ep.cut(K)
+        notes = []
+        if ep.name != SMARTLOC_DIR and p.height_aiding != "off" and p.height_m == 75.0:
+            raise NavlabError(
+                f"height_m = {p.height_m:g} m is the map height of Berlin's Potsdamer Platz; for "
+                f"{ep.name} give your street's ellipsoidal antenna height (scenario.height_m) or set "
+                "scenario.height_aiding=off"
+            )
+        if not np.isfinite(ep.el_deg[np.isfinite(ep.rho)]).all():  # no elevation column: from a first fix
+            r_rough, _ = robust_ls_fix(
+                ep.rho[0], ep.sat[0], np.ones(ep.rho.shape[1]), ep.sys_idx, n_sys=len(ep.clock_names)
+            )
+            el = np.where(np.isfinite(ep.el_deg), ep.el_deg, elevations_deg(ep.sat, r_rough))
+            ep = dataclasses.replace(ep, el_deg=el)
+            notes.append("elevations computed from a first least-squares fix (the file has none)")
+        vm = p.variance_model
+        has_cn0 = np.isfinite(ep.cn0[np.isfinite(ep.rho)]).all()
+        if vm in ("cn0-elevation", "cn0") and not has_cn0:
+            vm = "file" if np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all() else "elevation"
+            notes.append(f"variance model '{p.variance_model}' needs C/N0, which the file lacks: '{vm}' used")
+        if vm == "file" and not np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all():
+            raise NavlabError(
+                "variance_model 'file' needs the var_m2 column; choose 'cn0-elevation' or 'elevation'"
+            )
+        var = variance_model(ep, vm, p.cn0_a)
         sig = np.sqrt(var)
-        ep = PrEpochs(
-            ep.t[: K + 1],
-            ep.rho[: K + 1],
-            ep.sat[: K + 1],
-            ep.var_file[: K + 1],
-            ep.el_deg[: K + 1],
-            ep.cn0[: K + 1],
-            ep.sys_idx,
-            ep.names,
-            ep.speed[: K + 1],
-            ep.yaw_rate[: K + 1],
-            ep.truth_ecef[: K + 1],
-        )
         used = np.isfinite(ep.rho)
         with np.errstate(invalid="ignore"):
-            used &= (ep.el_deg >= p.elevation_mask_deg) & (ep.cn0 >= p.cn0_mask_dbhz)
+            used &= (ep.el_deg >= p.elevation_mask_deg) & ~(ep.cn0 < p.cn0_mask_dbhz)
         aid_h = p.height_aiding == "map"
         rho0 = np.where(used[0], ep.rho[0], np.nan)
         r_fix, clk = robust_ls_fix(
@@ -495,6 +608,7 @@ class SmartlocBerlin(Scenario):
             ep.sys_idx,
             height=None if p.height_aiding == "off" else p.height_m,
             sigma_height=p.sigma_height_m,
+            n_sys=len(ep.clock_names),
         )
         model = PseudorangeModel(
             ep,
@@ -512,16 +626,33 @@ class SmartlocBerlin(Scenario):
             height_prior=None
             if p.height_aiding != "map-prior"
             else (p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s),
+            q_accel=p.q_accel,
+        )
+        S = model.S
+        notes.append(
+            f"pseudoranges: {int(used.sum())} of {int(np.isfinite(ep.rho).sum())} used over {K} epochs; "
+            f"{S} system(s) ({', '.join(ep.clock_names)}), each with its own receiver clock on one "
+            f"oscillator; σ from the '{vm}' variance model; motion: "
+            + (
+                "odometry dead reckoning"
+                if model.odometry
+                else "constant velocity (no odometry in the files)"
+            )
+            + f"; height: {p.height_aiding}"
+            + ("" if ep.has_truth else "; no truth: errors cannot be computed")
         )
         m = model.m
-        streams = [run_streams(seed, r) for r in runs]
+        streams = run_streams(seed, runs)
         B = len(streams)
         # extra injected noise (schedule/outliers) in whitened units: the real errors stay
         std = schedule.std(np.ones(m), K)
         noise, var_inj, bias, mask = draw_measurement_noise(streams, std, outliers)
         t_rel = ep.t - ep.t[0]
-        cols_present = [used, (t_rel >= p.heading_init_s)[:, None]]
-        cols_z = [ep.rho / model.sigma, np.full((K + 1, 1), 1.0 / p.sigma_heading_norm)]
+        cols_present = [used]
+        cols_z = [ep.rho / model.sigma]
+        if model.odometry:
+            cols_present.append((t_rel >= p.heading_init_s)[:, None])
+            cols_z.append(np.full((K + 1, 1), 1.0 / p.sigma_heading_norm))
         if aid_h:
             cols_present.append(np.ones((K + 1, 1), dtype=bool))
             cols_z.append(np.full((K + 1, 1), p.height_m / p.sigma_height_m))
@@ -530,22 +661,31 @@ class SmartlocBerlin(Scenario):
         z_clean = np.concatenate(cols_z, axis=1)
         z = np.where(present[None], z_clean[None] + extra, np.nan)
         z[:, 0] = np.nan
-        # truth
-        enu = (ep.truth_ecef - r_fix) @ model.C_ne
-        d_true = _truth_heading(enu, ep.t)
-        cb = _truth_clocks(ep)
-        cd = np.gradient(cb[:, 0], ep.t)
-        x_true = np.concatenate([enu, d_true, cb, cd[:, None]], axis=1)
+        # truth (NaN without a truth file)
+        n = model.n
+        if ep.has_truth:
+            enu = (ep.truth_ecef - r_fix) @ model.C_ne
+            # the heading state, or (constant-velocity model) the velocity
+            d_true = _truth_heading(enu, ep.t) if model.odometry else np.gradient(enu[:, 0:2], ep.t, axis=0)
+            cb = _truth_clocks(ep)
+            cd = np.gradient(cb[:, 0], ep.t)
+            x_true = fill_rows(np.concatenate([enu, d_true, cb, cd[:, None]], axis=1))
+        else:
+            x_true = np.full((K + 1, n), np.nan)
         x0 = np.r_[np.zeros(3), np.zeros(2), clk, 0.0]
-        P0 = np.diag([10.0**2] * 3 + [1.0, 1.0] + [10.0**2] * 2 + [300.0**2])  # drift: ±1 ppm
+        P0 = np.diag(
+            [10.0**2] * 3 + ([1.0, 1.0] if model.odometry else [15.0**2] * 2) + [10.0**2] * S + [300.0**2]
+        )  # heading unknown (or a city speed, ≤ 15 m/s, without odometry); drift: ±1 ppm
         R_true = np.broadcast_to(np.ones((K + 1, m)), (B, K + 1, m)).copy()
         R_true[mask] = var_inj[mask]
-        names = (*ep.names, "|d|") + (("height",) if aid_h else ())
+        names = (*ep.names, *(("|d|",) if model.odometry else ())) + (("height",) if aid_h else ())
+        state_names = ("E", "N", "U", *(("d_E", "d_N") if model.odometry else ("v_E", "v_N")))
+        state_names += (*(f"cb_{c}" for c in ep.clock_names), "cd")
         return ScenarioData(
             scenario=self.key,
             t=t_rel,
             model=model,
-            x_true=np.broadcast_to(x_true, (B, K + 1, 8)).copy(),
+            x_true=np.broadcast_to(x_true, (B, K + 1, n)).copy(),
             z=z,
             # urban pseudorange errors reach ~100 m per epoch (WLS): a filter kilometres off has lost it
             divergence_bound=1000.0,
@@ -553,26 +693,79 @@ class SmartlocBerlin(Scenario):
             R_schedule=np.ones((K + 1, m)),
             outlier_mask=mask & present[None],
             bias=bias,
-            x0=np.broadcast_to(x0, (B, 8)).copy(),
+            x0=np.broadcast_to(x0, (B, n)).copy(),
             P0=P0,
             runs=np.asarray(runs),
-            state_names=STATE_NAMES,
+            state_names=state_names,
             channel_names=names,
             channel_units=("σ",) * len(names),
             groups={
                 "pos": MetricGroup((0, 1, 2), "m", "position (3-D)"),
                 "hpos": MetricGroup((0, 1), "m", "horizontal position"),
                 "vpos": MetricGroup((2,), "m", "vertical position"),
-                "heading": MetricGroup((3, 4), "", "unit heading vector"),
+                "heading": MetricGroup((3, 4), "", "unit heading vector")
+                if model.odometry
+                else MetricGroup((3, 4), "m/s", "horizontal velocity"),
             },
-            window=np.arange(K + 1) >= 1,
-            has_truth=True,
+            window=(np.arange(K + 1) >= 1) & (np.isfinite(ep.truth_ecef).all(axis=1) | (not ep.has_truth)),
+            has_truth=bool(ep.has_truth),
             extras={
                 "metrics": REAL_METRICS,
-                "source": SMARTLOC_SOURCE,
-                "recording": "smartloc_berlin_pp",
+                "source": SMARTLOC_SOURCE if ep.name == SMARTLOC_DIR else f"{ep.name} (your pseudoranges)",
+                "recording": ep.name,
+                "notes": notes,
                 "xy_idx": (0, 1),
                 "sigma_m": sig,
                 "t_abs_s": ep.t,
             },
         )
+
+
+@dataclass(frozen=True)
+class OwnPseudorangesParams(SmartlocParams):
+    epochs: int = param(0, lo=0, hi=1000000, help="epochs to use (0: all)")
+    height_aiding: str = param(
+        "off",
+        choices=("map-prior", "map", "off"),
+        help="'off': pseudoranges (and odometry) only; 'map-prior' / 'map': your street's height_m as a "
+        "Gauss–Markov prior / a pseudo-measurement",
+    )
+    height_m: float = param(
+        0.0,
+        lo=-500.0,
+        hi=9000.0,
+        help="your street's WGS 84 ellipsoidal antenna height (m) for height aiding",
+    )
+    data_dir: str = param(
+        "",
+        help="a folder with pseudoranges.csv[, odometry.csv, truth.csv] or one smartLoc sequence",
+        ui=False,
+    )
+
+
+@register_scenario
+class OwnPseudoranges(SmartlocBerlin):
+    key = "own-pseudoranges"
+    label = "Your own pseudoranges (generic CSV or smartLoc format)"
+    paper = "your data (generic navlab pseudorange CSV / smartLoc)"
+    summary = (
+        "Your own pseudoranges (pseudoranges.csv[, odometry.csv, truth.csv], or a smartLoc sequence): "
+        "one receiver clock per satellite system, odometry dead reckoning or a constant-velocity model."
+    )
+    Params = OwnPseudorangesParams
+    #: needs a folder of the user's files (data_dir); see OwnDrive.user_data
+    user_data: ClassVar[bool] = True
+
+    def simulate(self, schedule, outliers, runs, seed):
+        if not self.params.data_dir:
+            from navlab.errors import NavlabError
+
+            raise NavlabError(
+                "own-pseudoranges needs a folder: set scenario.data_dir=FOLDER holding pseudoranges.csv "
+                "(README 'Your own pseudoranges') or one smartLoc *_Input.txt"
+            )
+        if self.params.height_aiding != "off" and self.params.height_m == 0.0:
+            from navlab.errors import NavlabError
+
+            raise NavlabError("height aiding needs your street's ellipsoidal height: set scenario.height_m")
+        return super().simulate(schedule, outliers, runs, seed)

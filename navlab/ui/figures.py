@@ -525,6 +525,133 @@ def sweep_heatmap(df: pd.DataFrame, x_label: str, y_label: str) -> go.Figure:
     return fig
 
 
+def sweep_heatmap_2d(df: pd.DataFrame, x_label: str, y_label: str, z_label: str, title: str) -> go.Figure:
+    """Heat map of one filter's metric over two swept parameters (``param_value`` on x,
+    ``param2_value`` on y, ``value`` the metric; ``ci_lo``/``ci_hi`` in the hover).
+    """
+    piv = df.pivot_table(index="param2_value", columns="param_value", values="value")
+    lo = df.pivot_table(index="param2_value", columns="param_value", values="ci_lo").reindex_like(piv)
+    hi = df.pivot_table(index="param2_value", columns="param_value", values="ci_hi").reindex_like(piv)
+    z = piv.to_numpy(dtype=float)
+    text = np.where(np.isfinite(z), np.char.mod("%.3g", np.nan_to_num(z)), "diverged")
+    ci = np.array(
+        [
+            [f"{a:.3g} – {b:.3g}" if np.isfinite(a) else "none" for a, b in zip(ra, rb, strict=True)]
+            for ra, rb in zip(lo.to_numpy(dtype=float), hi.to_numpy(dtype=float), strict=True)
+        ]
+    )
+    fig = go.Figure(
+        go.Heatmap(
+            z=z,
+            x=[f"{v:.4g}" for v in piv.columns],
+            y=[f"{v:.4g}" for v in piv.index],
+            text=text,
+            customdata=ci,
+            texttemplate="%{text}",
+            colorscale="Viridis",
+            colorbar={"title": {"text": z_label}},
+            hovertemplate="%{x} × %{y}: %{z:.4g} (95 %% interval %{customdata})<extra></extra>".replace(
+                "%%", "%"
+            ),
+        )
+    )
+    fig.update_layout(
+        title={"text": title, "x": 0, "font": {"size": 15}},
+        height=160 + 36 * len(piv.index),
+        margin={"l": 80, "r": 20, "t": 50, "b": 55},
+    )
+    fig.update_xaxes(title_text=x_label, type="category")
+    fig.update_yaxes(title_text=y_label, type="category")
+    return fig
+
+
+def tune_landscape(
+    trials: pd.DataFrame, dims: Sequence, names: Sequence[str], tuned: dict, label: str
+) -> go.Figure:
+    """A filter's objective over its one or two most influential parameters: every candidate of
+    the first successive-halving rung (all on the same training runs), the default and the
+    tuned value marked. ``trials`` is :func:`navlab.tune.trials_frame` for this filter.
+    """
+    by = {d.name: d for d in dims}
+    t0 = trials[(trials.rung == 0) & np.isfinite(trials.objective)]
+    runs = int(t0.runs.iloc[0]) if len(t0) else 0
+    log = {n: by[n].scale == "log" for n in names}
+    if len(names) == 1:
+        n = names[0]
+        x = t0[f"p.{n}"].to_numpy(dtype=float)
+        order = np.argsort(x)
+        traces = [
+            go.Scatter(
+                x=x[order],
+                y=_f32(t0.objective.to_numpy(dtype=float)[order]),
+                mode="markers+lines",
+                name=f"candidates ({runs} runs each)",
+                line={"color": "#888", "width": 1},
+                marker={"size": 8, "color": "#1f77b4"},
+            )
+        ]
+        d0 = t0[t0.candidate == 0]
+        if len(d0):
+            traces.append(
+                go.Scatter(
+                    x=[by[n].default],
+                    y=[float(d0.objective.iloc[0])],
+                    mode="markers",
+                    name="default",
+                    marker={"size": 13, "symbol": "diamond-open", "color": TRUTH_COLOR},
+                )
+            )
+        hit = t0[np.isclose(t0[f"p.{n}"].to_numpy(dtype=float), tuned[n])]
+        if len(hit):
+            traces.append(
+                go.Scatter(
+                    x=[tuned[n]],
+                    y=[float(hit.objective.iloc[0])],
+                    mode="markers",
+                    name="tuned",
+                    marker={"size": 15, "symbol": "star", "color": "#d62728"},
+                )
+            )
+        fig = _figure(traces, f"{label}: objective over {n}", n, "objective (training seeds)")
+        fig.update_xaxes(type="log" if log[n] else "linear", range=None)
+        return fig
+    a, b = names[:2]
+    traces = [
+        go.Scatter(
+            x=t0[f"p.{a}"].to_numpy(dtype=float),
+            y=t0[f"p.{b}"].to_numpy(dtype=float),
+            mode="markers",
+            name=f"candidates ({runs} runs each)",
+            marker={
+                "size": 11,
+                "color": _f32(t0.objective.to_numpy(dtype=float)),
+                "colorscale": "Viridis",
+                "showscale": True,
+                "colorbar": {"title": {"text": "objective"}},
+            },
+            hovertemplate=f"{a} %{{x:.4g}}, {b} %{{y:.4g}}: %{{marker.color:.4g}}<extra></extra>",
+        ),
+        go.Scatter(
+            x=[by[a].default],
+            y=[by[b].default],
+            mode="markers",
+            name="default",
+            marker={"size": 14, "symbol": "diamond-open", "color": TRUTH_COLOR},
+        ),
+        go.Scatter(
+            x=[tuned[a]],
+            y=[tuned[b]],
+            mode="markers",
+            name="tuned",
+            marker={"size": 16, "symbol": "star", "color": "#d62728"},
+        ),
+    ]
+    fig = _figure(traces, f"{label}: objective over {a} × {b}", a, b)
+    fig.update_xaxes(type="log" if log[a] else "linear")
+    fig.update_yaxes(type="log" if log[b] else "linear")
+    return fig
+
+
 def schedule_preview(spec, height: int = 220) -> go.Figure:
     """The chosen noise schedule's true σ(t)/σ_nominal over the run (cheap; shown before a run).
 

@@ -12,6 +12,7 @@ PAGES = (  # (file, sidebar label, title on the home page, icon)
     ("pages/1_Compare.py", "Compare", "Compare filters", ":material/compare_arrows:"),
     ("pages/2_Noise.py", "Noise (R̂)", "Noise: R̂ inspection", ":material/graphic_eq:"),
     ("pages/3_Sweep.py", "Sweep", "Sweep a parameter", ":material/tune:"),
+    ("pages/7_Tune.py", "Tune", "Tune filters fairly", ":material/auto_fix_high:"),
     ("pages/4_Reproduce.py", "Reproduce", "Reproduce the papers", ":material/article:"),
     ("pages/5_Learn.py", "Learn", "Learn: filters step by step", ":material/school:"),
     ("pages/6_Real_data.py", "Real data", "Real data", ":material/directions_car:"),

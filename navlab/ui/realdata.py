@@ -6,8 +6,7 @@ works offline). Everything but :func:`run_with_progress` is a pure function of i
 
 from __future__ import annotations
 
-import hashlib
-import tempfile
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -17,12 +16,14 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
+from navlab.data.checks import Finding, run_messages
 from navlab.data.loaders import RTKX_SOURCE, SMARTLOC_SOURCE, load_generic
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
 from navlab.ui.colors import filter_colors
+from navlab.ui.uploads import SessionUploads, sweep
 
 RECORDINGS = {
     "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
@@ -32,7 +33,10 @@ RECORDINGS = {
 LICENCES = {
     "drive0708": RTKX_SOURCE,
     "smartloc-berlin": SMARTLOC_SOURCE,
-    "upload": "Your own files (generic navlab CSV format); nothing is stored beyond this session.",
+    "upload": (
+        "Your own files (generic navlab CSV format). They are kept in a temporary folder of this "
+        "session only and deleted when the session ends (at the latest one hour after its last use)."
+    ),
 }
 TABLE_METRICS = (
     ("h_err_median", "median horizontal error (m)"),
@@ -46,13 +50,13 @@ MAX_POINTS = 4000
 
 
 def scenario_of(recording: str) -> str:
-    return "drive0708" if recording in ("drive0708", "upload") else recording
+    return "own-drive" if recording == "upload" else recording
 
 
 def usable_filters(scenario: str) -> list[str]:
     """Registered filters that can run on real data (no oracle: it needs simulator truth)."""
     out = [k for k, c in registry().items() if c.family != "oracle"]
-    if scenario == "drive0708":
+    if scenario in ("drive0708", "own-drive"):
         # the INS model's F is exact only through f(x); a model-free per-epoch solve still works
         out = [k for k in out if not getattr(registry()[k], "linear_only", False)]
     return out
@@ -84,14 +88,15 @@ def build_spec(
     )
 
 
-def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
-    """Write uploaded generic-format files to a content-addressed temp folder and validate them.
+def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None, *, uploads: SessionUploads) -> Path:
+    """Write uploaded generic-format files into this session's upload folder and validate them.
 
-    Raises NavlabError (naming the file, line and column) if a file is malformed.
+    Raises NavlabError (naming the file, line and column) if a file is malformed; the broken
+    files are removed at once. ``uploads`` owns the folder: it is removed when the session ends
+    (:mod:`navlab.ui.uploads`).
     """
-    h = hashlib.sha256(imu + b"|" + gnss + b"|" + (truth or b"")).hexdigest()[:16]
-    d = Path(tempfile.gettempdir()) / f"navlab-upload-{h}"
-    d.mkdir(exist_ok=True)
+    sweep()
+    d = uploads.folder(imu, gnss, truth)
     (d / "imu.csv").write_bytes(imu)
     (d / "gnss.csv").write_bytes(gnss)
     if truth:
@@ -101,8 +106,34 @@ def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None) -> Path:
     try:
         load_generic(d / "imu.csv", d / "gnss.csv", (d / "truth.csv") if truth else None, name="upload")
     except NavlabError as exc:  # the user sees the uploaded names, not the temp paths
+        shutil.rmtree(d, ignore_errors=True)
         raise NavlabError(str(exc).replace(str(d) + "/", "uploaded ")) from None
     return d
+
+
+def prerun_findings(spec: ExperimentSpec) -> list[Finding]:
+    """What the filters will be fed and the checks of the recording, before a run (own drives)."""
+    from navlab.data.checks import check_drive
+
+    scen = plan(spec).scenario
+    rec, setup, _ = scen._setup()
+    return [Finding("note", n) for n in setup.notes] + check_drive(rec, setup)
+
+
+def run_findings(res: Results) -> list[Finding]:
+    """Notes, pre-run checks and the trust check of a finished run (navlab.data.checks)."""
+    return run_messages(res)
+
+
+def show_findings(st: Any, findings: Sequence[Finding], expanded: bool = False) -> None:
+    """Warnings as warnings (likely causes as a list), notes in one expander; ``st`` = streamlit."""
+    for f in findings:
+        if f.level == "warning":
+            st.warning(f.text + "".join(f"\n- {c}" for c in f.causes))
+    notes = [f.text for f in findings if f.level != "warning"]
+    if notes:
+        with st.expander("What the filters are fed, and the checks", expanded=expanded):
+            st.markdown("\n".join(f"- {n}" for n in notes))
 
 
 def run_with_progress(
@@ -147,8 +178,8 @@ def track_figure(res: Results, run: int = 0) -> go.Figure:
                 line={"color": "black", "width": 3},
             )
         )
-    if d.scenario == "drive0708":
-        z = d.z[run]
+    if hasattr(d.model, "fixes"):
+        z = d.model.fixes(d.z)[run]  # metres, also when the channels are whitened
         fig.add_trace(
             go.Scattergl(
                 x=z[sl, 1].astype(np.float32),

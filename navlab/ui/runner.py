@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 import time
 from collections import OrderedDict
@@ -23,14 +24,13 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import streamlit as st
 
 from navlab import memory
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan, run_size
-from navlab.metrics import summarize
 
+log = logging.getLogger(__name__)
 PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
 PENDING_KEY = "_navlab_pending"  # session: {page: spec_json} — a run the user asked for
 
@@ -256,11 +256,17 @@ def run_requested(page: str, spec: ExperimentSpec) -> bool:
 
 
 def show_error(exc: BaseException) -> None:
-    """A user error as a message; anything else as a short error naming the exception."""
+    """A user error as its message; anything else as a short error naming only the exception's
+    type (its message can name server paths): the traceback goes to the server log.
+    """
     if isinstance(exc, NavlabError):
         st.error(str(exc))
     else:
-        st.error(f"The run failed: {type(exc).__name__}: {exc}")
+        log.error("a run failed", exc_info=exc)
+        st.error(
+            f"The run failed with an internal error ({type(exc).__name__}); the server log has the "
+            "details. Try fewer runs or other settings, and report it if it persists."
+        )
 
 
 def run_live(
@@ -340,30 +346,3 @@ def run_live(
 
 
 # --------------------------------------------------------------------------- metric cache
-
-
-# the metrics a sweep plots, with intervals (the others are point values: cheaper per point)
-SWEEP_METRICS = ("anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
-
-
-def _sweep_rows(res: Results) -> pd.DataFrame:
-    head = [f"rmse_{g}" for g in res.data.groups] + ["mean_rmse_pos", *SWEEP_METRICS]
-    head += list(res.data.extras.get("metrics", {}))
-    return summarize(res, metrics=head)
-
-
-@st.cache_data(max_entries=512, show_spinner=False)
-def _metrics_json(spec_json: str) -> pd.DataFrame:
-    from navlab.experiment import run_experiment
-
-    return _sweep_rows(run_experiment(ExperimentSpec.from_json(spec_json)))
-
-
-def metrics_cached(spec: ExperimentSpec) -> pd.DataFrame:
-    """Tidy metric table of ``spec`` with the sweep's intervals (cached by its JSON; bounded to
-    512 configurations).
-    """
-    res = result_store().get(spec.to_json())
-    if res is not None:
-        return _sweep_rows(res)
-    return _metrics_json(spec.to_json())

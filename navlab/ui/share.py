@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import logging
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import pandas as pd
 import streamlit as st
 
+from navlab.data.loaders import check_offered
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec
+from navlab.io import MAX_JSON_BYTES, decode_text
+from navlab.ui.uploads import offered_folders
 from navlab.ui.widgets import spec_to_state
 
 UPLOAD_MSG_KEY = "_navlab_upload_msg"
+log = logging.getLogger(__name__)
 
 
 def config_download(
@@ -39,18 +45,26 @@ def csv_download(
     c.download_button(label, data, file_name=name, mime="text/csv", key=key, on_click="ignore")
 
 
-def parse_config(raw: bytes) -> ExperimentSpec:
-    """Uploaded bytes → spec; NavlabError saying what is wrong (not JSON, unknown key, …)."""
+def parse_config(
+    raw: bytes, name: str = "the uploaded file", offered: Sequence[str | Path] = ()
+) -> ExperimentSpec:
+    """Uploaded bytes → spec; NavlabError saying what is wrong (not JSON, unknown key, …).
+
+    The bytes go through navlab's one decoding path (:mod:`navlab.io`): BOM removed, binary or
+    non-UTF-8 files, oversized or deeply nested JSON refused with a message. A
+    ``scenario_params.data_dir`` must lie in the deployment's data root or in one of the
+    ``offered`` folders (this session's uploads): the browser cannot name other server folders.
+    """
     if not raw.strip():
-        raise NavlabError("the uploaded file is empty; upload a navlab configuration JSON")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
+        raise NavlabError(f"{name} is empty; upload a navlab configuration JSON")
+    if len(raw) > MAX_JSON_BYTES:
         raise NavlabError(
-            "the uploaded file is not UTF-8 text; upload a navlab configuration "
-            "JSON (e.g. one downloaded from this page)"
-        ) from None
-    return ExperimentSpec.from_json(text)
+            f"{name} is {len(raw) / 1024:.0f} kB, more than the {MAX_JSON_BYTES / 1024:.0f} kB a navlab "
+            "configuration may have; upload one downloaded from this page"
+        )
+    spec = ExperimentSpec.from_json(decode_text(raw, name))
+    check_offered(spec.scenario_params.get("data_dir"), offered)
+    return spec
 
 
 def _on_upload(key: str) -> None:
@@ -58,10 +72,18 @@ def _on_upload(key: str) -> None:
     if f is None:
         return
     try:
-        spec = parse_config(f.getvalue())
+        spec = parse_config(f.getvalue(), offered=offered_folders())
         hidden = spec_to_state(spec)
     except NavlabError as exc:
         st.session_state[UPLOAD_MSG_KEY] = ("error", f"Configuration not loaded: {exc}")
+        return
+    except Exception as exc:  # never a traceback in the browser: the server log keeps it
+        log.exception("configuration upload failed")
+        st.session_state[UPLOAD_MSG_KEY] = (
+            "error",
+            f"Configuration not loaded: it could not be read ({type(exc).__name__}); upload a "
+            "configuration downloaded from this page",
+        )
         return
     msg = f"Loaded {f.name}: scenario {spec.scenario}, {len(spec.filters)} filters, {spec.runs} runs."
     if hidden:

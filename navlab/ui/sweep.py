@@ -1,175 +1,128 @@
-"""One-parameter sweeps: which parameters can be swept, their grids, and the sweep loop.
+"""The engine of the Sweep and Tune pages: the server's results store and task executor, and
+running a job of tasks with a progress bar and a Stop button.
 
-A sweepable parameter is any numeric, widget-visible parameter of the chosen scenario, noise
-schedule, outlier model or filters, named like the widgets' keys (``ol.mixture.contamination``,
-``fp.chi2-kf.alpha``, ``sc.cv2d.sigma_r2`` …). Every point is an ordinary ExperimentSpec, run
-through the metric cache, so repeating or extending a sweep only computes new points.
+The sweep and tuning logic itself is the library's (:mod:`navlab.sweep`, :mod:`navlab.tune`),
+shared with the CLI. Tasks run on the cluster named by ``NAVLAB_DASK_SCHEDULER``
+(``tcp://HOST:8786``), by default on an embedded local cluster the server starts on the first
+job of two or more tasks and shares between sessions (``serial``: in the server process). If
+the embedded cluster cannot start, the job runs in the server process and the page says so.
+
+Every finished task is in the results store (``NAVLAB_STORE``), so Stop keeps everything
+finished, Run resumes, and a page opened again (even after a server restart) shows the finished
+points at once.
 """
 
 from __future__ import annotations
 
-import math
+import os
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-import pandas as pd
+import streamlit as st
 
+from navlab import cluster
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, plan
-from navlab.filters import registry
-from navlab.noise import OUTLIERS, SCHEDULES
-from navlab.params import describe
-from navlab.scenarios import scenario_registry
+from navlab.store import Store
+from navlab.sweep import (  # noqa: F401  (the pages import them from here)
+    MAX_POINTS,
+    Axis,
+    Sweepable,
+    apply,
+    default_range,
+    grid,
+    make_sweep,
+    run_sweep,
+    sweepables,
+)
 
-MAX_POINTS = 15
-
-
-@dataclass(frozen=True)
-class Sweepable:
-    """A numeric parameter that a sweep can vary."""
-
-    id: str  # "ol.mixture.contamination"
-    kind: str  # sc | ns | ol | fp
-    owner: str
-    name: str
-    label: str
-    default: float
-    lo: float | None
-    hi: float | None
-    integer: bool
-    help: str = ""
+PENDING_KEY = "_navlab_jobs"  # session: {page: job id} — a job the user asked for
 
 
-def sweepables(spec: ExperimentSpec) -> list[Sweepable]:
-    """Numeric parameters of the spec's outlier model, noise schedule, scenario and filters."""
-    sreg, freg = scenario_registry(), registry()
-    scls = sreg[spec.scenario]
-    groups: list[tuple[str, str, type, dict[str, Any], str]] = [
-        (
-            "ol",
-            spec.outliers,
-            OUTLIERS[spec.outliers].Params,
-            scls.outlier_defaults.get(spec.outliers, {}),
-            f"outliers {spec.outliers}",
-        ),
-        (
-            "ns",
-            spec.noise_schedule,
-            SCHEDULES[spec.noise_schedule].Params,
-            {},
-            f"noise {spec.noise_schedule}",
-        ),
-        ("sc", spec.scenario, scls.Params, {}, f"scenario {spec.scenario}"),
-    ]
-    groups += [
-        ("fp", k, freg[k].Params, scls.filter_defaults.get(k, {}), f"filter {k}") for k in spec.filters
-    ]
-    out = []
-    for kind, owner, Params, over, where in groups:
-        for p in describe(Params):
-            d = over.get(p["name"], p["default"])
-            if not p.get("ui", True) or isinstance(d, bool) or not isinstance(d, (int, float)):
-                continue
-            out.append(
-                Sweepable(
-                    id=f"{kind}.{owner}.{p['name']}",
-                    kind=kind,
-                    owner=owner,
-                    name=p["name"],
-                    label=f"{p['name'].replace('_', ' ')} ({where})",
-                    default=float(d),
-                    lo=p.get("lo"),
-                    hi=p.get("hi"),
-                    integer=isinstance(d, int),
-                    help=p.get("help", ""),
-                )
-            )
-    return out
+@st.cache_resource(show_spinner=False)
+def app_store() -> Store:
+    """The server's results store (NAVLAB_STORE, default ~/.cache/navlab/store)."""
+    return Store.open()
 
 
-def default_range(s: Sweepable) -> tuple[float, float]:
-    """A sensible default range: the admissible range clipped around the default."""
-    d = s.default
-    if s.id.endswith(".contamination"):
-        lo, hi = 0.0, 0.3
-    elif d > 0:
-        lo, hi = d / 4, d * 4
-    else:
-        lo, hi = (s.lo if s.lo is not None else -1.0), (s.hi if s.hi is not None else 1.0)
-    if s.lo is not None:
-        lo = max(lo, s.lo)
-    if s.hi is not None:
-        hi = min(hi, s.hi)
-    if s.integer:
-        lo, hi = math.ceil(lo), math.floor(hi)
-    return float(lo), float(hi)
+def app_executor() -> Any:
+    """The executor of NAVLAB_DASK_SCHEDULER (default: the embedded local cluster)."""
+    return cluster.executor(os.environ.get(cluster.ENV) or "local")
 
 
-def grid(s: Sweepable, lo: float, hi: float, n: int, log: bool) -> np.ndarray:
-    """``n`` values from lo to hi (log-spaced if ``log``), inside the admissible range."""
-    if not 2 <= n <= MAX_POINTS:
-        raise NavlabError(f"choose between 2 and {MAX_POINTS} sweep points")
-    if not hi > lo:
-        raise NavlabError("the sweep's upper end must be larger than its lower end")
-    if (s.lo is not None and lo < s.lo) or (s.hi is not None and hi > s.hi):
-        raise NavlabError(f"'{s.name}' must stay within [{s.lo}, {s.hi}]")
-    if log:
-        if lo <= 0:
-            raise NavlabError("a log-spaced sweep needs a positive lower end")
-        v = np.geomspace(lo, hi, n)
-    else:
-        v = np.linspace(lo, hi, n)
-    if s.integer:
-        v = np.unique(np.round(v).astype(int)).astype(float)
-    return v
+def where_text() -> str:
+    """Where this server's tasks run, in words."""
+    addr = (os.environ.get(cluster.ENV) or "local").strip()
+    if addr == "serial":
+        return "in the server process"
+    if addr == "local":
+        return f"on an embedded Dask cluster ({cluster.cpu_count()} worker processes on this machine)"
+    return f"on the Dask cluster at {addr}"
 
 
-def apply(spec: ExperimentSpec, s: Sweepable, value: float) -> ExperimentSpec:
-    """The spec with parameter ``s`` set to ``value`` (validated by :func:`plan`)."""
-    v: Any = round(value) if s.integer else float(value)
-    if s.kind == "sc":
-        new = spec.replace(scenario_params={**spec.scenario_params, s.name: v})
-        if s.name == "epochs":
-            new = new.replace(epochs=None)
-    elif s.kind == "ns":
-        new = spec.replace(noise_params={**spec.noise_params, s.name: v})
-    elif s.kind == "ol":
-        extra = {}
-        if s.name == "contamination":
-            extra["contamination"] = None
-        if s.name == "scale":
-            extra["outlier_scale"] = None
-        new = spec.replace(outlier_params={**spec.outlier_params, s.name: v}, **extra)
-    elif s.kind == "fp":
-        fp = {k: dict(d) for k, d in spec.filter_params.items()}
-        fp.setdefault(s.owner, {})[s.name] = v
-        new = spec.replace(filter_params=fp)
-    else:
-        raise NavlabError(f"unknown sweep parameter kind {s.kind!r}")
-    plan(new)
-    return new
+def request(page: str, job: str) -> None:
+    st.session_state.setdefault(PENDING_KEY, {})[page] = job
 
 
-def run_sweep(
-    spec: ExperimentSpec,
-    s: Sweepable,
-    values: np.ndarray,
-    metrics: Callable[[ExperimentSpec], pd.DataFrame],
-    on_point: Callable[[int, int, pd.DataFrame], None] | None = None,
-) -> pd.DataFrame:
-    """Tidy table (value, filter, label, metric, metric_value, unit) over the grid.
+def cancel(page: str) -> None:
+    st.session_state.setdefault(PENDING_KEY, {}).pop(page, None)
 
-    ``metrics(spec)`` returns :func:`navlab.metrics.summarize`'s table (the page passes the cached
-    runner); ``on_point(i, n, table_so_far)`` is called after each point.
+
+def requested(page: str, job: str) -> bool:
+    return st.session_state.get(PENDING_KEY, {}).get(page) == job
+
+
+def stored_only() -> bool:
+    """A ``should_stop`` that computes nothing: what the store already holds."""
+    return True
+
+
+def run_job(
+    page: str,
+    stop_container: Any,
+    work: Callable[..., Any],
+    *,
+    what: str = "tasks",
+) -> Any:
+    """Run ``work(store=…, executor=…, on_progress=…, tick=…)`` with a progress bar and a Stop
+    button (in ``stop_container``). Returns its result, or None after an error (shown).
+
+    Stop reruns the page: the job is interrupted at its next progress update (at most
+    :data:`navlab.cluster.POLL_S` while waiting on a cluster), the finished tasks are kept in
+    the store and the tasks still running are cancelled.
     """
-    frames: list[pd.DataFrame] = []
-    for i, v in enumerate(values):
-        m = metrics(apply(spec, s, float(v))).copy()
-        m = m.rename(columns={"value": "metric_value"})
-        m.insert(0, "value", float(v))
-        frames.append(m)
-        if on_point is not None:
-            on_point(i + 1, len(values), pd.concat(frames, ignore_index=True))
-    return pd.concat(frames, ignore_index=True)
+    bar = st.progress(0.0, text=f"starting ({where_text()})…")
+    stop_container.button(
+        "Stop",
+        key=f"_stop_{page}",
+        on_click=cancel,
+        args=(page,),
+        help="stop now: every finished task is kept, Run resumes where it stopped",
+    )
+    state = {"done": 0, "total": 1}
+
+    def progress(done: int, total: int) -> None:
+        state.update(done=done, total=max(total, 1))
+        bar.progress(min(1.0, done / state["total"]), text=f"{done}/{total} {what} · {where_text()}")
+
+    def tick() -> None:  # an element update: Streamlit handles a pending Stop here
+        bar.progress(
+            min(1.0, state["done"] / state["total"]), text=f"{state['done']}/{state['total']} {what}"
+        )
+
+    store = app_store()
+    try:
+        try:
+            return work(store=store, executor=app_executor(), on_progress=progress, tick=tick)
+        except cluster.ClusterError as exc:
+            st.warning(f"{exc}. Running in the server process instead.")
+            return work(store=store, executor=cluster.SerialExecutor(), on_progress=progress, tick=tick)
+    except NavlabError as exc:
+        bar.empty()
+        st.error(str(exc))
+        return None
+    except Exception as exc:  # shown as a message, never a traceback
+        bar.empty()
+        st.error(f"The job failed: {type(exc).__name__}: {exc}")
+        return None
+    finally:
+        cancel(page)

@@ -69,8 +69,12 @@ class PageDefaults:
 
 
 def scenario_keys() -> list[str]:
+    """The scenarios the simulation pages offer (not those that need the user's own files:
+    those run on the Real data page).
+    """
     reg = scenario_registry()
-    return sorted(reg, key=lambda k: (k != "cv2d", k))
+    keys = [k for k, c in reg.items() if not getattr(c, "user_data", False)]
+    return sorted(keys, key=lambda k: (k != "cv2d", k))
 
 
 def filter_keys() -> list[str]:

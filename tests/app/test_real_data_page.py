@@ -64,10 +64,11 @@ def test_bad_upload_names_the_file_line_and_column():
     """The page shows this message with st.error (AppTest cannot drive file_uploader)."""
     from navlab.errors import NavlabError
     from navlab.ui import realdata as R
+    from navlab.ui.uploads import SessionUploads
 
     imu = b"t_s,f_x_mps2,f_y_mps2,f_z_mps2,w_x_radps,w_y_radps\n0,0,0,9.8,0,0\n"
     with pytest.raises(NavlabError, match=r"uploaded imu.csv: line 1 \(header\) lacks column\(s\) w_z_radps"):
-        R.save_upload(imu, b"t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n")
+        R.save_upload(imu, b"t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n", uploads=SessionUploads())
 
 
 def test_url_sets_the_recording_and_its_settings(open_page):

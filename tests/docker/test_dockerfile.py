@@ -175,3 +175,20 @@ def test_image_builds_and_serves_health_as_uid_1000(request):
     )
     assert proc.returncode == 0, (proc.stdout[-4000:], proc.stderr[-4000:])
     assert "image OK" in proc.stdout
+
+
+def test_numba_kernels_are_compiled_at_build_time_into_a_writable_cache(instructions):
+    # the code folder is read-only for uid 1000: numba's cache must live elsewhere, be filled at
+    # build time (after the code is copied, before the switch to the runtime user) and stay writable
+    env = " ".join(i["value"] for i in _of(instructions, "ENV"))
+    m = re.search(r"NUMBA_CACHE_DIR=(\S+)", env)
+    assert m, "NUMBA_CACHE_DIR is not set"
+    cache = m.group(1)
+    assert not cache.startswith("/app"), "the cache must not be inside the read-only code folder"
+    warm = _index(instructions, lambda i: i["instruction"] == "RUN" and "navlab.jit" in i["value"])
+    code = _index(
+        instructions, lambda i: i["instruction"] == "COPY" and shlex.split(i["value"])[0] == "navlab/"
+    )
+    user = _index(instructions, lambda i: i["instruction"] == "USER")
+    assert code < warm < user
+    assert f"chown -R 1000:1000 {cache}" in instructions[warm]["value"]

@@ -29,6 +29,8 @@ E2E_DIR = Path(__file__).resolve().parent
 ARTIFACTS_DIR = E2E_DIR / "_artifacts"
 CHROMIUM = Path("/usr/bin/chromium")
 HEALTH_TIMEOUT_S = 60.0
+WAIT_MS = 90_000  # every browser wait: the machine is shared and runs may queue (a 30 s default
+# wait once timed out in CI one time in three)
 
 # Without the background-networking flags Chromium floods this machine's closed network.
 CHROMIUM_ARGS = [
@@ -80,6 +82,20 @@ def _wait_healthy(url: str, proc: subprocess.Popen | None, log: Path | None) -> 
             pytest.fail(f"streamlit exited with code {proc.returncode} before it was healthy:\n{tail}")
         time.sleep(0.25)
     pytest.fail(f"{url}/_stcore/health did not answer 'ok' within {HEALTH_TIMEOUT_S:.0f} s")
+
+
+@pytest.fixture(autouse=True)
+def _long_waits(request: pytest.FixtureRequest) -> None:
+    """Every wait of every browser test uses the suite's long timeout: Playwright's default
+    actions (30 s), navigations and expect() assertions (5 s) alike."""
+    from playwright.sync_api import expect
+
+    expect.set_options(timeout=WAIT_MS)
+    for name in ("page", "context"):
+        if name in request.fixturenames:
+            obj = request.getfixturevalue(name)
+            obj.set_default_timeout(WAIT_MS)
+            obj.set_default_navigation_timeout(WAIT_MS)
 
 
 @pytest.fixture(scope="session")

@@ -190,6 +190,8 @@ def test_five_sessions_run_at_once(browser: Browser, base_url: str, artifacts_di
         browser.new_context(base_url=base_url, viewport={"width": 1300, "height": 900}) for _ in range(5)
     ]
     try:
+        for c in contexts:
+            c.set_default_timeout(T)
         pages = [c.new_page() for c in contexts]
         for i, p in enumerate(pages):
             p.goto(f"/Compare?runs=30&seed={100 + i}")

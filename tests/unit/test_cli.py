@@ -158,3 +158,45 @@ def test_module_entry_point():
     )
     assert p.returncode == 0, p.stderr
     assert p.stdout.startswith("filter,label,metric,value,unit")
+
+
+def test_app_passes_streamlit_flags_and_stopping_it_stops_the_server(tmp_path):
+    import os
+    import signal
+    import socket
+    import time
+    import urllib.error
+    import urllib.request
+
+    from navlab.cli import app_command
+
+    assert app_command(["--server.port", "8611"])[-2:] == ["--server.port", "8611"]
+    assert app_command(["--", "--server.port", "8611"])[-2:] == ["--server.port", "8611"]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    args = ["--server.port", str(port), "--server.address", "127.0.0.1", "--server.headless", "true"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "navlab", "app", *args, "--browser.gatherUsageStats", "false"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env={**os.environ, "PYTHONPATH": str(__import__("pathlib").Path(__file__).resolve().parents[2])},
+    )
+    opener = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    try:
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline:
+            try:
+                if opener.open(f"http://127.0.0.1:{port}/_stcore/health", timeout=2).read() == b"ok":
+                    break
+            except OSError:
+                time.sleep(0.3)
+        else:
+            pytest.fail("navlab app did not serve on the port it was given")
+        proc.send_signal(signal.SIGTERM)  # the navlab process IS the server (exec)
+        proc.wait(timeout=30)
+        with pytest.raises(urllib.error.URLError, match="refused"):
+            opener.open(f"http://127.0.0.1:{port}/_stcore/health", timeout=2)
+    finally:
+        if proc.poll() is None:
+            proc.kill()

@@ -7,6 +7,7 @@ import pytest
 
 from navlab.data import data_root
 from navlab.data.loaders import RTKX_DIR, SMARTLOC_DIR
+from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, run_experiment
 from navlab.filters.base import LinearModel, SideInfo, make_filter
 from navlab.ins.earth import OMEGA_IE_RADPS
@@ -161,7 +162,8 @@ def test_smartloc_robust_filter_beats_per_epoch_wls():
 
 @needs_rtkx
 def test_generic_folder_runs_through_the_drive_scenario(tmp_path):
-    """The rtkx drive exported in the generic CSV format (vehicle axes, noisy fixes) runs end to end."""
+    """The rtkx drive exported in the generic CSV format (vehicle axes, noisy fixes) runs end to end
+    through own-drive (the fixes as recorded); drive0708 refuses the folder and names own-drive."""
     import pandas as pd
 
     from navlab.data import rtkx_drive_0708
@@ -186,14 +188,15 @@ def test_generic_folder_runs_through_the_drive_scenario(tmp_path):
     ).to_csv(tmp_path / "gnss.csv", index=False)
     gn[["t_s", "lat_deg", "lon_deg", "h_m"]].to_csv(tmp_path / "truth.csv", index=False)
     spec = ExperimentSpec(
-        scenario="drive0708",
+        scenario="own-drive",
         filters=("kf", "wls"),
         runs=1,
-        outliers="none",
-        scenario_params={"data_dir": str(tmp_path), "add_noise": False},
+        scenario_params={"data_dir": str(tmp_path)},
     )
+    with pytest.raises(NavlabError, match="own-drive"):
+        run_experiment(spec.replace(scenario="drive0708"))
     res = run_experiment(spec)
-    assert res.data.has_truth
+    assert res.data.has_truth and not res.data.outlier_mask.any()
     # noisy fixes of ≈2 m per horizontal axis: the INS-aided KF smooths them, WLS returns them
     assert _metric(res, "kf", "h_err_median") < 0.8 * _metric(res, "wls", "h_err_median")
     (tmp_path / "truth.csv").unlink()

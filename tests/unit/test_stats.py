@@ -66,7 +66,7 @@ def test_mean_of_rmse_and_anees_intervals_cover(kf_runs):
     W = data.window
     e2 = ((fr.x[..., [0, 2]] - data.x_true[..., [0, 2]]) ** 2).sum(-1)[:, W]
     truth = float(np.mean(np.sqrt(Ps[W][:, 0, 0] + Ps[W][:, 2, 2])))
-    cov, _ = _coverage(lambda sl: S.MeanSqrtRatio(e2[sl], np.ones_like(e2[sl])), truth)
+    cov, _ = _coverage(lambda sl: S.MeanSqrtRatio(e2[sl]), truth)
     print(f"mean of per-epoch RMSE: coverage {100 * cov:.1f} %")
     assert cov >= 0.90
     nees = fr.nees[:, W]

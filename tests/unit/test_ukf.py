@@ -255,18 +255,22 @@ def test_fading_factors_appear_with_a_state_anomaly_and_help():
     assert e_mf < 0.5 * e_ukf
 
 
-def test_mfukf_null_hypothesis_fading_mostly_one():
-    # H0 (no anomaly, right R): the χ² test rejects with probability α = 0.05, so the share of
-    # epochs whose fading factors are all 1 is ≥ 1 − α in expectation. Allow 3 binomial SEs.
-    spec = ExperimentSpec(scenario="cv2d", filters=("mfukf",), runs=40, outliers="none", seed=7)
+def test_mfukf_null_hypothesis_rejects_at_alpha_while_nominal():
+    # H0 (no anomaly, right R). Until its first rejection a run's MFUKF IS the KF (fading 1), whose
+    # innovations are independent χ²(m) draws: at every epoch with no rejection before it, the test
+    # rejects with probability α = 0.05 exactly. (Not at every epoch: after a rejection the fading
+    # leaves P⁻ off its nominal value and the next test rejects more often — ≈ 15 % measured —
+    # so the overall rate is ≈ 6 %, not α: the earlier form of this test, "overall share ≥ 1 − α",
+    # held for seed 7 of the old random-stream layout by 0.003 and is false in expectation.)
+    spec = ExperimentSpec(scenario="cv2d", filters=("mfukf",), runs=200, outliers="none", seed=7)
     res = run_experiment(spec)
+    rej = res.runs["mfukf"].stats["rejected"][:, 1:] > 0
+    nominal = (np.cumsum(rej, axis=1) - rej) == 0  # no rejection before this epoch
+    n = int(nominal.sum())
+    assert abs(rej[nominal].mean() - 0.05) < 3 * np.sqrt(0.05 * 0.95 / n)
     fad = res.runs["mfukf"].stats["fading"][:, 1:]
-    share = np.mean(np.all(fad == 1.0, axis=-1))
-    n = fad.shape[0] * fad.shape[1]
-    assert share >= 0.95 - 3 * np.sqrt(0.05 * 0.95 / n)
-    assert np.mean(fad == 1.0) >= 0.95  # per channel and epoch
-    rej = res.runs["mfukf"].stats["rejected"][:, 1:]
-    assert abs(rej.mean() - 0.05) < 4 * np.sqrt(0.05 * 0.95 / n)
+    assert (fad[nominal & ~rej] == 1.0).all()  # no fading without a rejection
+    assert np.mean(fad == 1.0) >= 0.9  # per channel and epoch: fading stays the exception
 
 
 def test_cholesky_square_root_option_equals_svd_on_linear_model():

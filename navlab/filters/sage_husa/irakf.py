@@ -67,12 +67,19 @@ class IRAKFParams:
         10,
         lo=1,
         hi=5000,
+        tune=(3, 100),
         help="RAE window M (epochs of residuals averaged; S1 gives none; R̂ = R0 until full)",
     )
-    k0: float = param(1.5, lo=0.1, hi=1e6, help="down-weighting threshold k0 in σ (S1: 0.8–1.5)")
-    k1: float = param(3.0, lo=0.1, hi=1e6, help="rejection threshold k1 in σ (S1: 3.0–5.0)")
+    k0: float = param(
+        1.5, lo=0.1, hi=1e6, tune=(0.5, 3.0), help="down-weighting threshold k0 in σ (S1: 0.8–1.5)"
+    )
+    k1: float = param(3.0, lo=0.1, hi=1e6, tune=(2.0, 10.0), help="rejection threshold k1 in σ (S1: 3.0–5.0)")
     C: float = param(
-        3.0, lo=0.1, hi=1e6, help="threshold factor C of the parallel-SKF detector, in σ (Fig. 1)"
+        3.0,
+        lo=0.1,
+        hi=1e6,
+        tune=(1.5, 10.0),
+        help="threshold factor C of the parallel-SKF detector, in σ (Fig. 1)",
     )
     dual_detection: bool = param(True, help="run the parallel standard KF detector (Fig. 1)")
     improved_rae: str = param(

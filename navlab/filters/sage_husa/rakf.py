@@ -53,18 +53,20 @@ from navlab.params import param
 class RAKFParams:
     """RAKF options (ALGORITHMS.md §4.8, RECONSTRUCTION of Bai, Han, Qi 2012)."""
 
-    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    b: float = param(0.98, lo=0.5, hi=1.0, tune=(0.8, 0.999), help="Sage–Husa forgetting factor b")
     adapt: bool = param(True, help="estimate R by Sage–Husa (off: R̂ stays R0)")
     gamma_s: float = param(
         3.0,
         lo=0.1,
         hi=1e12,
+        tune=(1.0, 20.0),
         help="reserve coefficient γ_s of the divergence test νᵀν > γ_s·tr(S) (large = off)",
     )
     c: float = param(
         2.0,
         lo=0.1,
         hi=1e12,
+        tune=(0.5, 10.0),
         help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
     )
 

@@ -46,12 +46,13 @@ from navlab.params import param
 class RRAEParams:
     """RRAE options (ALGORITHMS.md §4.7, RECONSTRUCTION of Ge et al. 2018)."""
 
-    window: int = param(10, lo=1, hi=5000, help="RAE window M (R̂ = R0 until full)")
-    k0: float = param(1.5, lo=0.1, hi=1e6, help="IGG-III down-weighting threshold k0 in σ")
+    window: int = param(10, lo=1, hi=5000, tune=(3, 100), help="RAE window M (R̂ = R0 until full)")
+    k0: float = param(1.5, lo=0.1, hi=1e6, tune=(0.5, 3.0), help="IGG-III down-weighting threshold k0 in σ")
     k1: float = param(
         5.0,
         lo=0.1,
         hi=1e6,
+        tune=(2.0, 10.0),
         help="IGG-III rejection threshold k1 in σ (5 = top of S1's range; 3 locks out, §4.7)",
     )
     form: str = param(

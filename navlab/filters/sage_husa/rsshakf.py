@@ -44,10 +44,14 @@ from navlab.params import param
 class RSSHAKFParams:
     """RSSHAKF options (ALGORITHMS.md §4.9, RECONSTRUCTION of Narasimhappa et al. 2016)."""
 
-    b: float = param(0.98, lo=0.5, hi=1.0, help="Sage–Husa forgetting factor b")
+    b: float = param(0.98, lo=0.5, hi=1.0, tune=(0.8, 0.999), help="Sage–Husa forgetting factor b")
     adapt: bool = param(True, help="estimate the diagonal R̂ (off: R̂ stays diag R0)")
     c_r: float = param(
-        2.5, lo=0.1, hi=1e12, help="outlier threshold c_r on |ν̃| (variance inflation above it)"
+        2.5,
+        lo=0.1,
+        hi=1e12,
+        tune=(1.0, 10.0),
+        help="outlier threshold c_r on |ν̃| (variance inflation above it)",
     )
     exclude_outliers: bool = param(
         False,

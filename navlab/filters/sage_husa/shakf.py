@@ -32,6 +32,7 @@ class SageHusaParams:
         0.98,
         lo=0.5,
         hi=1.0,
+        tune=(0.8, 0.999),
         help="forgetting factor b (memory ≈ 1/(1−b) epochs; 1 = running average)",
     )
     adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")

@@ -1,0 +1,144 @@
+"""Optional compiled kernels: numba where it is installed and imports, numpy everywhere else.
+
+A few loops of navlab are pure Python-call overhead when batched with numpy over a handful of
+runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch) or must
+add numbers in one fixed order per run (the simulated truth: the same bits for run r alone or in
+a batch). For those, navlab keeps two paths:
+
+* the numpy path, batched over the runs: the reference, always available;
+* a kernel written for ONE run in textbook form (plain loops over the equations), compiled by
+  numba (``nopython``, no ``fastmath``, so IEEE arithmetic in source order) and looped over the
+  runs. The tests compare the two paths (to round-off).
+
+The compiled path is used when numba imports; ``NAVLAB_NUMBA=0`` (or numba missing or broken)
+selects the numpy paths. Compiled kernels are cached on disk (numba's ``cache=True``: next to the
+sources, or in ``NUMBA_CACHE_DIR`` where the code folder is read-only, as in the Docker image).
+The first compile of every kernel costs a few seconds once per machine; :func:`warm` pays it
+up front (the Docker image runs it at build time, so the app's first click does not).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Kernel", "carray", "enabled", "numpy_paths", "warm"]
+
+
+_OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
+_numba: Any = None
+_tried = False
+_lock = threading.Lock()
+_force_numpy = False
+
+
+def _load_numba() -> Any:
+    """numba, imported on first use (≈ 0.5 s: a process that never runs a kernel never pays it).
+
+    None when disabled, missing or broken (e.g. llvmlite built for another numpy).
+    """
+    global _numba, _tried
+    with _lock:  # Streamlit sessions are threads
+        if not _tried:
+            if not _OFF:
+                try:
+                    import numba
+                except Exception:
+                    numba = None
+                _numba = numba
+            _tried = True
+    return _numba
+
+
+def enabled() -> bool:
+    """True when compiled kernels are used (numba imports and ``NAVLAB_NUMBA`` is not 0)."""
+    return _load_numba() is not None
+
+
+class Kernel:
+    """A function written for numba, compiled on first use (nopython, cached on disk).
+
+    ``kernel.get()`` returns the compiled dispatcher, or None without numba (or with
+    ``NAVLAB_NUMBA=0``): the caller then runs its numpy path. The function must be plain
+    numba-compatible Python over scalars and numpy arrays.
+    """
+
+    def __init__(self, fn: Callable) -> None:
+        self.fn = fn
+        self._dispatcher: Any = None
+
+    def get(self) -> Callable | None:
+        """The compiled kernel, or None (use the numpy path)."""
+        if _force_numpy:
+            return None
+        if self._dispatcher is None:
+            numba = _load_numba()
+            if numba is None:
+                return None
+            self._dispatcher = numba.njit(cache=True, nogil=True)(self.fn)
+        return self._dispatcher
+
+
+def carray(a: Any) -> np.ndarray:
+    """``a`` as a C-contiguous, writeable float64 array, copied only if needed.
+
+    Keeps one compiled signature per kernel: a read-only or strided argument would compile
+    another (seconds).
+    """
+    return np.require(a, dtype=np.float64, requirements=["C", "W"])
+
+
+@contextlib.contextmanager
+def numpy_paths() -> Iterator[None]:
+    """Within the block every kernel runs its numpy path (tests and benchmarks compare them).
+
+    Process-wide (not per thread): for tests and benchmarks, not for concurrent app sessions.
+    """
+    global _force_numpy
+    before, _force_numpy = _force_numpy, True
+    try:
+        yield
+    finally:
+        _force_numpy = before
+
+
+def warm() -> dict[str, float]:
+    """Compile (or load from the cache) every kernel navlab uses, on tiny inputs.
+
+    Returns the seconds each took (empty without numba). ``python -m navlab.jit`` prints them.
+    """
+    if not enabled():
+        return {}
+    from navlab.ins import earth, strapdown
+    from navlab.scenarios import base
+
+    times = {}
+    t0 = time.perf_counter()
+    s = strapdown.init_state(0.7, -1.9, 1600.0, np.zeros(3), np.eye(3), B=2)
+    t = np.array([0.0, 0.01, 0.02])
+    strapdown.propagate_block(s, t, np.tile([0.0, 0.0, 9.8], (3, 1)), np.zeros((3, 3)), t_end_s=0.03)
+    times["strapdown.propagate_block"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    e = np.zeros((1, 250, 15))  # long enough a recursion for the compiled path
+    base.propagate(np.zeros(15), np.eye(15), e, np.eye(15), e)
+    times["scenarios.base.propagate"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))
+    times["earth rotation conversions"] = time.perf_counter() - t0
+    return times
+
+
+if __name__ == "__main__":  # python -m navlab.jit: compile (or load) every kernel, print the times
+    from navlab import jit as _jit  # the module the kernels use, not this __main__ copy
+
+    took = _jit.warm()
+    if not took:
+        print("numba not available (or NAVLAB_NUMBA=0): navlab uses its numpy paths")
+    for name, sec in took.items():
+        print(f"{name}: {sec:.2f} s")

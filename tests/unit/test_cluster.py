@@ -1,0 +1,118 @@
+"""A distributed.LocalCluster (2 workers) started here gives the serial path's numbers for a sweep
+and a tune, and a task whose worker is killed halfway is recomputed: nothing is lost.
+
+Never timing-based: the kill waits for the task to say it has started (a marker file), and
+waits have only generous fail-safe limits.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+distributed = pytest.importorskip("distributed")
+cloudpickle = pytest.importorskip("cloudpickle")
+
+from navlab import sweep as SW  # noqa: E402
+from navlab import tasks as T  # noqa: E402
+from navlab import tune as TU  # noqa: E402
+from navlab.cluster import DaskExecutor  # noqa: E402
+from navlab.experiment import ExperimentSpec  # noqa: E402
+from navlab.store import Store  # noqa: E402
+
+pytestmark = pytest.mark.slow
+TIMING = ["us_per_run_step", "steps_per_s"]
+SPEC = ExperimentSpec(filters=("kf", "huber-kf"), runs=10, seed=4, epochs=30, contamination=0.1)
+SAFE_S = 300  # fail-safe limit of every wait (a loaded 2-core machine)
+
+cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import tests/
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", host="127.0.0.1"
+    )
+    c = distributed.Client(cluster, set_as_default=False)
+    c.wait_for_workers(2, timeout=SAFE_S)
+    yield c
+    c.close()
+    cluster.close()
+
+
+def _numbers(df: pd.DataFrame) -> pd.DataFrame:
+    return df[~df.metric.isin(TIMING)].reset_index(drop=True)
+
+
+def test_sweep_on_the_cluster_equals_serial(client):
+    axes = [SW.Axis(SW.resolve(SPEC, "huber-kf.gamma"), (1.0, 2.0, 4.0))]
+    serial = SW.run_sweep(SW.make_sweep(SPEC, axes, block=4))
+    par = SW.run_sweep(SW.make_sweep(SPEC, axes, block=4), executor=DaskExecutor(client, "test"))
+    assert par.complete and par.tasks_total == serial.tasks_total
+    pd.testing.assert_frame_equal(_numbers(par.rows), _numbers(serial.rows))
+
+
+def test_tune_on_the_cluster_equals_serial(client):
+    st = TU.setup(SPEC, budget=4, train_runs=8)
+    serial = TU.tune(st)
+    par = TU.tune(st, executor=DaskExecutor(client, "test"))
+    assert par.tuned == serial.tuned
+    a, b = par.rows, serial.rows
+    keep = ~a.metric.isin(TIMING)
+    pd.testing.assert_frame_equal(a[keep].reset_index(drop=True), b[keep].reset_index(drop=True))
+
+
+def _stall_once(marker: str, task: T.Task) -> T.TaskResult:
+    """Runs the task, except the first time for (kf, runs from 0): says so and hangs until killed."""
+    m = Path(marker)
+    if task.filter == "kf" and task.start == 0 and not m.exists():
+        m.write_text(str(os.getpid()))
+        time.sleep(SAFE_S)
+    return T.run_task(task)
+
+
+def test_a_task_whose_worker_dies_is_recomputed(client, tmp_path):
+    marker = tmp_path / "started"
+    ts = T.tasks_for(SPEC, block=5)
+    tasks = [t for v in ts.values() for t in v]
+    want = T.compute(tasks)  # serial reference
+    store = Store(tmp_path / "store")
+    got: dict = {}
+    err: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            got.update(
+                T.compute(
+                    tasks,
+                    store=store,
+                    executor=DaskExecutor(client, "test"),
+                    task_fn=functools.partial(_stall_once, str(marker)),
+                )
+            )
+        except BaseException as exc:
+            err.append(exc)
+
+    th = threading.Thread(target=work)
+    th.start()
+    deadline = time.monotonic() + SAFE_S
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert marker.exists(), "the stalling task never started"
+    time.sleep(0.2)  # let the pid be written completely
+    os.kill(int(marker.read_text()), signal.SIGKILL)  # the worker dies halfway through the task
+    th.join(SAFE_S)
+    assert not th.is_alive() and not err, err
+    assert set(got) == {t.key for t in tasks}
+    for t in tasks:
+        assert store.get(t.key) is not None  # every task stored
+        a, b = got[t.key].stats, want[t.key].stats
+        assert (a.sse["pos"] == b.sse["pos"]).all() and (a.diverged == b.diverged).all()

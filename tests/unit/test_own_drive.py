@@ -1,0 +1,279 @@
+"""Own recordings (scenario own-drive): time gaps, in-motion starts, the data as recorded, receiver
+σ, mounting, lever arm, GNSS time offset, and the checks before and after a run.
+
+The real-data tests cut short slices of rtkx_drive_0708 with examples/convert_drive0708.py (the
+worked conversion of the README), so the example is tested too; they skip without the data.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from navlab.cli import main
+from navlab.data import data_root
+from navlab.data.checks import TRUST_FACTOR, Finding, heading_change_slope, time_offset_hint, trust_check
+from navlab.data.loaders import RTKX_DIR
+from navlab.experiment import ExperimentSpec, run_experiment
+from navlab.ins.lc import bridge_gaps, gap_Qc, gap_time_per_block
+
+ROOT = Path(__file__).resolve().parents[2]
+needs_rtkx = pytest.mark.skipif(
+    not (data_root() / RTKX_DIR).is_dir(), reason=f"real data not found: {data_root() / RTKX_DIR}"
+)
+MOUNT = {"mount_roll_deg": -6.8, "mount_yaw_deg": 95.4}  # rtkx IMU in the vehicle frame
+
+
+def _convert(out: Path, *args: str) -> None:
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        import convert_drive0708
+    finally:
+        sys.path.pop(0)
+    assert convert_drive0708.main(["--out", str(out), *args]) == 0
+
+
+def _run(folder: Path, filters=("kf",), **params):
+    spec = ExperimentSpec(
+        scenario="own-drive",
+        filters=tuple(filters),
+        runs=1,
+        scenario_params={"data_dir": str(folder), **MOUNT, **params},
+    )
+    return run_experiment(spec)
+
+
+def _metric(res, key, metric):
+    df = res.metrics()
+    return float(df[(df["filter"] == key) & (df.metric == metric)].value.iloc[0])
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory):
+    """90 s of the drive cut where the car first exceeds 5 m/s, fixes σ = 3 m with receiver σ."""
+    if not (data_root() / RTKX_DIR).is_dir():
+        pytest.skip("real data not found")
+    d = tmp_path_factory.mktemp("moving")
+    _convert(d, "--seconds", "90")
+    return d
+
+
+# ------------------------------------------------------------------ gaps (issue 12, item 5)
+
+
+def test_bridge_gaps_interpolates_and_reports():
+    t = np.r_[np.arange(0, 1, 0.01), np.arange(3.0, 4, 0.01)]
+    f = np.c_[t, 2 * t, 3 * t]
+    tt, ff, _ww, gaps = bridge_gaps(t, f, f.copy())
+    assert gaps == [(pytest.approx(0.99), pytest.approx(2.01))]
+    assert np.max(np.diff(tt)) < 0.011 and np.allclose(ff[:, 1], 2 * tt)
+    per = gap_time_per_block(np.array([0.0, 1.0, 2.0, 3.0, 4.0]), gaps)
+    np.testing.assert_allclose(per, [0, 0.01, 1.0, 1.0, 0], atol=1e-9)
+    assert np.all(np.diag(gap_Qc(0.5))[:6] > 0) and np.all(np.diag(gap_Qc(0.5))[6:] == 0)
+    assert bridge_gaps(t[:100], f[:100], f[:100])[3] == []
+
+
+@needs_rtkx
+def test_imu_and_gnss_gaps_give_a_note_not_a_crash(tmp_path, capsys):
+    """Before: IndexError 'index 0 is out of bounds' for an imu.csv with a 2 s gap."""
+    _convert(tmp_path, "--seconds", "60")
+    imu = pd.read_csv(tmp_path / "imu.csv", comment="#")
+    t0 = imu.t_s.iloc[0]
+    imu[~imu.t_s.between(t0 + 30.0, t0 + 32.0)].to_csv(tmp_path / "imu.csv", index=False)
+    gnss = pd.read_csv(tmp_path / "gnss.csv", comment="#")
+    gnss[~gnss.t_s.between(t0 + 40.0, t0 + 45.0)].to_csv(tmp_path / "gnss.csv", index=False)
+    res = _run(tmp_path)
+    notes = " ".join(res.data.extras["notes"])
+    assert "IMU: 1 time gap(s) bridged" in notes and "longest 2.0" in notes
+    assert "GNSS: 5 epoch(s) without a fix" in notes
+    assert _metric(res, "kf", "diverged") == 0 and np.isfinite(_metric(res, "kf", "rmse_pos"))
+    assert _metric(res, "kf", "rmse_pos") < 5.0
+    rc = main(
+        ["run", "--scenario", "own-drive", "--filters", "kf", "--set", f"scenario.data_dir={tmp_path}"]
+        + [f"--set=scenario.{k}={v}" for k, v in MOUNT.items()]
+    )
+    err = capsys.readouterr().err
+    assert rc == 0 and "time gap(s) bridged" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ starts in motion, data as recorded
+
+
+@needs_rtkx
+def test_a_drive_cut_at_speed_starts_in_motion_and_beats_its_gnss(moving):
+    res = _run(moving, eval_from_s=0.0)
+    d = res.data
+    assert d.extras["start"] == "moving"
+    assert any("GNSS: the recorded fixes as recorded" in n for n in d.extras["notes"])
+    t_cut = d.extras["t_abs_s"][0]
+    late = _run(moving, eval_from_s=float(t_cut) + 30.0)
+    raw = next(f for f in trust_check(late) if f.level == "note").text
+    kf = _metric(late, "kf", "rmse_pos")
+    gnss = float(raw.split("fixes ")[1].split(" m")[0])
+    assert kf < 0.6 * gnss  # 1 Hz fixes of 3 m per axis: ≈ 5.2 m 3-D
+    assert not any(f.level == "warning" for f in trust_check(late))
+
+
+@needs_rtkx
+def test_recorded_fixes_are_fed_unchanged_and_receiver_sigmas_set_R(moving):
+    res = _run(moving)
+    d = res.data
+    assert not d.outlier_mask.any()  # no synthetic outliers by default for own data
+    model = d.model
+    assert model.whitened and d.channel_units[:3] == ("σ", "σ", "σ")
+    np.testing.assert_allclose(model.R0[:3, :3], np.eye(3))
+    fixes = model.fixes(d.z)[0]
+    g = pd.read_csv(moving / "gnss.csv", comment="#")
+    ok = np.isfinite(fixes).all(axis=1)
+    rec = model.setup.to_local(np.radians(g.lat_deg), np.radians(g.lon_deg), g.h_m.to_numpy())
+    np.testing.assert_allclose(fixes[ok], rec[np.isin(g.t_s, d.extras["t_abs_s"][ok])], atol=1e-6)
+    np.testing.assert_allclose(model.scale[:, :3][ok], 3.0)  # the file's sigma_* columns
+    plain = _run(moving, use_receiver_sigmas=False, sigma_m=4.0)
+    assert not plain.data.model.whitened and plain.data.channel_units[0] == "m"
+    np.testing.assert_allclose(np.diag(plain.data.model.R0)[:3], 16.0)
+    noisy = _run(moving, add_noise=True)
+    assert not np.allclose(noisy.data.model.fixes(noisy.data.z)[0][1:], fixes[1:], equal_nan=True)
+    assert any("synthetic noise" in n for n in noisy.data.extras["notes"])
+
+
+@needs_rtkx
+def test_gnss_rate_as_recorded_unless_resampled(tmp_path):
+    _convert(tmp_path, "--seconds", "40", "--clean")  # 1 Hz fixes; the truth is 4 Hz
+    (tmp_path / "gnss.csv").write_text((tmp_path / "truth.csv").read_text())  # a 4 Hz "receiver"
+    d4 = _run(tmp_path, add_noise=True, use_receiver_sigmas=False).data
+    assert np.median(np.diff(d4.t)) == pytest.approx(0.25)
+    d1 = _run(tmp_path, add_noise=True, use_receiver_sigmas=False, gnss_rate_hz=1.0).data
+    assert np.median(np.diff(d1.t)) == pytest.approx(1.0)
+
+
+@needs_rtkx
+def test_mounting_rotation_equals_rotating_the_columns(tmp_path, moving):
+    from navlab.ins.align import body_to_vehicle
+
+    imu = pd.read_csv(moving / "imu.csv", comment="#")
+    C = body_to_vehicle(0.0, MOUNT["mount_yaw_deg"], MOUNT["mount_roll_deg"], nominal=np.eye(3))
+    cols = [c for c in imu.columns if c != "t_s"]
+    imu[cols[:3]] = imu[cols[:3]].to_numpy() @ C.T
+    imu[cols[3:]] = imu[cols[3:]].to_numpy() @ C.T
+    for f in ("gnss.csv", "truth.csv"):
+        (tmp_path / f).write_text((moving / f).read_text())
+    imu.to_csv(tmp_path / "imu.csv", index=False)
+    spec = ExperimentSpec(
+        scenario="own-drive",
+        filters=("kf",),
+        runs=1,
+        scenario_params={"data_dir": str(tmp_path), "epochs": 40},
+    )
+    a = run_experiment(spec).runs["kf"].x[0, :, 6:9]
+    b = _run(moving, epochs=40).runs["kf"].x[0, :, 6:9]
+    np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+@needs_rtkx
+def test_lever_arm_enters_the_measurement_and_its_jacobian(moving):
+    res = _run(moving, epochs=20, lever_right_m=0.5, lever_forward_m=1.5, lever_up_m=1.0)
+    m = res.data.model
+    x = res.runs["kf"].x[0, 10][None].copy()
+    x[:, 0:3] = 0.0  # the model linearises the attitude about the reference (a = 0)
+    k = 10
+    h0 = m.h(x, k)
+    J = np.zeros((m.m, 15))
+    for i in range(15):
+        dx = np.zeros(15)
+        dx[i] = 1e-6
+        J[:, i] = (m.h(x + dx, k) - m.h(x - dx, k))[0] / 2e-6
+    np.testing.assert_allclose(m.H(x, k)[0], J, atol=1e-5)
+    no = _run(moving, epochs=20).data.model
+    off = (h0 - no.h(x, k))[0, :3] * m.scale[k, :3]
+    assert np.linalg.norm(off) == pytest.approx(np.linalg.norm([0.5, 1.5, 1.0]), rel=1e-6)
+
+
+@needs_rtkx
+def test_time_offset_hint_finds_a_gnss_latency(tmp_path, moving):
+    g = pd.read_csv(moving / "gnss.csv", comment="#")
+    for f in ("imu.csv", "truth.csv"):
+        (tmp_path / f).write_text((moving / f).read_text())
+    g.assign(t_s=g.t_s + 0.4).to_csv(tmp_path / "gnss.csv", index=False)  # stamps 0.4 s late
+    res = _run(tmp_path, epochs=60)
+    hint = next(f for f in res.data.extras["findings"] if "GNSS time offset" in f.text)
+    assert hint.level == "warning"
+    value = float(hint.text.split("≈ ")[1].split(" s")[0])
+    assert value == pytest.approx(-0.4, abs=0.08)
+    ok = _run(moving, epochs=60)
+    hint0 = next(f for f in ok.data.extras["findings"] if "GNSS time offset" in f.text)
+    assert hint0.level == "note" and abs(float(hint0.text.split("≈ ")[1].split(" s")[0])) < 0.08
+
+
+@needs_rtkx
+def test_upside_down_imu_is_named_before_the_run(tmp_path, moving):
+    imu = pd.read_csv(moving / "imu.csv", comment="#")
+    for c in ("f_y_mps2", "f_z_mps2", "w_y_radps", "w_z_radps"):  # an FRD-style z-down IMU
+        imu[c] = -imu[c]
+    imu.to_csv(tmp_path / "imu.csv", index=False)
+    for f in ("gnss.csv", "truth.csv"):
+        (tmp_path / f).write_text((moving / f).read_text())
+    res = _run(tmp_path, epochs=30)
+    text = " ".join(f.text for f in res.data.extras["findings"] if f.level == "warning")
+    assert "z axis points DOWN" in text
+
+
+def test_gyro_slope_tells_units_and_sign():
+    t_g = np.arange(0, 120, 1.0)
+    course = 0.5 * np.sin(t_g / 10.0)  # turning left and right, clockwise from north
+    v = 10 * np.c_[np.sin(course), np.cos(course), 0 * t_g]
+    t_i = np.arange(0, 120, 0.01)
+    w_true = -np.interp(t_i, t_g, np.gradient(course, t_g))  # counter-clockwise
+    for scale, want in ((1.0, 1.0), (np.degrees(1.0), 57.3), (-1.0, -1.0)):
+        slope, r, n = heading_change_slope(t_g, v, t_i, scale * w_true, 2.0)
+        assert slope == pytest.approx(want, rel=0.05) and abs(r) > 0.9 and n > 10
+    lag = time_offset_hint(t_g + 0.3, v, t_i, w_true)
+    assert lag == pytest.approx(-0.3, abs=0.05)
+
+
+# ------------------------------------------------------------------ the trust check
+
+
+def _fake(err_filter: float, err_gnss: float, truth: bool = True):
+    K = 50
+    rng = np.random.default_rng(0)
+    x_true = np.zeros((1, K + 1, 15))
+    fixes = x_true[..., 6:9] + err_gnss / np.sqrt(3) * rng.standard_normal((1, K + 1, 3))
+    x = x_true.copy()
+    x[..., 6:9] += err_filter / np.sqrt(3) * rng.standard_normal((1, K + 1, 3))
+    fixes[:, 0] = np.nan  # epoch 0 carries no measurement
+    data = SimpleNamespace(
+        model=SimpleNamespace(fixes=lambda z: z),
+        z=fixes,
+        groups={"pos": SimpleNamespace(idx=(6, 7, 8))},
+        window=np.arange(K + 1) >= 1,
+        has_truth=truth,
+        x_true=x_true,
+        extras={
+            "p_true_antenna": x_true[0, :, 6:9],
+            "fix_sigma_m": np.full((K + 1, 3), err_gnss / np.sqrt(3)),
+            "start": "moving",
+            "findings": [Finding("warning", "gravity reads -9.81 m/s² on z")],
+        },
+    )
+    fr = SimpleNamespace(x=x, diverged=np.zeros(1, bool), label="KF")
+    return SimpleNamespace(data=data, runs={"kf": fr})
+
+
+@pytest.mark.parametrize("truth", [True, False])
+def test_trust_check_warns_only_when_every_filter_is_much_worse_than_its_gnss(truth):
+    good = trust_check(_fake(1.0, 5.0, truth))
+    assert [f.level for f in good] == ["note"]
+    bad = trust_check(_fake(5.0 * TRUST_FACTOR * 1.5, 5.0, truth))
+    assert [f.level for f in bad] == ["note", "warning"]
+    w = bad[1]
+    assert "cannot be trusted" in w.text and ("no truth" in bad[0].text) != truth
+    assert w.causes[0].startswith("the check before the run: gravity")  # the flagged check first
+    assert any("mounting rotation" in c for c in w.causes) and any(
+        "gnss_time_offset_s" in c for c in w.causes
+    )
+    assert "Likely causes: (1)" in str(w)
