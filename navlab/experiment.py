@@ -9,7 +9,6 @@ app streams them), :func:`run_experiment` returns the final :class:`Results`.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import json
@@ -24,7 +23,7 @@ import numpy as np
 from navlab import memory
 from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
-from navlab.filters.linalg import Array, diag, quad
+from navlab.linalg import Array, diag, quad
 from navlab.metrics import NEES_BOUND, divergence_bound
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
 from navlab.scenarios.base import Scenario, ScenarioData, get_scenario_class
@@ -260,64 +259,6 @@ def _stack(arrays: Sequence[Any], shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(st, (len(arrays), *shape))
 
 
-def _quad_lapack(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (N, d), S (N, d, d); NaN where S is singular."""
-    try:
-        return np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
-    except np.linalg.LinAlgError:  # a singular S somewhere: NaN only where it is
-        q = np.full(v.shape[0], np.nan)
-        for i in range(q.size):
-            with contextlib.suppress(np.linalg.LinAlgError):
-                q[i] = v[i] @ np.linalg.solve(S[i], v[i])
-        return q
-
-
-def _quad_ldl(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v by symmetric elimination S = L D Lᵀ (no pivoting: stable for positive-definite S).
-
-    ``S`` is (d, d, *s) and ``v`` (d, *t) with the batch axes last and ``s`` broadcastable to
-    ``t``: a covariance shared by many runs is factored once, and every run's value is computed
-    with exactly the arithmetic it would get alone, so batching never changes a value's round-off.
-    q = Σᵢ yᵢ²/Dᵢ with L y = v.
-    """
-    d = S.shape[0]
-    A = np.array(S, dtype=float)  # the elimination works in place
-    y = np.array(v, dtype=float)
-    q = np.zeros(np.broadcast_shapes(S.shape[2:], v.shape[1:]))
-    for i in range(d):
-        piv = A[i, i]
-        q += y[i] ** 2 / piv
-        if i + 1 < d:
-            f = A[i + 1 :, i] / piv
-            A[i + 1 :, i:] -= f[:, None] * A[i, i:][None]
-            y[i + 1 :] = y[i + 1 :] - f * y[i]
-    return q
-
-
-def _quad_stack(v: Array, S: Array) -> Array:
-    """vᵀ S⁻¹ v for v (L, B, d), S (L, B, d, d) -> (L, B); NaN where S is singular or not finite.
-
-    One kernel whatever the batch: the 2×2 closed form (linalg.quad) or the elimination above, a
-    covariance shared by every run (the KF's P: stride 0 over the runs) factored once per epoch;
-    LU with pivoting decides only entries the elimination could not (a zero pivot of a singular
-    or indefinite S), one matrix at a time. So a value depends on its own run only, never on the
-    chunk of runs it was computed with.
-    """
-    d = v.shape[-1]
-    shared = S.shape[1] > 1 and S.strides[1] == 0
-    with np.errstate(all="ignore"):
-        if d == 2:
-            q = quad(v.reshape(-1, 2), np.broadcast_to(S, (*v.shape, 2)).reshape(-1, 2, 2))
-            q = q.reshape(v.shape[:-1])
-        else:
-            Sm = S[:, :1] if shared else S  # (L, 1 or B, d, d)
-            q = _quad_ldl(np.moveaxis(v, -1, 0), np.moveaxis(Sm, (-2, -1), (0, 1)))
-        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(S).all(axis=(-2, -1))
-        if redo.any():
-            q[redo] = _quad_lapack(v[redo], np.broadcast_to(S, (*v.shape, d))[redo])
-        return q
-
-
 class _Recorder:
     """Preallocated (B, K+1, …) arrays for one filter; fields appear on first use.
 
@@ -412,11 +353,11 @@ class _Recorder:
         no_nis = [j for j, o in enumerate(outs) if "nis" not in o.stats]
         if no_nis:
             inn = np.stack([outs[j].innov for j in no_nis])
-            self.nis[:, [items[j][0] for j in no_nis]] = _quad_stack(inn, S[no_nis]).T
+            self.nis[:, [items[j][0] for j in no_nis]] = quad(inn, S[no_nis]).T
         why = np.where(np.isfinite(x).all(axis=2) & np.isfinite(Pd).all(axis=2), 0, 1)  # (B, L)
         if self.x_true is not None:
             dx = (x - self.x_true[:, ks]).swapaxes(0, 1)
-            nees = _quad_stack(dx, P).T
+            nees = quad(dx, P).T
             self.nees[:, ks] = nees
             win = self.window[ks]  # the error and NEES bounds apply inside the analysis window
             with np.errstate(over="ignore", invalid="ignore"):  # a run-away's error is inf

@@ -41,7 +41,7 @@ from scipy.stats import chi2
 
 from navlab import stats as S
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 
 if TYPE_CHECKING:
     from navlab.data.loaders import DriveRecording

@@ -1,9 +1,9 @@
-"""Filter families. Importing this package imports (and so registers) every module in it."""
-
-import importlib
-import pkgutil
+"""Filter families. Each module registers its filters in :data:`FILTERS` (navlab.registry), which
+imports every module of this package on first use.
+"""
 
 from navlab.filters.base import (
+    FILTERS,
     Filter,
     KFState,
     LinearModel,
@@ -17,6 +17,7 @@ from navlab.filters.base import (
 )
 
 __all__ = [
+    "FILTERS",
     "Filter",
     "KFState",
     "LinearModel",
@@ -28,7 +29,3 @@ __all__ = [
     "register",
     "registry",
 ]
-
-# every module of this package registers its filters with @register on import
-for _m in pkgutil.iter_modules(__path__):
-    importlib.import_module(f"{__name__}.{_m.name}")

@@ -18,8 +18,8 @@ from typing import Any, ClassVar, NamedTuple, Protocol
 import numpy as np
 
 from navlab import params as P_
-from navlab.errors import NavlabError
-from navlab.filters.linalg import Array, mv
+from navlab.linalg import Array, mv, predict_cov
+from navlab.registry import Registry
 
 
 class Model(Protocol):
@@ -145,6 +145,57 @@ FLAG_NAMES = {
 }
 
 
+@dataclass(frozen=True)
+class Teaching:
+    """What the Learn page teaches about a filter (navlab/learn.py reads it from the class).
+
+    idea : one paragraph in plain words.
+    equations : the key equations, LaTeX, one ``st.latex`` call each (from ALGORITHMS.md).
+    caveat : what the tiny step-through example cannot show for this filter ("" if nothing).
+    """
+
+    idea: str = ""
+    equations: tuple[str, ...] = ()
+    caveat: str = ""
+
+
+@dataclass(frozen=True)
+class KFLimit:
+    """Parameter values under which a filter reduces to the standard KF (§1.1).
+
+    The contract tests (tests/contract) run the filter with ``params`` beside ``kf`` on data with
+    the nominal R and no outliers and require the same estimates.
+
+    params : the filter's parameters in the limit (e.g. a Huber threshold γ → ∞ as 1e12).
+    linear_only : the reduction holds on linear models only (the unscented transform of a linear
+        map is exact; of a nonlinear one it is not the EKF's linearisation).
+    why : one line on why this is the limit.
+    """
+
+    params: dict[str, Any]
+    linear_only: bool = False
+    why: str = ""
+
+
+def flag_fix(flags: Array, fixed: Array, *, overwrite: bool = True) -> Array:
+    """Mark numerical fixes (flag 9, §0.3) in the per-channel ``flags`` (B, m), in place.
+
+    ``fixed`` is () or (B,) (the whole run, e.g. a singular S that needed jitter) or (B, m) (the
+    channels concerned, e.g. an R̂ variance moved by the eigenvalue clamp). ``overwrite``: the fix
+    replaces whatever code the channel had; otherwise only still-accepted channels (code 0) get 9,
+    so a down-weighting or rejection stays visible. Returns ``flags``.
+    """
+    fixed = np.asarray(fixed, dtype=bool)
+    if fixed.any():
+        if fixed.ndim < 2:  # per run
+            fixed = np.broadcast_to(fixed, flags.shape[:1])[:, None]
+        where = np.broadcast_to(fixed, flags.shape)
+        if not overwrite:
+            where = where & (flags == ACCEPTED)
+        flags[where] = NUMERICAL_FIX
+    return flags
+
+
 class Filter:
     """Base class: subclass, set the class attributes, implement init/predict/update, register.
 
@@ -157,6 +208,8 @@ class Filter:
     spec_section : the section of ALGORITHMS.md it follows.
     reconstruction : True where the original could not be retrieved (shown in the app).
     estimates_R : True if it reports an R̂.
+    teaching : :class:`Teaching` — idea, key equations, caveat (the Learn page).
+    kf_limit : :class:`KFLimit` — parameters under which it is the KF (None: it never is).
     linear_only : True if it needs a linear model (uses F, H; ignores f, h).
     Params : frozen dataclass of hyper-parameters declared with :func:`navlab.params.param`.
     """
@@ -171,6 +224,8 @@ class Filter:
     estimates_R: ClassVar[bool] = False
     linear_only: ClassVar[bool] = False
     Params: ClassVar[type] = P_.NoParams
+    teaching: ClassVar[Teaching] = Teaching()
+    kf_limit: ClassVar[KFLimit | None] = None
 
     def __init__(self, params: Any = None, **kwargs: Any) -> None:
         if params is None or isinstance(params, dict):
@@ -187,8 +242,6 @@ class Filter:
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         """Time update k−1 → k (default: the KF/EKF prediction)."""
-        from navlab.filters.linalg import predict_cov
-
         return state._replace(x=model.f(state.x, k), P=predict_cov(model.F(k), state.P, model.Q(k)))
 
     def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> tuple[Any, StepOut]:
@@ -196,36 +249,28 @@ class Filter:
         raise NotImplementedError
 
 
-_REGISTRY: dict[str, type[Filter]] = {}
-
-
-def register(cls: type[Filter]) -> type[Filter]:
-    """Class decorator adding a filter to the registry under ``cls.key``."""
-    if not cls.key or cls.key != cls.key.lower() or " " in cls.key or "_" in cls.key:
-        raise ValueError(f"filter key must be kebab-case, got {cls.key!r}")
-    if cls.key in _REGISTRY and _REGISTRY[cls.key] is not cls:
-        raise ValueError(f"filter key {cls.key!r} registered twice")
+def _check_filter(cls: type[Filter]) -> None:
     if not dataclasses.is_dataclass(cls.Params):
         raise TypeError(f"{cls.__name__}.Params must be a dataclass")
-    _REGISTRY[cls.key] = cls
-    return cls
+
+
+#: Every filter, by key; the modules of :mod:`navlab.filters` register theirs with :func:`register`.
+FILTERS: Registry[type[Filter]] = Registry("filter", package="navlab.filters", check=_check_filter)
+
+#: Class decorator adding a filter to :data:`FILTERS` under ``cls.key`` (kebab-case).
+register = FILTERS.register
 
 
 def registry() -> dict[str, type[Filter]]:
-    """All registered filters, by key (importing every filter family first)."""
-    import navlab.filters  # noqa: F401  (registers the families)
-
-    return dict(_REGISTRY)
+    """All registered filters, by key (a copy of :data:`FILTERS`)."""
+    return dict(FILTERS)
 
 
 def get_filter_class(key: str) -> type[Filter]:
     """The filter class registered as ``key``; NavlabError naming the known keys otherwise."""
-    reg = registry()
-    if key not in reg:
-        raise NavlabError(f"unknown filter '{key}'; known filters: {', '.join(sorted(reg))}")
-    return reg[key]
+    return FILTERS.lookup(key)
 
 
 def make_filter(key: str, params: dict[str, Any] | None = None) -> Filter:
     """Instantiate a registered filter with validated parameters."""
-    return get_filter_class(key)(params or {})
+    return FILTERS.make(key, params)

@@ -22,9 +22,9 @@ doi:10.3969/j.issn.1000-386x.2024.06.041.
 
 from __future__ import annotations
 
-from navlab.filters.base import Filter, KFState, Model, SideInfo, StepOut, register
-from navlab.filters.kalman import kf_update
-from navlab.filters.linalg import Array, mT, sym
+from navlab.filters.base import Filter, KFLimit, KFState, Model, SideInfo, StepOut, Teaching, register
+from navlab.filters.kalman import _flags, kf_update, measurement_prediction
+from navlab.linalg import Array, mT, sym
 
 
 def ekf_predict(model: Model, x: Array, P: Array, k: int) -> tuple[Array, Array]:
@@ -52,15 +52,33 @@ class EKF(Filter):
         "The Kalman filter linearised about the current estimate (Jacobians of f and h); "
         "fixed, assumed-known Q and R. Equals the KF on linear models."
     )
+    kf_limit = KFLimit({}, why="the same update as the KF (which linearises h too); F is the model's")
+    teaching = Teaching(
+        idea=(
+            "The extended KF linearises a nonlinear motion or measurement model around the current "
+            "estimate (Jacobians A and H) and then applies the KF equations. On a linear model it is "
+            "exactly the KF."
+        ),
+        equations=(
+            r"x^-_k = f(x^+_{k-1}, u_{k-1}), \qquad A = \partial f/\partial x|_{x^+_{k-1}}, \qquad "
+            r"P^-_k = A P^+_{k-1} A^\top + Q",
+            r"H = \partial h/\partial x|_{x^-_k}, \qquad \nu_k = z_k - h(x^-_k), \qquad "
+            r"S_k = H P^-_k H^\top + R",
+            r"K_k = P^-_k H^\top S_k^{-1}, \qquad x^+_k = x^-_k + K_k\nu_k",
+        ),
+        caveat="The tiny example is linear, so the EKF's steps are exactly the KF's.",
+    )
 
     def predict(self, model: Model, state: KFState, k: int) -> KFState:
         x, P = ekf_predict(model, state.x, state.P, k)
         return state._replace(x=x, P=P)
 
     def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        # (9)–(11): H = ∂h/∂x at x⁻, ν = z − h(x⁻), Joseph form (§0.2 rule 2)
-        x, P, nu, S, R, flags = kf_update(model, state.x, state.P, k, z, model.R0)
-        return KFState(x, P), StepOut(x=x, P=P, innov=nu, S=S, R_used=R, flags=flags)
+        # (9) H = ∂h/∂x at x⁻, ν = z − h(x⁻), S = H P⁻ Hᵀ + R
+        mk = measurement_prediction(model, state.x, state.P, k, z, model.R0)
+        # (9)–(11) K = P⁻ Hᵀ S⁻¹, x⁺ = x⁻ + K ν, Joseph form (§0.2 rule 2)
+        x, P, S, _, fixed = kf_update(state.x, state.P, mk.U, mk.M, mk.nu, mk.R)
+        return KFState(x, P), StepOut(x=x, P=P, innov=mk.nu, S=S, R_used=mk.R, flags=_flags(z, fixed))
 
 
 __all__ = ["EKF", "ekf_predict"]

@@ -33,22 +33,22 @@ import numpy as np
 
 from navlab.filters.base import (
     EPOCH_ANOMALY,
-    NUMERICAL_FIX,
     REPLACED,
+    KFLimit,
     Model,
     SideInfo,
     StepOut,
+    Teaching,
+    flag_fix,
     register,
 )
-from navlab.filters.linalg import Array, sym
 from navlab.filters.rbf import RBFNet, train
 from navlab.filters.ukf import (
     MFUKFParams,
     UKFState,
-    _batched,
     _FadingBase,
-    mask_channels,
 )
+from navlab.linalg import Array, batched, mask_missing, sym
 from navlab.params import param
 
 
@@ -67,7 +67,6 @@ class NNState(NamedTuple):
     buf_ok: tuple[Array, ...] | None  # admissible (B,)
     net: RBFNet | None
     run_len: Array  # (B,) consecutive replaced epochs
-    psd: bool = False  # see UKFState
 
 
 @dataclass(frozen=True)
@@ -138,6 +137,32 @@ class NNMFUKF(_FadingBase):
         "replaces the GPS observation by the network's prediction, then fades what remains."
     )
     Params = NNMFUKFParams
+    kf_limit = KFLimit(
+        {"xi": 1e12, "use_network": False},
+        linear_only=True,
+        why="no network and a test that never fails: the SVD-UKF, the KF on a linear model",
+    )
+    teaching = Teaching(
+        idea=(
+            "Tan et al.'s proposal: when the χ² test fails, first replace the GPS observation by "
+            "the prediction of an RBF neural network trained on IMU increments during normal "
+            "epochs, then let the fading factors absorb what remains. It needs an INS and a "
+            "trained network, so it runs only on the GPS/INS scenario."
+        ),
+        equations=(
+            r"\Psi_j(u) = \exp\!\left(-\dfrac{\|u - C_j\|^2}{2 s_w^2}\right), \qquad "
+            r"\hat y(u) = \sum_j W_j \Psi_j(u) + b",
+            r"\gamma > \xi\varepsilon \Rightarrow \hat p^{GPS}_k = p^{GPS}_{k-1} + \hat d_k[0{:}3], "
+            r"\quad z'_k = p^{INS}_k - \hat p^{GPS}_k \ (\text{and velocity})",
+            r"R'_{ii} = \max(R_{ii}, \sigma^2_{NN,i}), \qquad "
+            r"\sigma_i = \max\!\left(1, \dfrac{V_i'^2 - R'_{ii}}{A_{ii}}\right)",
+        ),
+        caveat=(
+            "On the tiny example the RBF network is never trained (it needs IMU increments and "
+            "hundreds of clean epochs), so a failed χ² test falls back to the fading factors: the "
+            "steps are those of the MFUKF."
+        ),
+    )
 
     def _init_state(self, model: Model, x0: Array, P0: Array) -> Any:
         p = self.params
@@ -233,10 +258,11 @@ class NNMFUKF(_FadingBase):
         p = self.params
         mp = self._predict_measurement(model, state, k)
         V = z - mp.z_hat
-        ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
+        mk = mask_missing(z, V, model.R0, U=mp.Pxy, M=mp.A)  # missing channels: zero gain column
+        ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
         Pyy0 = sym(A + R)
         # one solve: γ and the unfaded gain (valid unless an observation is replaced below)
-        gamma, thr, reject, gain = self._test(V, Pyy0, ok, Pxy)
+        gamma, thr, reject, Kt0, fixed0 = self._test(V, Pyy0, ok, Pxy)
         B, m = z.shape
         replaced = np.zeros(B, dtype=bool)
         rep_mask = np.zeros((B, m), dtype=bool)
@@ -276,25 +302,25 @@ class NNMFUKF(_FadingBase):
                     r_new = np.where(rep, np.maximum(r_d, st.net.sigma_nn**2), r_d)
                     R2 = R + (r_new - r_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
                     z2 = np.where(rep, z_rep, z)
-                    ok, V, A, Pxy, R = mask_channels(z2, z2 - mp.z_hat, mp.A, mp.Pxy, R2)
+                    mk = mask_missing(z2, z2 - mp.z_hat, R2, U=mp.Pxy, M=mp.A)
+                    ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
                     replaced = rep.any(axis=1)
                     Pyy0 = sym(A + R)
                     # runs not replaced keep V, R, Pyy0 bit for bit: re-solve the replaced ones only
                     i = np.flatnonzero(replaced)
-                    _, _, rej2, g2 = self._test(V[i], _batched(Pyy0, B)[i], ok[i], _batched(Pxy, B)[i])
-                    Kt, fx = gain[0].copy(), gain[1].copy()
-                    Kt[i], fx[i] = g2
-                    gain = (Kt, fx)
+                    _, _, rej2, Kt_i, fix_i = self._test(V[i], batched(Pyy0, B)[i], ok[i], batched(Pxy, B)[i])
+                    Kt0, fixed0 = Kt0.copy(), fixed0.copy()
+                    Kt0[i], fixed0[i] = Kt_i, fix_i
                     if p.retest_after_replace:
                         reject = reject.copy()
                         reject[i] &= rej2
                     g_raw = np.where(rep, g_hat, g_raw)
                 rep_mask = rep
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, gain)
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0)
         flags = np.zeros(z.shape, dtype=np.int8)
         flags[reject[:, None] & ok] = EPOCH_ANOMALY
         flags[rep_mask & ok] = REPLACED
-        flags[fixed | mp.neg] = NUMERICAL_FIX
+        flag_fix(flags, fixed | mp.neg)
         trained = st.net.trained if st.net is not None else np.zeros(B, dtype=bool)
         run_len = np.where(replaced, state.run_len + 1, 0)
         stats = {
@@ -315,7 +341,6 @@ class NNMFUKF(_FadingBase):
             g_prev=g_raw if g_raw is not None else state.g_prev,
             pass_prev=~reject,
             run_len=run_len,
-            psd=False,
         )
         return new, out
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array, mT
+from navlab.linalg import SERIAL_GEMM, Array, mT
 
 WIDTH_GRID = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
 
@@ -79,13 +79,6 @@ class RBFNet:
         Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
         Y = np.where(self.trained[:, None, None], Y, np.nan)
         return Y[:, 0] if single else Y
-
-
-# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4 and on all CPUs above. On a small shared
-# machine a threaded GEMM of the size of the network's Gram matrices (83×83×306) waited up to 20×
-# its own cost for a busy CPU (NNMFUKF's training: 0.4 s single-threaded, 6 s threaded under load),
-# so the large products of the training are split into pieces below that size.
-SERIAL_GEMM = 65536 * 4
 
 
 def mm(A: Array, B: Array) -> Array:

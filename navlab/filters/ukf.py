@@ -6,11 +6,26 @@ for GPS/INS", Acta Geodaetica et Cartographica Sinica 44(4), 2015, §2.1–2.2) 
 factor σ_i = max(1, (V_i² − R_ii)/A_ii) and the symmetric scaling of eq. 13 are the spec's
 RECONSTRUCTION (§5, §10 items 20–22).
 
-Batched: x (B, n), P (B, n, n), sigma points (B, 2n+1, n); one SVD per run and step for the time
-update and one for the redraw before the measurement update. For a model with ``linear = True`` the
-sigma points are pushed through ``F`` and ``H`` by a matrix product (the same unscented transform,
-without 2n+1 Python calls of ``f``/``h``); otherwise ``f(·, k)`` and ``h(·, k)`` are called once per
-sigma point on a (B, n) batch, as the Model protocol allows.
+Batched: x (B, n), P (B, n, n), sigma points (B, 2n+1, n); ``f(·, k)`` and ``h(·, k)`` are called
+once per sigma point on a (B, n) batch, as the Model protocol allows. The step numbers of §1.3
+and §5 stand at the lines that implement them.
+
+Speed tricks kept (the share of the filter's time each saves in ``benchmarks/tricks.py``; the
+plain sigma-point transcription, one run, is :mod:`navlab.filters.reference.ukf`, and the
+contract tests compare every filter with it):
+
+* for a model with ``linear = True`` the unscented transform is evaluated in closed form (the
+  moments of the symmetric sigma points of a linear map, :func:`ukf_time_update`; 92 % of
+  svd-ukf's time on gps-ins-rtk), with a Cholesky factor as the square root where P is positive
+  definite (:func:`linear_sqrt`: any factor gives the same moments of a linear map; the SVD
+  repair where it is not; 61 % of mfukf's);
+* the SVD "square root" of a symmetric P through ``eigh`` (:func:`svd_sqrt`: the same sigma
+  points as ``svd``, column order and signs aside; 34 % on gps-ins-pseudorange);
+* MFUKF/NNMFUKF: the χ² test's solve also gives the unfaded gain, and only the runs whose
+  factors are not all 1 are solved again (:meth:`_FadingBase._fade`; 28 % of mfukf's).
+
+Measured below 10 % and removed: a "P is PSD by construction" flag in the state that skipped the
+Cholesky factor (3 %), a cache of the channel-to-state map (5 %).
 
 References
 ----------
@@ -31,14 +46,28 @@ import numpy as np
 
 from navlab.filters.base import (
     EPOCH_ANOMALY,
-    NUMERICAL_FIX,
     Filter,
+    KFLimit,
     Model,
     SideInfo,
     StepOut,
+    Teaching,
+    flag_fix,
     register,
 )
-from navlab.filters.linalg import Array, chi2_threshold, diag, mT, mv, solve_sym, sym
+from navlab.linalg import (
+    Array,
+    batched,
+    bcast,
+    chi2_threshold,
+    diag,
+    mask_missing,
+    mT,
+    mv,
+    shared_left,
+    solve_sym,
+    sym,
+)
 from navlab.params import param
 
 # ---------------------------------------------------------------------------------------------
@@ -123,30 +152,6 @@ def linear_sqrt(P: Array, symmetric: bool = False) -> tuple[Array, Array]:
         return svd_sqrt(Ps)
 
 
-def left_mul(M: Array, L: Array) -> Array:
-    """M @ L for M (p, n) or (B, p, n) and L (n, n) or (B, n, n).
-
-    A shared M with a stack of L is done as ONE matrix product, (M L_b)ᵀ = L_bᵀ Mᵀ on the stacked
-    (B·n, n) rows of Lᵀ, instead of numpy's loop of B small products (≈ 2× faster for n = 15).
-    """
-    if M.ndim == 2 and L.ndim == 3:
-        B, n, q = L.shape
-        Lt = np.ascontiguousarray(mT(L)).reshape(B * q, n)
-        p = M.shape[0]
-        rows = max(1, _SERIAL_GEMM // (n * p))  # keep each product below BLAS's threading size
-        if B * q <= rows:
-            out = Lt @ M.T
-        else:
-            out = np.concatenate([Lt[s : s + rows] @ M.T for s in range(0, B * q, rows)])
-        return mT(out.reshape(B, q, p))
-    return M @ L
-
-
-# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4, on all CPUs above; on the small shared
-# machine a threaded product can wait many times its cost for a busy CPU (navlab.filters.rbf.mm)
-_SERIAL_GEMM = 65536 * 4
-
-
 def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
     """Symmetric sigma points χ (B, 2n+1, n) of mean x (B, n) and P ((n, n) or (B, n, n)).
 
@@ -199,16 +204,6 @@ class UKFState(NamedTuple):
     P: Array
     chi_f: Array | None = None
     neg: Array | None = None
-    psd: bool = False  # P = sym(c2·G Gᵀ + Q) with Q ⪰ 0: positive semi-definite by construction
-
-
-def q_is_psd(Q: Array) -> bool:
-    """Shared Q (n, n) with min eig ≥ −1e-13·trace (round-off of a PSD matrix); False if batched."""
-    Q = np.asarray(Q)
-    if Q.ndim != 2:
-        return False
-    tr = float(np.trace(Q))
-    return bool(np.linalg.eigvalsh(sym(Q))[0] >= -1e-13 * abs(tr))
 
 
 class MeasPred(NamedTuple):
@@ -218,13 +213,6 @@ class MeasPred(NamedTuple):
     A: Array  # (B, m, m) sigma-point covariance of h WITHOUT R
     Pxy: Array  # (B, n, m)
     neg: Array  # (B,) SVD repaired a negative-definite P (this step)
-
-
-def _shared_linear(model: Model, P: Array, matrix) -> bool:
-    """P and the model matrix (``matrix()``) are the same in every run of a linear model: the UT
-    covariance is then run-independent.
-    """
-    return P.ndim == 2 and bool(getattr(model, "linear", False)) and np.ndim(matrix()) == 2
 
 
 def ukf_time_update(
@@ -239,31 +227,25 @@ def ukf_time_update(
 ) -> UKFState:
     """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
 
-    Shared P with a shared linear F: the deviations χ*_i − x⁻ = ±F·c·L_j do not depend on the run,
-    so the sigma points are transformed once (about x = 0) and P⁻ stays shared; x⁻ = F x (the
-    weighted mean of the symmetric images, exactly). ``keep_sigma`` forces per-run sigma points.
+    For a linear f (``model.linear``) the unscented transform is evaluated in closed form (the
+    speed trick this module keeps; the sigma-point path below is its reference): with
+    χ_j = x ± c·L_j, χ*_j − x⁻ = ±c·F L_j and x⁻ = F x (the symmetric images average to the
+    centre), so P⁻ = Σ Wc_i (χ*_i − x⁻)(·)ᵀ + Q = 2·Wc_1·c² (F L)(F L)ᵀ + Q, without building the
+    2n+1 points. ``keep_sigma`` (option ``resample="reuse"``) keeps the propagated χ*.
+    ``symmetric``: P is exactly symmetric already (every P the filters carry is), so the
+    symmetrisation of step a is skipped (it would return P bit for bit).
     """
-    B, n = x.shape
+    B = x.shape[0]
     if not keep_sigma and getattr(model, "linear", False):
-        # linear f: χ*_i − x⁻ = ±c·F L_j, x⁻ = F x (the symmetric images average to the centre),
-        # P⁻ = Σ Wc_i (χ*_i − x⁻)(·)ᵀ + Q = 2·Wc_1·c² (F L)(F L)ᵀ + Q: the same transform without
-        # building 2n+1 points; L from :func:`linear_sqrt` (SVD repair and flag where P_s ≱ 0)
         F = model.F(k)
-        Q = model.Q(k)
-        L, neg = linear_sqrt(P, symmetric)
-        G = left_mul(F, L)
-        P_p = sym(w.c2 * (G @ mT(G)) + Q)
-        return UKFState(mv(F, x), P_p, None, bcast(neg, (B,)).copy(), q_is_psd(Q))
-    if not keep_sigma and _shared_linear(model, P, lambda: model.F(k)):
-        chi0, neg = sigma_points(np.zeros((1, n)), P, w.c, method)
-        _, P_p, _ = ut_mean_cov(propagate_f(model, chi0, k), w)
-        x_p = propagate_f(model, x[:, None, :], k)[:, 0]
-        return UKFState(x_p, sym(P_p[0] + model.Q(k)), None, bcast(neg, (B,)).copy())
-    chi, neg = sigma_points(x, P, w.c, method)
-    chi_f = propagate_f(model, chi, k)
-    x_p, P_p, _ = ut_mean_cov(chi_f, w)
-    P_p = sym(P_p + model.Q(k))
-    return UKFState(x_p, P_p, chi_f, neg.copy())
+        L, neg = linear_sqrt(P, symmetric)  # any square root: L Lᵀ = |P_s| (SVD repair where P_s ≱ 0)
+        G = shared_left(F, L)  # F L
+        P_p = sym(w.c2 * (G @ mT(G)) + model.Q(k))  # 2  P⁻ = 2 Wc_1 c² (F L)(F L)ᵀ + Q
+        return UKFState(mv(F, x), P_p, None, bcast(neg, (B,)).copy())  # 2  x⁻ = F x
+    chi, neg = sigma_points(x, P, w.c, method)  # 1  χ from (x⁺, P⁺)
+    chi_f = propagate_f(model, chi, k)  # 1  χ* = f(χ)
+    x_p, P_p, _ = ut_mean_cov(chi_f, w)  # 2  x⁻ = Σ Wm χ*, Σ Wc (χ* − x⁻)(·)ᵀ
+    return UKFState(x_p, sym(P_p + model.Q(k)), chi_f, neg.copy())  # 2  + Q
 
 
 def ukf_measurement_prediction(
@@ -275,68 +257,33 @@ def ukf_measurement_prediction(
     method: str = "svd",
     symmetric: bool = False,
 ) -> MeasPred:
-    """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy."""
-    B, n = state.x.shape
-    if (resample != "reuse" or state.chi_f is None) and getattr(model, "linear", False):
-        # linear h, sigma points redrawn from (x⁻, P⁻) = x⁻ ± c·L_j: Y_i − ẑ⁻ = ±c·H L_j, ẑ⁻ = H x⁻,
-        # A = 2·Wc_1·c² (H L)(H L)ᵀ, Pxy = 2·Wc_1·c² L (H L)ᵀ (see ukf_time_update)
+    """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy.
+
+    For a linear h with redrawn sigma points χ = x⁻ ± c·L_j the transform is again in closed form
+    (see :func:`ukf_time_update`): Y_i − ẑ⁻ = ±c·H L_j, ẑ⁻ = H x⁻, A = 2·Wc_1·c² (H L)(H L)ᵀ,
+    Pxy = 2·Wc_1·c² L (H L)ᵀ.
+    """
+    B = state.x.shape[0]
+    reuse = resample == "reuse" and state.chi_f is not None
+    if not reuse and getattr(model, "linear", False):
         H = model.H(state.x, k)
-        if state.psd and symmetric:
-            # P⁻ = sym(c2·G Gᵀ + Q), Q ⪰ 0 (ukf_time_update): its eigenvalues are ≥ −O(n·eps·‖P⁻‖),
-            # so |P⁻| = P⁻ and L Lᵀ = P⁻ to round-off for ANY square root, and the flag (min eig
-            # < −1e-9·trace) cannot be raised: A = c2·H P⁻ Hᵀ, Pxy = c2·P⁻ Hᵀ need no factor
-            PHt = mT(left_mul(H, state.P))  # P Hᵀ = (H P)ᵀ, P symmetric
-            A = w.c2 * left_mul(H, PHt)
-            Pxy = w.c2 * PHt
-            neg = np.zeros(B, dtype=bool)
-        else:
-            L, neg = linear_sqrt(state.P, symmetric)
-            HL = left_mul(H, L)
-            A = w.c2 * (HL @ mT(HL))
-            Pxy = w.c2 * (L @ mT(HL))
+        L, neg = linear_sqrt(state.P, symmetric)  # 3  (redraw) χ = x⁻ ± c·L_j
+        HL = shared_left(H, L)
+        A = w.c2 * (HL @ mT(HL))  # 5  A = Σ Wc (Y − ẑ⁻)(Y − ẑ⁻)ᵀ
+        Pxy = w.c2 * (L @ mT(HL))  # 6  Pxy = Σ Wc (χ − x⁻)(Y − ẑ⁻)ᵀ
         neg = bcast(neg, (B,))
         if state.neg is not None:
             neg = neg | state.neg
-        return MeasPred(mv(H, state.x), A, Pxy, neg)
-    if resample != "reuse" and _shared_linear(model, state.P, lambda: model.H(state.x, k)):
-        chi0, neg = sigma_points(np.zeros((1, n)), state.P, w.c, method)
-        _, A, dY = ut_mean_cov(propagate_h(model, chi0, k), w)
-        Pxy = ut_cross(chi0, dY, w)
-        z_hat = propagate_h(model, state.x[:, None, :], k)[:, 0]
-        neg = bcast(neg, (B,))
-        if state.neg is not None:
-            neg = neg | state.neg
-        return MeasPred(z_hat, A[0], Pxy[0], neg)
-    if resample == "reuse" and state.chi_f is not None:
-        chi = state.chi_f
-        neg = np.zeros(chi.shape[0], dtype=bool)
-        x_ref = state.x
+        return MeasPred(mv(H, state.x), A, Pxy, neg)  # 4  ẑ⁻ = H x⁻
+    if reuse:  # option: the propagated χ* (FilterPy's choice)
+        chi, neg = state.chi_f, np.zeros(B, dtype=bool)
     else:
-        chi, neg = sigma_points(state.x, state.P, w.c, method)
-        x_ref = state.x
-    Y = propagate_h(model, chi, k)
-    z_hat, A, dY = ut_mean_cov(Y, w)
-    Pxy = ut_cross(chi - x_ref[:, None, :], dY, w)
+        chi, neg = sigma_points(state.x, state.P, w.c, method)  # 3  redraw from (x⁻, P⁻)
+    z_hat, A, dY = ut_mean_cov(propagate_h(model, chi, k), w)  # 4–5  Y = h(χ), ẑ⁻, A
+    Pxy = ut_cross(chi - state.x[:, None, :], dY, w)  # 6  Pxy
     if state.neg is not None:
         neg = neg | state.neg
     return MeasPred(z_hat, A, Pxy, neg)
-
-
-def mask_channels(z: Array, V: Array, A: Array, Pxy: Array, R: Array):
-    """Drop unavailable channels (NaN in z) exactly: V_i = 0, A and R rows/columns replaced by a
-    unit diagonal, Pxy column zeroed, so the gain column of a missing channel is exactly zero.
-    """
-    ok = np.isfinite(z)
-    if ok.all():
-        return ok, V, A, Pxy, bcast(R, A.shape)
-    B, m = z.shape
-    okk = ok[:, :, None] & ok[:, None, :]
-    eye = np.eye(m) * (~ok)[:, None, :]
-    V = np.where(ok, V, 0.0)
-    A = np.where(okk, A, 0.0)
-    R = np.where(okk, np.broadcast_to(R, (B, m, m)), 0.0) + eye
-    Pxy = Pxy * ok[:, None, :]
-    return ok, V, A, Pxy, R
 
 
 def fading_update(
@@ -359,10 +306,7 @@ def fading_update(
 
     Returns x⁺, P⁺, Pyy', fixed (B,) (Pyy' needed a numerical fix).
     """
-    if np.all(s == 1.0) and np.all(sig == 1.0):  # no fading: the scalings below are exact no-ops
-        B = x.shape[0]
-        P1, A1, Pxy1 = _batched(P, B), _batched(A, B), _batched(Pxy, B)
-    elif form == "literal":
+    if form == "literal":
         P1 = s[:, :, None] * P
         A1 = sig[:, :, None] * A
         Pxy1 = s[:, :, None] * Pxy
@@ -385,38 +329,12 @@ def apply_gain(x: Array, P: Array, V: Array, Pyy: Array, Kt: Array) -> tuple[Arr
     return x + (K @ V[..., None])[..., 0], sym(P - K @ Pyy @ Kt)
 
 
-def _batched(a: Array, B: int, core: int = 2) -> Array:
-    """``a`` with a leading run axis of length B (a shared array is broadcast, not copied)."""
-    return a if a.ndim > core else bcast(a, (B, *a.shape))
-
-
-def bcast(a: Array, shape: tuple[int, ...]) -> Array:
-    """``np.broadcast_to(a, shape)`` (read-only view); a C-contiguous ``a`` that only gains leading
-    axes gets a zero-stride view built directly (≈ 1 µs instead of ≈ 10 µs for broadcast_to).
-    """
-    a = np.asarray(a)
-    if a.shape == shape:
-        return a
-    lead = len(shape) - a.ndim
-    if lead > 0 and shape[lead:] == a.shape and a.flags.c_contiguous and a.size:
-        v = np.ndarray(shape, a.dtype, a, 0, (0,) * lead + a.strides)
-        v.flags.writeable = False
-        return v
-    return np.broadcast_to(a, shape)
-
-
-def quad_batched(V: Array, S: Array) -> Array:
-    """VᵀS⁻¹V for V (B, m), S (B, m, m)."""
-    X, _ = solve_sym(S, V[..., None])
-    return np.einsum("bi,bi->b", V, X[..., 0])
-
-
 # ---------------------------------------------------------------------------------------------
 # Fading factors (§5)
 # ---------------------------------------------------------------------------------------------
 
 
-def channel_state_map(model: Model, x: Array, k: int, n: int) -> tuple[Array, bool]:
+def channel_state_map(model: Model, x: Array, k: int) -> tuple[Array, bool]:
     """Which states each channel inflates: M (m, n) or (B, m, n) bool, and whether it is exact.
 
     Row i of the measurement Jacobian H = ∂h/∂x selects the states channel i observes (§5: "the
@@ -425,19 +343,9 @@ def channel_state_map(model: Model, x: Array, k: int, n: int) -> tuple[Array, bo
     (``exact``); otherwise the caller recomputes A', Pxy' from sigma points.
     """
     H = np.asarray(model.H(x, k), dtype=float)
-    hit = _MAP_CACHE.get(H.shape)
-    if hit is not None and np.array_equal(hit[0], H):  # the same H as last time (content check)
-        return hit[1], hit[2]
     scale = np.max(np.abs(H), axis=-1, keepdims=True)
     M = np.abs(H) > 1e-12 * np.maximum(scale, 1e-300)
-    exact = bool(np.all(M.sum(axis=-1) <= 1))
-    if H.ndim == 2:
-        _MAP_CACHE.clear()
-        _MAP_CACHE[H.shape] = (H.copy(), M, exact)
-    return M, exact
-
-
-_MAP_CACHE: dict[tuple[int, ...], tuple[Array, Array, bool]] = {}  # last shared H and its map
+    return M, bool(np.all(M.sum(axis=-1) <= 1))
 
 
 def fading_factors(
@@ -458,7 +366,9 @@ def fading_factors(
     a = diag(A)
     r = diag(R)
     good = (a > 0) & ok & reject[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    # the division is guarded (A_ii > 0 where used); A_ii → 0⁺ or a diverged run's V may overflow
+    # the ratio to inf, which the clip to σ_max below handles
+    with np.errstate(over="ignore"):
         raw = np.where(good, (V**2 - r) / np.where(good, a, 1.0), 1.0)
     sig = np.clip(raw, 1.0, sigma_max)
     if gate > 0 and Pyy is not None:
@@ -469,12 +379,6 @@ def fading_factors(
 
 def state_scale(sig: Array, M: Array) -> Array:
     """s_j = max over channels i observing state j of σ_i, 1 for unobserved states: (B, n)."""
-    if M.ndim == 2 and np.all(M.sum(axis=0) <= 1) and np.all(sig >= 1.0):
-        # each state observed by at most one channel (S2: H = [I 0]): s_j = σ_i(j), a copy
-        i, j = np.nonzero(M)
-        s = np.ones((sig.shape[0], M.shape[1]))
-        s[:, j] = sig[:, i]
-        return s
     Mb = np.broadcast_to(M, (sig.shape[0], *M.shape[-2:]))
     return np.max(np.where(Mb, sig[:, :, None], 1.0), axis=1)
 
@@ -535,7 +439,7 @@ class _UKFBase(Filter):
             self.params.sqrt_method,
             symmetric=True,
         )
-        return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg, psd=ts.psd)
+        return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg)
 
     def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
         w = self._weights(state.x.shape[1])
@@ -556,26 +460,37 @@ class SVDUKF(_UKFBase):
         "when round-off makes P indefinite."
     )
     Params = UKFParams
+    kf_limit = KFLimit(
+        {}, linear_only=True, why="the unscented transform of a linear map is exact: the KF update"
+    )
+    teaching = Teaching(
+        idea=(
+            "The unscented KF propagates a small set of sigma points through the nonlinear models "
+            "instead of linearising them. Tan et al. build the sigma points from an SVD of P rather "
+            "than a Cholesky factor, so they exist even if P loses positive definiteness through "
+            "round-off. On a linear model it equals the KF."
+        ),
+        equations=(
+            r"P = U\Sigma_s T^\top, \quad L = U\Sigma_s^{1/2}, \quad "
+            r"\chi_0 = \bar x,\ \chi_{j} = \bar x \pm \sqrt{n + \lambda}\,L_j",
+            r"x^- = \sum_i W^m_i f(\chi_i), \quad "
+            r"P^- = \sum_i W^c_i (\chi^*_i - x^-)(\chi^*_i - x^-)^\top + Q",
+            r"Y_i = h(\chi_i),\ \hat z^- = \sum_i W^m_i Y_i,\ "
+            r"A = \sum_i W^c_i (Y_i - \hat z^-)(Y_i - \hat z^-)^\top,\ P_{yy} = A + R",
+            r"K = P_{xy} P_{yy}^{-1}, \quad x^+ = x^- + K(z - \hat z^-), \quad "
+            r"P^+ = P^- - K P_{yy} K^\top",
+        ),
+        caveat="The tiny example is linear, so the SVD-UKF's steps equal the KF's (to round-off).",
+    )
 
     def update(self, model: Model, state: UKFState, k: int, z: Array, side: SideInfo):
-        mp = self._predict_measurement(model, state, k)
-        V = z - mp.z_hat  # (§1.3 step 7)
-        _, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
-        if state.P.ndim == 2 and A.ndim == 2:  # shared P, all channels present: shared gain
-            Pyy = sym(A + R)
-            Kt, fixed = solve_sym(Pyy, Pxy.T)
-            x = state.x + V @ Kt
-            P = sym(state.P - Kt.T @ Pyy @ Kt)
-            flags = np.zeros(z.shape, dtype=np.int8)
-            flags[bcast(fixed, z.shape[:1]) | mp.neg] = NUMERICAL_FIX
-            return UKFState(x, P), StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags)
-        ones_n = np.ones_like(state.x)
-        ones_m = np.ones_like(V)
-        x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, ones_n, ones_m)
-        flags = np.zeros(z.shape, dtype=np.int8)
-        flags[fixed | mp.neg] = NUMERICAL_FIX
-        out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags)
-        return UKFState(x, P), out
+        mp = self._predict_measurement(model, state, k)  # 3–6  ẑ⁻, A, Pxy
+        mk = mask_missing(z, z - mp.z_hat, model.R0, U=mp.Pxy, M=mp.A)  # missing: zero gain column
+        Pyy = sym(mk.M + mk.R)  # 6  Pyy = A + R
+        Kt, fixed = solve_sym(mT(Pyy), mT(mk.U))  # 7  V = z − ẑ⁻, K = Pxy Pyy⁻¹
+        x, P = apply_gain(state.x, state.P, mk.nu, Pyy, Kt)  # 8  x⁺ = x⁻ + K V, P⁺ = P⁻ − K Pyy Kᵀ
+        flags = flag_fix(np.zeros(z.shape, dtype=np.int8), bcast(fixed, z.shape[:1]) | mp.neg)
+        return UKFState(x, P), StepOut(x=x, P=P, innov=mk.nu, S=Pyy, R_used=mk.R, flags=flags)
 
 
 @dataclass(frozen=True)
@@ -606,28 +521,21 @@ class MFUKFParams(UKFParams):
 class _FadingBase(_UKFBase):
     """The χ² test and the fading update shared by MFUKF and NNMFUKF."""
 
-    def _test(
-        self, V: Array, Pyy: Array, ok: Array, Pxy: Array | None = None
-    ) -> tuple[Array, Array, Array, tuple[Array, Array] | None]:
-        """γ = Vᵀ Pyy⁻¹ V, threshold ξ·χ²_{1−α}(available channels), reject (§5 step 2–3).
+    def _test(self, V: Array, Pyy: Array, ok: Array, Pxy: Array) -> tuple[Array, ...]:
+        """γ = Vᵀ Pyy⁻¹ V against ξ·χ²_{1−α}(available channels) (§5 steps 2–3), and the unfaded gain.
 
-        With ``Pxy`` the same solve also returns the unfaded gain (Kᵀ = Pyy⁻¹ Pxyᵀ, fixed): one
-        batched solve with right-hand sides [V | Pxyᵀ] instead of two (used where σ = 1).
+        One batched solve with the right-hand sides [V | Pxyᵀ] gives γ and Kᵀ = Pyy⁻¹ Pxyᵀ, the
+        gain of every run whose fading factors turn out to be 1 (a speed trick: one LAPACK call
+        instead of two; ``benchmarks/tricks.py``). Returns (γ, threshold, reject, Kᵀ, fixed).
         """
         p = self.params
-        gain = None
-        if Pxy is None:
-            gamma = quad_batched(V, Pyy)
-        else:
-            B = V.shape[0]
-            rhs = np.concatenate([V[..., None], _batched(mT(Pxy), B)], axis=-1)
-            X, fixed = solve_sym(Pyy, rhs)
-            gamma = np.einsum("bi,bi->b", V, X[..., 0])
-            gain = (X[..., 1:], bcast(fixed, (B,)))
+        B = V.shape[0]
+        X, fixed = solve_sym(Pyy, np.concatenate([V[..., None], batched(mT(Pxy), B)], axis=-1))
+        gamma = np.einsum("bi,bi->b", V, X[..., 0])  # 2  γ = Vᵀ Pyy⁻¹ V
         dof = ok.sum(axis=1)
-        thr = p.xi * chi2_threshold(p.alpha, np.maximum(dof, 1), V.shape[1])
-        reject = (gamma > thr) & (dof > 0)
-        return gamma, thr, reject, gain
+        thr = p.xi * chi2_threshold(p.alpha, np.maximum(dof, 1), V.shape[1])  # ξ ε
+        reject = (gamma > thr) & (dof > 0)  # 3  γ > ξ ε: the filter is inconsistent
+        return gamma, thr, reject, X[..., 1:], bcast(fixed, (B,))
 
     def _fade(
         self,
@@ -641,56 +549,54 @@ class _FadingBase(_UKFBase):
         ok: Array,
         reject: Array,
         Pyy0: Array,
-        gain: tuple[Array, Array] | None = None,
+        Kt0: Array,
+        fixed0: Array,
     ) -> tuple[Array, Array, Array, Array, Array]:
-        """σ, s and the update of §5 step 4 (σ = 1 on accepted epochs). Returns x, P, Pyy', fixed, σ.
+        """σ, s and the update of §5 steps 3–4. Returns x⁺, P⁺, Pyy', fixed, σ.
 
-        ``gain``: the unfaded Kᵀ = Pyy0⁻¹ Pxyᵀ (and its fix flag) from :meth:`_test`; runs whose
-        factors are all 1 then take it (the update with σ = s = 1 is exactly the unfaded one) and
-        only the faded runs are solved again.
+        ``Kt0``, ``fixed0``: the unfaded gain Kᵀ = Pyy0⁻¹ Pxyᵀ from :meth:`_test`. A run whose
+        factors are all 1 takes it (the update with σ = s = 1 is exactly the unfaded SVD-UKF
+        update, step 3); only the faded runs are solved again (step 4).
         """
         p = self.params
         B = V.shape[0]
-        if not reject.any():  # σ = 1 everywhere (fading_factors returns exactly 1 off rejections)
-            sig = np.ones_like(V)
-            if gain is not None and not p.recompute_sigma:
-                x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
-                return x, P, _batched(Pyy0, B), gain[1], sig
-        sig = fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)
-        M, exact = channel_state_map(model, state.x, k, state.x.shape[1])
-        s = state_scale(sig, M)
+        if not reject.any():  # 3  every run passes: σ = 1, the ordinary SVD-UKF update
+            x, P = apply_gain(state.x, state.P, V, Pyy0, Kt0)
+            return x, P, batched(Pyy0, B), fixed0, np.ones_like(V)
+        sig = fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)  # 4  σ_i
+        M, exact = channel_state_map(model, state.x, k)
+        s = state_scale(sig, M)  # 4  s_j = σ_i(j)
         if (p.recompute_sigma or not exact) and np.any(sig > 1.0):
             # exact for any h: sigma points of (x⁻, P⁻') give A', Pxy'; then an unscaled update
             dx = np.sqrt(s)
             P1 = dx[:, :, None] * state.P * dx[:, None, :]
             w = self._weights(state.x.shape[1])
             mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw", p.sqrt_method)
-            z_fake = np.where(ok, 0.0, np.nan)
-            _, _, A1, Pxy1, _ = mask_channels(z_fake, V, mp.A, mp.Pxy, R)
+            mk = mask_missing(np.where(ok, 0.0, np.nan), V, U=mp.Pxy, M=mp.A)
             one_n, one_m = np.ones_like(s), np.ones_like(sig)
-            x, P, Pyy, fixed = fading_update(state.x, P1, V, A1, Pxy1, R, one_n, one_m)
+            x, P, Pyy, fixed = fading_update(state.x, P1, V, mk.M, mk.U, R, one_n, one_m)
             return x, P, Pyy, fixed | mp.neg, sig
         fade = np.any(sig != 1.0, axis=1) | np.any(s != 1.0, axis=1)
-        if gain is None or fade.all():
+        if fade.all():  # 4  every run fades
             x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, s, sig, p.form)
             return x, P, Pyy, fixed, sig
-        # unfaded runs: the gain of the test's solve; faded runs (a subset): §5 step 4
-        x, P = apply_gain(state.x, state.P, V, Pyy0, gain[0])
-        Pyy = _batched(Pyy0, B).copy()
-        fixed = gain[1].copy()
+        # the runs that do not fade: the unfaded gain (step 3); the faded ones (a subset): step 4
+        x, P = apply_gain(state.x, state.P, V, Pyy0, Kt0)
+        Pyy, fixed = batched(Pyy0, B), fixed0
         if fade.any():
             i = np.flatnonzero(fade)
             xf, Pf, Pyyf, fixf = fading_update(
                 state.x[i],
-                _batched(state.P, B)[i],
+                batched(state.P, B)[i],
                 V[i],
-                _batched(A, B)[i],
-                _batched(Pxy, B)[i],
-                _batched(R, B)[i],
+                batched(A, B)[i],
+                batched(Pxy, B)[i],
+                batched(R, B)[i],
                 s[i],
                 sig[i],
                 p.form,
             )
+            x, P, Pyy, fixed = x.copy(), batched(P, B).copy(), Pyy.copy(), fixed.copy()
             x[i], P[i], Pyy[i], fixed[i] = xf, Pf, Pyyf, fixf
         return x, P, Pyy, fixed, sig
 
@@ -715,17 +621,41 @@ class MFUKF(_FadingBase):
         "channel by channel (one fading factor per observation)."
     )
     Params = MFUKFParams
+    kf_limit = KFLimit(
+        {"xi": 1e12},
+        linear_only=True,
+        why="a test threshold ξ·χ² → ∞ never fades: the SVD-UKF, which is the KF on a linear model",
+    )
+    teaching = Teaching(
+        idea=(
+            "The multiple-fading-factor SVD-UKF tests the NIS against a χ² threshold; when the test "
+            "fails, each observed channel gets its own fading factor σ_i ≥ 1 that inflates the "
+            "predicted covariance so the innovation becomes consistent. It absorbs a state anomaly "
+            "well, but it also follows a measurement gross error, which is the failure Tan et al. "
+            "fix with a neural network."
+        ),
+        equations=(
+            r"V = z - \hat z^-, \qquad \gamma = V^\top P_{yy}^{-1} V",
+            r"\gamma \le \xi\varepsilon = \xi\,\chi^2_{1-\alpha}(m)\ \Rightarrow\ "
+            r"\text{ordinary SVD-UKF update}",
+            r"\sigma_i = \min\!\left(\sigma_{\max}, \max\!\left(1, "
+            r"\dfrac{V_i^2 - R_{ii}}{A_{ii}}\right)\right)\qquad\text{(fading factors)}",
+            r"P^{-\prime} = D_x P^- D_x,\ A' = D_z A D_z,\ P'_{yy} = A' + R,\ "
+            r"P'_{xy} = D_x P_{xy} D_z,\ D = \operatorname{diag}(\sqrt{\sigma})",
+        ),
+    )
 
     def update(self, model: Model, state: UKFState, k: int, z: Array, side: SideInfo):
         mp = self._predict_measurement(model, state, k)
         V = z - mp.z_hat
-        ok, V, A, Pxy, R = mask_channels(z, V, mp.A, mp.Pxy, model.R0)
-        Pyy0 = sym(A + R)
-        gamma, thr, reject, gain = self._test(V, Pyy0, ok, Pxy)
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, gain)
+        mk = mask_missing(z, V, model.R0, U=mp.Pxy, M=mp.A)  # missing channels: zero gain column
+        ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
+        Pyy0 = sym(A + R)  # Pyy = A + R
+        gamma, thr, reject, Kt0, fixed0 = self._test(V, Pyy0, ok, Pxy)  # 2–3
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0)
         flags = np.zeros(z.shape, dtype=np.int8)
-        flags[reject[:, None] & ok] = EPOCH_ANOMALY
-        flags[fixed | mp.neg] = NUMERICAL_FIX
+        flags[reject[:, None] & ok] = EPOCH_ANOMALY  # flag 5 on every channel of a rejected epoch
+        flag_fix(flags, fixed | mp.neg)
         stats = {"gamma": gamma, "gamma_threshold": thr, "fading": sig, "rejected": reject.astype(float)}
         out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
         return UKFState(x, P), out

@@ -51,9 +51,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import NUMERICAL_FIX, Filter, Model, SideInfo, StepOut, register
+from navlab.filters.base import (
+    Filter,
+    KFLimit,
+    Model,
+    SideInfo,
+    StepOut,
+    Teaching,
+    flag_fix,
+    register,
+)
 from navlab.filters.ekf import ekf_predict
-from navlab.filters.linalg import Array, joseph_from_gain, mask_missing, mT, mv, solve_sym, sym
+from navlab.linalg import Array, joseph_from_gain, mask_missing, mT, mv, solve_sym, sym
 from navlab.params import param
 
 
@@ -121,6 +130,27 @@ class VBEKF(Filter):
     )
     estimates_R = True
     Params = VBEKFParams
+    kf_limit = KFLimit(
+        {"adapt_P": False, "tau_R": 1e12, "rho": 1.0},
+        why="the nominal P⁻ and an R-prior of weight τ_R → ∞ without forgetting keep R̂ = R0: the EKF",
+    )
+    teaching = Teaching(
+        idea=(
+            "Huang et al.'s VB filter (applied by Hou et al. 2024 to GPS/INS): both the predicted "
+            "covariance P⁻ and a full R get inverse-Wishart distributions, refined by a fixed-point "
+            "loop; a wrong Q is absorbed by P̂, a changing noise level by R̂. The prior weights τ_P "
+            "and τ_R decide which of the two absorbs a sudden change."
+        ),
+        equations=(
+            r"t^- = n + \tau_P + 1,\ T^- = \tau_P \tilde P^-; \qquad "
+            r"u^- = \rho(\hat u_{k-1} - m - 1) + m + 1,\ U^- = \rho\,\hat U_{k-1}",
+            r"T = T^- + P^{(it)} + (x^{(it)} - x^-)(x^{(it)} - x^-)^\top, \qquad t = t^- + 1",
+            r"U = U^- + r r^\top + H P^{(it)} H^\top,\ r = z - h(x^{(it)}), \qquad u = u^- + 1",
+            r"\hat P = T/(t - n - 1), \qquad \hat R = U/(u - m - 1)",
+            r"K = \hat P H^\top(H\hat P H^\top + \hat R)^{-1}, \quad "
+            r"x^{(it+1)} = x^- + K(z - h(x^-)), \quad P^{(it+1)} = \hat P - K H \hat P",
+        ),
+    )
 
     def init(self, model: Model, x0: Array, P0: Array) -> VBState:
         p = self.params
@@ -177,7 +207,8 @@ class VBEKF(Filter):
                 U_new = U_pr + _fill_missing(B_R, R_exp, ok)
                 R_hat = sym(U_new / (u - m - 1))
                 # missing channels get a zero gain column
-                _, nu_m, H_m, R_m = mask_missing(z, nu, H, R_hat)
+                mk = mask_missing(z, nu, R_hat, H=H)
+                nu_m, R_m, H_m = mk.nu, mk.R, mk.H
             # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹ via a solve with S
             PHt = P_hat @ mT(H_m)
             S = sym(H_m @ PHt + R_m)
@@ -205,8 +236,7 @@ class VBEKF(Filter):
                 active = active & ~done
                 if not active.any():
                     break
-        flags = np.zeros(z.shape, dtype=np.int8)
-        flags[fixed_any] = NUMERICAL_FIX
+        flags = flag_fix(np.zeros(z.shape, dtype=np.int8), fixed_any)
         R_hat = sym(U / (u - m - 1))  # = the R̂ of each run's last iteration
         trP = np.trace(P_hat_out, axis1=-2, axis2=-1) / np.trace(P_pr, axis1=-2, axis2=-1)
         out = StepOut(

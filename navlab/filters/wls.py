@@ -26,9 +26,10 @@ from navlab.filters.base import (
     Model,
     SideInfo,
     StepOut,
+    Teaching,
     register,
 )
-from navlab.filters.linalg import Array, mask_missing, mT, mv, sym
+from navlab.linalg import Array, mask_missing, mT, mv, sym
 from navlab.params import param
 
 
@@ -56,6 +57,22 @@ class WLS(Filter):
     spec_section = "—"
     summary = "Solves every epoch on its own by weighted least squares with the nominal R: no motion model."
     Params = WlsParams
+    kf_limit = None  # no dynamics: no parameter makes it the KF
+    teaching = Teaching(
+        idea=(
+            "Weighted least squares solves each epoch on its own, weighting the measurements by "
+            "R⁻¹: no motion model, no memory. It is the reference a filter must beat and a quick "
+            "sanity check on real data."
+        ),
+        equations=(
+            r"\nu = z_k - h(x), \qquad \Lambda = I/\sigma^2_{\mathrm{prior}}",
+            r"x \leftarrow x + (H^\top R_0^{-1} H + \Lambda)^{-1}\left(H^\top R_0^{-1}\nu "
+            r"+ \Lambda (x_{\mathrm{prev}} - x)\right)\quad(\text{iterated})",
+            r"P_k = (H^\top R_0^{-1} H + \Lambda)^{-1}\qquad"
+            r"\text{(no dynamics: each epoch stands alone)}",
+        ),
+        caveat="WLS has no dynamics: each step is the measurement alone (the prior is vague).",
+    )
 
     def predict(self, model: Model, state: KFState, k: int) -> KFState:
         return state  # no dynamics
@@ -73,7 +90,8 @@ class WLS(Filter):
         for it in range(p.iterations):
             H = model.H(x, k)
             nu = z - model.h(x, k)
-            ok, nu, H, R = mask_missing(z, nu, H, model.R0)
+            mk = mask_missing(z, nu, model.R0, H=H)
+            ok, nu, R, H = mk.ok, mk.nu, mk.R, mk.H
             Ri = Rinv if ok.all() else np.linalg.inv(R) * (ok[:, :, None] & ok[:, None, :])
             if p.huber_k > 0 and it >= 2:  # IRLS once the geometry has converged
                 u = np.abs(nu) / sd
@@ -86,7 +104,8 @@ class WLS(Filter):
             x = x + np.linalg.solve(N, rhs[..., None])[..., 0]
         H = model.H(x, k)
         nu = z - model.h(x, k)
-        ok, nu, H, R = mask_missing(z, nu, H, model.R0)
+        mk = mask_missing(z, nu, model.R0, H=H)
+        ok, nu, R, H = mk.ok, mk.nu, mk.R, mk.H
         P = sym(np.linalg.inv(N))
         S = sym(H @ P @ mT(H) + R)
         flags = np.where((weights < 1.0) & ok, DOWNWEIGHTED, ACCEPTED).astype(np.int8)

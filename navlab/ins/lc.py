@@ -35,7 +35,6 @@ import numpy as np
 
 from navlab.data.loaders import DriveRecording
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
 from navlab.ins.align import AlignmentResult, align_moving, align_static, course_heading, motion_start_time
 from navlab.ins.earth import dcm_to_rotvec, radii, rotvec_to_dcm, skew
 from navlab.ins.strapdown import (
@@ -46,6 +45,7 @@ from navlab.ins.strapdown import (
     init_state,
     propagate_block,
 )
+from navlab.linalg import Array
 
 #: Sign flip between the §8.0 error state (ε = b − b̂) and the total state's bias estimates.
 SIGN = np.diag(np.r_[np.ones(9), -np.ones(6)])

@@ -18,8 +18,9 @@ import numpy as np
 
 from navlab import params as P_
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.params import param
+from navlab.registry import Registry
 
 if TYPE_CHECKING:
     from navlab.scenarios.base import RunStream
@@ -75,6 +76,11 @@ class OutlierModel:
         )
 
 
+#: Every outlier model, by key, in the order they are offered.
+OUTLIERS: Registry[type[OutlierModel]] = Registry("outlier model")
+
+
+@OUTLIERS.register
 class NoOutliers(OutlierModel):
     key, label = "none", "No outliers"
     summary = "Gaussian noise with the schedule's σ only."
@@ -93,6 +99,7 @@ class MixtureParams:
     channels: tuple = param((), help=_CH, ui=False)
 
 
+@OUTLIERS.register
 class Mixture(OutlierModel):
     """Gaussian mixture (1−α) N(0, σ²) + α N(0, (κσ)²) per channel and epoch (Zuo 2017, eq. 32)."""
 
@@ -119,6 +126,7 @@ class IsolatedParams:
     channels: tuple = param((0,), help=_CH, ui=False)
 
 
+@OUTLIERS.register
 class Isolated(OutlierModel):
     """Isolated outliers N(mean, scale²) added every few epochs (Ge 2020, experiment 1).
 
@@ -160,6 +168,7 @@ class ContinuousParams:
     channels: tuple = param((0,), help=_CH, ui=False)
 
 
+@OUTLIERS.register
 class Continuous(Isolated):
     """A continuous run of outliers N(mean, scale²) (Ge 2020, experiment 2: epochs 50–70, var 64)."""
 
@@ -181,6 +190,7 @@ class StudentTParams:
     channels: tuple = param((), help=_CH, ui=False)
 
 
+@OUTLIERS.register
 class StudentT(OutlierModel):
     """Student-t noise σ·t_ν as a Gaussian scale mixture: v = σ n / sqrt(g/ν), g ~ χ²_ν.
 
@@ -203,13 +213,6 @@ class StudentT(OutlierModel):
         return NoiseDraw(s * n, s**2, np.zeros(n.shape), mult > p.mask_at)
 
 
-OUTLIERS: dict[str, type[OutlierModel]] = {
-    c.key: c for c in (NoOutliers, Mixture, Isolated, Continuous, StudentT)
-}
-
-
 def make_outliers(key: str, params: dict[str, Any] | None = None) -> OutlierModel:
-    """Instantiate an outlier model by key, validating its parameters."""
-    if key not in OUTLIERS:
-        raise NavlabError(f"unknown outlier model '{key}'; known: {', '.join(OUTLIERS)}")
-    return OUTLIERS[key](params or {})
+    """Instantiate a registered outlier model by key, validating its parameters."""
+    return OUTLIERS.make(key, params)

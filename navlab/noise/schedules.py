@@ -16,8 +16,9 @@ import numpy as np
 
 from navlab import params as P_
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.params import param
+from navlab.registry import Registry
 
 _CH_HELP = "channel indices that follow the schedule (empty = all channels)"
 
@@ -59,12 +60,17 @@ class Schedule:
         return nominal_std * f
 
 
+#: Every noise schedule, by key, in the order they are offered.
+SCHEDULES: Registry[type[Schedule]] = Registry("noise schedule")
+
+
 @dataclass(frozen=True)
 class ConstantParams:
     factor: float = param(1.0, lo=0.01, hi=100.0, help="true σ / nominal σ")
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class Constant(Schedule):
     key, label = "constant", "Constant"
     summary = "σ(t) = factor · σ_nominal (factor 1: the filters' R is right)."
@@ -81,6 +87,7 @@ class StepParams:
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class Step(Schedule):
     key, label = "step", "Step"
     summary = "σ jumps from nominal to factor·nominal at a chosen time."
@@ -98,6 +105,7 @@ class RampParams:
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class Ramp(Schedule):
     key, label = "ramp", "Ramp"
     summary = "σ grows linearly from nominal to factor·nominal between two times."
@@ -118,6 +126,7 @@ class SinusoidParams:
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class Sinusoid(Schedule):
     key, label = "sinusoid", "Sinusoid"
     summary = "σ(t) = σ_nominal · (1 + a·sin(2π·periods·t/T))."
@@ -133,6 +142,7 @@ class HakfTanhParams:
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class HakfTanh(Schedule):
     """The time-varying noise of Zuo et al. 2017, eqs. 29–31 (ALGORITHMS.md §8.1, reading #1).
 
@@ -173,6 +183,7 @@ class BurstParams:
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 
+@SCHEDULES.register
 class Burst(Schedule):
     """Interference burst: σ = σ0 (1 + (factor−1) b(t)), b = ½[tanh((u−start)/e) − tanh((u−stop)/e)].
 
@@ -195,11 +206,6 @@ class Burst(Schedule):
         return 1.0 + (p.factor - 1.0) * b
 
 
-SCHEDULES: dict[str, type[Schedule]] = {c.key: c for c in (Constant, Step, Ramp, Sinusoid, HakfTanh, Burst)}
-
-
 def make_schedule(key: str, params: dict[str, Any] | None = None) -> Schedule:
-    """Instantiate a noise schedule by key, validating its parameters."""
-    if key not in SCHEDULES:
-        raise NavlabError(f"unknown noise schedule '{key}'; known: {', '.join(SCHEDULES)}")
-    return SCHEDULES[key](params or {})
+    """Instantiate a registered noise schedule by key, validating its parameters."""
+    return SCHEDULES.make(key, params)

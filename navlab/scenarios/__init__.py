@@ -1,12 +1,11 @@
 """Scenarios: simulated experiments of the four papers and the real-data recordings.
 
-Importing this package imports (and so registers) every module in it.
+Each module registers its scenarios in :data:`SCENARIOS` (navlab.registry), which imports every
+module of this package on first use.
 """
 
-import importlib
-import pkgutil
-
 from navlab.scenarios.base import (
+    SCENARIOS,
     MetricGroup,
     Scenario,
     ScenarioData,
@@ -17,6 +16,7 @@ from navlab.scenarios.base import (
 )
 
 __all__ = [
+    "SCENARIOS",
     "MetricGroup",
     "Scenario",
     "ScenarioData",
@@ -25,7 +25,3 @@ __all__ = [
     "register_scenario",
     "scenario_registry",
 ]
-
-# every module of this package registers its scenarios on import
-for _m in pkgutil.iter_modules(__path__):
-    importlib.import_module(f"{__name__}.{_m.name}")

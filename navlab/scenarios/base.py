@@ -18,11 +18,11 @@ from typing import Any, ClassVar, NamedTuple
 import numpy as np
 
 from navlab import params as P_
-from navlab.errors import NavlabError
 from navlab.filters.base import Model, SideInfo
-from navlab.filters.linalg import Array
 from navlab.jit import Kernel, carray
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
+from navlab.registry import Registry
 
 
 class MetricGroup(NamedTuple):
@@ -377,31 +377,23 @@ class Scenario:
         raise NotImplementedError
 
 
-_SCENARIOS: dict[str, type[Scenario]] = {}
+#: Every scenario, by key; the modules of :mod:`navlab.scenarios` register theirs.
+SCENARIOS: Registry[type[Scenario]] = Registry("scenario", package="navlab.scenarios")
 
-
-def register_scenario(cls: type[Scenario]) -> type[Scenario]:
-    """Class decorator adding a scenario to the registry."""
-    if cls.key in _SCENARIOS and _SCENARIOS[cls.key] is not cls:
-        raise ValueError(f"scenario key {cls.key!r} registered twice")
-    _SCENARIOS[cls.key] = cls
-    return cls
+#: Class decorator adding a scenario to :data:`SCENARIOS`.
+register_scenario = SCENARIOS.register
 
 
 def scenario_registry() -> dict[str, type[Scenario]]:
-    """All registered scenarios by key (importing the scenario modules first)."""
-    import navlab.scenarios  # noqa: F401
-
-    return dict(_SCENARIOS)
+    """All registered scenarios by key (a copy of :data:`SCENARIOS`)."""
+    return dict(SCENARIOS)
 
 
 def get_scenario_class(key: str) -> type[Scenario]:
-    reg = scenario_registry()
-    if key not in reg:
-        raise NavlabError(f"unknown scenario '{key}'; known scenarios: {', '.join(sorted(reg))}")
-    return reg[key]
+    """The scenario class registered as ``key``; NavlabError naming the known keys otherwise."""
+    return SCENARIOS.lookup(key)
 
 
 def make_scenario(key: str, params: dict[str, Any] | None = None) -> Scenario:
     """Instantiate a registered scenario with validated parameters."""
-    return get_scenario_class(key)(params or {})
+    return SCENARIOS.make(key, params)

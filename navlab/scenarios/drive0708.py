@@ -49,7 +49,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param

@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from navlab.errors import NavlabError
-from navlab.filters.linalg import Array
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param
 from navlab.scenarios.base import (

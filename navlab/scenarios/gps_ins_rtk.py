@@ -36,9 +36,9 @@ import numpy as np
 
 from navlab.errors import NavlabError
 from navlab.filters.base import LinearModel
-from navlab.filters.linalg import Array
 from navlab.ins.earth import OMEGA_IE_RADPS, normal_gravity, radii
 from navlab.ins.strapdown import discretise, error_model_FG
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param
 from navlab.scenarios.base import (

@@ -31,9 +31,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from navlab.filters.base import LinearModel
-from navlab.filters.linalg import Array
 from navlab.ins.earth import normal_gravity
 from navlab.ins.strapdown import discretise, error_model_FG
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule, make_outliers, make_schedule
 from navlab.noise.outliers import Mixture
 from navlab.params import param

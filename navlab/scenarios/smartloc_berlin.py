@@ -95,8 +95,8 @@ from typing import ClassVar
 import numpy as np
 
 from navlab.data.loaders import SMARTLOC_DIR, SMARTLOC_SOURCE
-from navlab.filters.linalg import Array
 from navlab.ins.earth import OMEGA_IE_RADPS, ecef_to_geodetic, rot_ecef_to_enu
+from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import param
 from navlab.scenarios.base import (

@@ -11,8 +11,6 @@ from scipy.stats import chi2
 from navlab.errors import NavlabError
 from navlab.filters import registry
 from navlab.learn import (
-    EQUATIONS,
-    IDEAS,
     STEP_COLUMNS,
     TinySpec,
     applicability,
@@ -191,11 +189,11 @@ def test_equations_and_ideas():
         "wls",
     ):
         assert equations(key), key
-        assert key in IDEAS
+        assert registry()[key].teaching.idea, key
     assert equations("unknown-key") == []
     assert equations("nnmfukf-guarded") == equations("nnmfukf")  # a variant: its base's
     assert equations("kfx") == []  # not a "<base>-" variant
-    assert all(isinstance(s, str) and s for lines in EQUATIONS.values() for s in lines)
+    assert all(isinstance(s, str) and s for c in registry().values() for s in c.teaching.equations)
     info = filter_info(registry()["chi2-kf"])
     assert info["equations"] and info["idea"] and info["params"]
 

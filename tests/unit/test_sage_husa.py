@@ -8,6 +8,7 @@ from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, plan, run_experiment, run_filters
 from navlab.filters.base import SideInfo, make_filter, registry
 from navlab.filters.sage_husa import (
+    Window,
     forgetting_weight,
     igg3_weights,
     irakf_weights,
@@ -279,13 +280,13 @@ def test_rae_estimate_missing_entries_fall_back():
     ok = np.array([[[True, True], [True, False]]])
     R0 = np.diag([4.0, 9.0])
     H = np.eye(2)
-    R = rae_estimate(eta, ok, H, np.zeros((2, 2)), R0, full=True)[0]
+    R = rae_estimate(Window(eta, ok, 2), H @ np.zeros((2, 2)) @ H.T, R0)[0]
     assert R[0, 0] == pytest.approx((1 + 9) / 2)
     assert R[1, 1] == pytest.approx(4.0)  # only one epoch with channel 1
     assert R[0, 1] == pytest.approx(2.0 / np.sqrt(2.0))  # D Σηηᵀ D, D = diag(1/√c_i): PSD
     assert np.linalg.eigvalsh(R).min() >= 0
     none = np.zeros_like(ok)
-    R = rae_estimate(eta, none, H, np.zeros((2, 2)), R0, full=True)[0]
+    R = rae_estimate(Window(eta, none, 2), H @ np.zeros((2, 2)) @ H.T, R0)[0]
     np.testing.assert_allclose(R, R0)
 
 
@@ -424,15 +425,15 @@ def test_rhat_inflates_during_outlier_burst():
 
 
 def test_numerical_guards_work_run_by_run():
-    from navlab.filters.sage_husa import _clamp, _sqrt_factor
+    from navlab.filters.sage_husa import clamp_eig, sqrt_factor
 
     good = np.array([[4.0, 1.0], [1.0, 3.0]])
     S = np.stack([good, np.array([[1.0, 2.0], [2.0, 1.0]]), np.full((2, 2), np.nan)])
-    L, bad = _sqrt_factor(S)
+    L, bad = sqrt_factor(S)
     np.testing.assert_array_equal(bad, [False, True, True])
     np.testing.assert_allclose(L[0], np.linalg.cholesky(good))  # a healthy run is untouched
     assert np.isfinite(L[1]).all() and np.isnan(L[2]).all()
-    R, changed = _clamp(S, 0.5, 100.0)
+    R, changed = clamp_eig(S, 0.5, 100.0)
     np.testing.assert_allclose(R[0], good)
     assert not changed[0].any() and changed[1].all() and changed[2].all()
     assert np.linalg.eigvalsh(R[1]).min() >= 0.5 - 1e-12
@@ -462,3 +463,28 @@ def test_irakf_variance_middle_zone_option():
         P = IKH @ P_m @ np.swapaxes(IKH, 1, 2) + K @ R_eff @ np.swapaxes(K, 1, 2)
         np.testing.assert_allclose(o.P, P, rtol=1e-10, atol=1e-12)
     assert seen
+
+
+def test_rakf_abnormality_test_ignores_a_missing_channel():
+    """RAKF's divergence test and inflation use tr R̂ over the PRESENT channels: with channel 0
+    missing, the update equals the update of the model without channel 0 (the masked unit R_00
+    was once counted in tr R̂, which moved λ and P⁻ whenever the test fired).
+    """
+    from navlab.filters.base import LinearModel
+
+    data = simulate("isolated", runs=4, epochs=3)
+    m = data.model
+    z = data.z.copy()
+    z[:, 1, 1] += 30.0 * np.sqrt(m.R0[1, 1] + data.P0[2, 2])  # fires the divergence test
+    z[:, 1, 0] = np.nan
+    f = make_filter("rakf", {"adapt": False})  # R̂ = R0: the test is not damped by R̂ absorbing it
+    small = LinearModel(m.F_, m.Q_, m.H_[1:], m.R0[1:, 1:])
+    outs = []
+    for model, zz, sl in ((m, z[:, 1], slice(None)), (small, z[:, 1, 1:], slice(1, None))):
+        st = f.predict(model, f.init(model, data.x0, data.P0), 1)
+        s = data.side(1)
+        side_k = SideInfo(s.R_true[:, sl], s.bias[:, sl], s.outlier[:, sl])
+        outs.append(f.update(model, st, 1, zz, side_k)[1])
+    assert np.all(outs[1].stats["lambda"] > 1.0)  # the inflation ran
+    np.testing.assert_allclose(outs[0].stats["lambda"], outs[1].stats["lambda"], rtol=1e-12)
+    np.testing.assert_allclose(outs[0].x, outs[1].x, rtol=1e-10, atol=1e-10)

@@ -1,4 +1,4 @@
-"""The fast kernels of navlab/filters/sage_husa.py against their straightforward references.
+"""The fast kernels of navlab/filters/sage_husa/kernels.py against their straightforward references.
 
 The filters' end-to-end outputs are pinned in test_linear_pinned.py; these tests aim at the edge
 cases of each shortcut (eigenvalues at the clamp bounds, NaN runs, ill-conditioned S, k1 < k0).
@@ -9,14 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from navlab.filters.linalg import eigh_clamp, sym
 from navlab.filters.sage_husa import (
-    _clamp,
-    _eig_inside,
-    _forward_subst,
+    clamp_eig,
+    eig_inside,
     igg3_weights,
     irakf_weights,
 )
+from navlab.linalg import eigh_clamp, sym
 
 
 def _random_sym(rng, B, m, scale=1.0):
@@ -48,7 +47,7 @@ def test_clamp_equals_eigh_everywhere(m):
     R[0] = V @ np.diag(np.r_[lo, np.full(m - 1, 1.0)]) @ V.T
     R[1] = V @ np.diag(np.r_[hi, np.full(m - 1, 1.0)]) @ V.T
     R[2, 0, 0] = np.nan
-    out, changed = _clamp(R, lo, hi)
+    out, changed = clamp_eig(R, lo, hi)
     ref, ref_changed = _clamp_reference(R, lo, hi)
     np.testing.assert_array_equal(changed, ref_changed)
     np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
@@ -60,18 +59,9 @@ def test_eig_inside_is_never_wrong_when_true():
     for m in (2, 3):
         R = _random_sym(rng, 2000, m, scale=0.8)
         w = np.linalg.eigvalsh(R)
-        inside = _eig_inside(R, 0.2, 3.0)
+        inside = eig_inside(R, 0.2, 3.0)
         assert inside.any()
         assert np.all((w[inside] > 0.2) & (w[inside] < 3.0))
-
-
-@pytest.mark.parametrize("m", [1, 2, 3, 5])
-def test_forward_substitution_solves_the_triangular_system(m):
-    rng = np.random.default_rng(m)
-    L = np.linalg.cholesky(_random_sym(rng, 30, m))
-    v = rng.standard_normal((30, m))
-    e = _forward_subst(L, v)
-    np.testing.assert_allclose((L @ e[..., None])[..., 0], v, rtol=1e-10, atol=1e-12)
 
 
 def _weights_reference(a, k0, k1, mid):

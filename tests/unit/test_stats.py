@@ -8,7 +8,7 @@ import pytest
 
 from navlab import stats as S
 from navlab.experiment import ExperimentSpec, plan, run_filters
-from navlab.filters.linalg import predict_cov
+from navlab.linalg import predict_cov
 
 SETS, PER_SET = 200, 20  # 200 repeats of a 20-run experiment
 

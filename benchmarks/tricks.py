@@ -1,0 +1,517 @@
+"""What each speed trick of the filters is worth: every filter it serves, with and without it.
+
+A trick is a place where the code takes a shorter road than the textbook formula (a closed-form
+inverse, an indexing shortcut, a cache, a closed-form unscented transform). For each one this
+script swaps in the plain version (the textbook formula, the uncached call) and times the
+filters that use it on the same simulated batch, with and without the trick back to back in
+alternating order, round after round, in one process. Times are the process's CPU time
+(``time.process_time``, BLAS on one thread), which a busy machine disturbs far less than
+wall-clock time.
+
+The house rule (issue 13): a trick stays only where it is worth ≥ 10 % of some filter's time;
+the module notes say which stayed and why.
+
+    python benchmarks/tricks.py [--rounds 7] [--trick NAME,...] [--list]
+
+Prints, per trick and filter, the CPU time per run-step with the trick and without it (best
+round) and ``worth`` = 1 − median over the rounds of the paired ratio with/without: the share
+of the filter's time the trick saves (negative: it costs time). Not a test: read the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy
+    os.environ.setdefault(_var, "1")
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, no install
+
+import numpy as np  # noqa: E402
+
+# (scenario, runs, epochs): small batches, enough epochs for the adaptive parts to engage
+CASES = {
+    "cv2d": ("cv2d", 100, 100),
+    "sins-gps": ("sins-gps", 50, 150),
+    "gps-ins-rtk": ("gps-ins-rtk", 10, 300),
+    "pseudorange": ("gps-ins-pseudorange", 50, 100),
+    "smartloc": ("smartloc-berlin", 5, 150),
+}
+
+
+@contextlib.contextmanager
+def swap(module: str, name: str, new: object) -> Iterator[None]:
+    """Replace ``module.name`` by ``new`` in every navlab module that imported it (by identity)."""
+    import importlib
+
+    orig = getattr(importlib.import_module(module), name)
+    hits = [
+        m
+        for m in list(sys.modules.values())
+        if m is not None
+        and getattr(m, "__name__", "").startswith("navlab")
+        and getattr(m, name, None) is orig
+    ]
+    for m in hits:
+        setattr(m, name, new)
+    try:
+        yield
+    finally:
+        for m in hits:
+            setattr(m, name, orig)
+
+
+@contextlib.contextmanager
+def swap_attr(owner: object, name: str, new: object) -> Iterator[None]:
+    orig = owner.__dict__[name]
+    setattr(owner, name, new)
+    try:
+        yield
+    finally:
+        setattr(owner, name, orig)
+
+
+@dataclass(frozen=True)
+class Trick:
+    """A speed trick: where it lives, which filters on which cases use it, and its plain version."""
+
+    name: str
+    where: str
+    uses: dict[str, tuple[str, ...]]  # case -> filters
+    plain: Callable[[], contextlib.AbstractContextManager]
+
+
+# ------------------------------------------------------------------------------ plain versions
+def _plain_pht():
+    from navlab.linalg import mT
+
+    def PHt(P, H):
+        U = P @ mT(H)
+        return U, H @ U
+
+    return swap("navlab.linalg", "PHt", PHt)
+
+
+def _plain_kf_gain():
+    from navlab.linalg import mT, solve_sym
+
+    def kf_gain(U, S):
+        Kt, fixed = solve_sym(S, mT(U))
+        return mT(Kt), fixed
+
+    return swap("navlab.linalg", "kf_gain", kf_gain)
+
+
+def _plain_selection():
+    import navlab.linalg as L
+
+    def selection(H):
+        if H.ndim != 2:
+            return None
+        return L._selection.__wrapped__(H.shape, np.ascontiguousarray(H, dtype=float).tobytes())
+
+    return swap("navlab.linalg", "selection", selection)
+
+
+def _plain_bcast():
+    return swap("navlab.linalg", "bcast", lambda a, shape: np.broadcast_to(np.asarray(a), shape))
+
+
+def _plain_chi2():
+    from scipy.stats import chi2
+
+    return swap(
+        "navlab.linalg",
+        "chi2_threshold",
+        lambda alpha, dof, m: chi2.ppf(1.0 - alpha, np.maximum(dof, 1)),
+    )
+
+
+def _plain_quad():
+    import navlab.linalg as L
+
+    def quad(v, S):
+        v = np.asarray(v, dtype=float)
+        d = v.shape[-1]
+        Sb = np.broadcast_to(S, (*v.shape, d))
+        return L._quad_lu(v.reshape(-1, d), Sb.reshape(-1, d, d)).reshape(v.shape[:-1])
+
+    return swap("navlab.linalg", "quad", quad)
+
+
+def _plain_shared_left():
+    return swap("navlab.linalg", "shared_left", lambda M, A: M @ A)
+
+
+def _plain_eig_inside():
+    return swap(
+        "navlab.filters.sage_husa.kernels", "eig_inside", lambda R, lo, hi: np.zeros(R.shape[0], dtype=bool)
+    )
+
+
+def _plain_meas_space():
+    import navlab.filters.huber_vb as hv
+
+    class Plain:
+        def __init__(self, M, nu):
+            self.M, self.nu = M, nu
+
+        def step(self, Rt):
+            return hv.meas_space_step(self.M, self.nu, Rt)
+
+    return swap("navlab.filters.huber_vb", "MeasSpace", Plain)
+
+
+@contextlib.contextmanager
+def _plain_state_space_vb():
+    """The VB iterations in state space (S0 eqs. 18–20 as printed: K, x, P of every iteration)."""
+    import navlab.filters.huber_vb as hv
+    from navlab.linalg import diag, kf_gain, mT, mv
+
+    ctx = {}
+    orig = hv.measurement_prediction
+
+    def measurement_prediction(model, x, P, k, z, R=None):
+        mk = orig(model, x, P, k, z, R)
+        H = np.asarray(model.H(x, k))
+        ctx.update(P=P, U=mk.U, H=np.where(np.isfinite(z)[..., None], H, 0.0))
+        return mk
+
+    class StateSpace:
+        def __init__(self, M, nu):
+            self.M, self.nu = M, nu
+
+        def step(self, Rt):
+            P, U, H = ctx["P"], ctx["U"], ctx["H"]
+            S = self.M + Rt[:, :, None] * np.eye(Rt.shape[1])
+            K, fixed = kf_gain(U, S)  # (18)
+            dx = mv(K, self.nu)  # (19) x⁺ − x⁻
+            Pp = P - K @ H @ P  # (20) P⁺ = (I − K H) P⁻, n×n
+            resid = self.nu - mv(H, dx)
+            return resid, diag(H @ Pp @ mT(H)), np.broadcast_to(fixed, Rt.shape[:1])
+
+    with (
+        swap("navlab.filters.huber_vb", "measurement_prediction", measurement_prediction),
+        swap("navlab.filters.huber_vb", "MeasSpace", StateSpace),
+    ):
+        yield
+
+
+def _plain_select():
+    """np.where with an all-true mask where the code passes None (every channel, every run)."""
+
+    def select(mask, new, old):
+        if mask is None:
+            mask = np.ones(np.shape(new)[:1] + (1,) * (np.ndim(new) - 1), dtype=bool)
+        return np.where(mask, new, old)
+
+    return swap("navlab.linalg", "select", select)
+
+
+@contextlib.contextmanager
+def _plain_linear_ut():
+    """The unscented transform of a linear model by its 2n+1 sigma points (no closed form)."""
+    import navlab.filters.ukf as uk
+
+    class Nonlinear:  # the same model, presented as nonlinear: f and h per sigma point
+        linear = False
+
+        def __init__(self, base):
+            self.base = base
+
+        def __getattr__(self, name):
+            return getattr(self.base, name)
+
+    tu, mp = uk.ukf_time_update, uk.ukf_measurement_prediction
+
+    def time_update(model, *a, **kw):
+        return tu(Nonlinear(model) if getattr(model, "linear", False) else model, *a, **kw)
+
+    def meas(model, *a, **kw):
+        return mp(Nonlinear(model) if getattr(model, "linear", False) else model, *a, **kw)
+
+    with (
+        swap("navlab.filters.ukf", "ukf_time_update", time_update),
+        swap("navlab.filters.ukf", "ukf_measurement_prediction", meas),
+    ):
+        yield
+
+
+def _plain_svd():
+    from navlab.linalg import sym
+
+    def svd_sqrt(P):
+        Ps = sym(P)
+        U, s, _ = np.linalg.svd(Ps)
+        w = np.linalg.eigvalsh(Ps)
+        tr = np.trace(Ps, axis1=-2, axis2=-1)[..., None]
+        return U * np.sqrt(s)[..., None, :], np.any(w < -1e-9 * np.abs(tr), axis=-1)
+
+    return swap("navlab.filters.ukf", "svd_sqrt", svd_sqrt)
+
+
+def _plain_linear_sqrt():
+    import navlab.filters.ukf as uk
+
+    return swap("navlab.filters.ukf", "linear_sqrt", lambda P, symmetric=False: uk.svd_sqrt(P))
+
+
+@contextlib.contextmanager
+def _plain_fade_subset():
+    """Every run's update solved again (no reuse of the χ² test's solve, no subset of faded runs)."""
+    import navlab.filters.ukf as uk
+
+    base = uk._FadingBase
+
+    def _fade(self, model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0):
+        p = self.params
+        sig = uk.fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)
+        M, exact = uk.channel_state_map(model, state.x, k)
+        s = uk.state_scale(sig, M)
+        if (p.recompute_sigma or not exact) and np.any(sig > 1.0):
+            return _orig(self, model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0)
+        x, P, Pyy, fixed = uk.fading_update(state.x, state.P, V, A, Pxy, R, s, sig, p.form)
+        return x, P, Pyy, fixed, sig
+
+    _orig = base.__dict__["_fade"]
+    with swap_attr(base, "_fade", _fade):
+        yield
+
+
+TRICKS: list[Trick] = [
+    Trick(
+        "PHt-indexing",
+        "linalg.PHt (P Hᵀ, H P Hᵀ by indexing for a selection H)",
+        {
+            "cv2d": ("kf", "chi2-kf", "huber-kf", "hakf", "sage-husa", "irakf"),
+            "sins-gps": ("kf", "hakf", "sage-husa", "irakf"),
+            "pseudorange": ("kf", "huber-kf"),
+        },
+        _plain_pht,
+    ),
+    Trick(
+        "kf_gain-closed-form",
+        "linalg.kf_gain (adjugate/det for m ≤ 3)",
+        {
+            "cv2d": ("kf", "chi2-kf", "huber-kf", "hakf", "sage-husa", "irakf", "rakf"),
+            "sins-gps": ("kf", "hakf", "irakf"),
+        },
+        _plain_kf_gain,
+    ),
+    Trick(
+        "selection-cache",
+        "linalg.selection (cached by H's content)",
+        {"cv2d": ("kf", "huber-kf", "irakf"), "sins-gps": ("kf", "hakf")},
+        _plain_selection,
+    ),
+    Trick(
+        "bcast-view",
+        "linalg.bcast (zero-stride view built directly)",
+        {"cv2d": ("huber-kf", "hakf", "irakf", "svd-ukf"), "gps-ins-rtk": ("svd-ukf", "mfukf")},
+        _plain_bcast,
+    ),
+    Trick(
+        "chi2-table",
+        "linalg.chi2_threshold (cached table)",
+        {"cv2d": ("chi2-kf", "mfukf"), "gps-ins-rtk": ("mfukf",)},
+        _plain_chi2,
+    ),
+    Trick(
+        "quad-shortcuts",
+        "linalg.quad (closed form / LDLᵀ / Cholesky instead of LU)",
+        {"cv2d": ("chi2-kf",), "sins-gps": ("chi2-kf",), "pseudorange": ("chi2-kf",)},
+        _plain_quad,
+    ),
+    Trick(
+        "shared-left-gemm",
+        "linalg.shared_left (one GEMM on the stacked rows)",
+        {"gps-ins-rtk": ("svd-ukf", "mfukf"), "cv2d": ("svd-ukf",)},
+        _plain_shared_left,
+    ),
+    Trick(
+        "clamp-eig-inside",
+        "sage_husa.kernels.clamp_eig (eigh only where not certainly inside)",
+        {"cv2d": ("sage-husa", "rakf"), "sins-gps": ("sage-husa", "rakf"), "smartloc": ("irakf",)},
+        _plain_eig_inside,
+    ),
+    Trick(
+        "vb-closed-form",
+        "huber_vb.MeasSpace (closed-form S⁻¹ for m ≤ 3, per-epoch layout)",
+        {"cv2d": ("vb-akf", "hakf", "student-t-kf"), "sins-gps": ("vb-akf", "hakf", "student-t-kf")},
+        _plain_meas_space,
+    ),
+    Trick(
+        "vb-measurement-space",
+        "huber_vb (VB iterations in measurement space, not K, x, P per iteration)",
+        {
+            "cv2d": ("vb-akf", "hakf", "student-t-kf"),
+            "sins-gps": ("vb-akf", "hakf"),
+            "gps-ins-rtk": ("hakf",),
+        },
+        _plain_state_space_vb,
+    ),
+    Trick(
+        "select-none-masks",
+        "linalg.select (no np.where while every channel is present / every run iterates)",
+        {"cv2d": ("vb-akf", "hakf", "sage-husa"), "sins-gps": ("vb-akf",)},
+        _plain_select,
+    ),
+    Trick(
+        "ukf-linear-closed-form",
+        "ukf (the UT of a linear model in closed form, no sigma points)",
+        {"cv2d": ("svd-ukf", "mfukf"), "gps-ins-rtk": ("svd-ukf", "mfukf", "nnmfukf")},
+        _plain_linear_ut,
+    ),
+    Trick(
+        "ukf-linear-cholesky",
+        "ukf.linear_sqrt (Cholesky instead of the SVD factor for a linear model)",
+        {"cv2d": ("svd-ukf",), "gps-ins-rtk": ("svd-ukf", "mfukf")},
+        _plain_linear_sqrt,
+    ),
+    Trick(
+        "ukf-svd-by-eigh",
+        "ukf.svd_sqrt (eigh instead of svd: the same sigma points)",
+        {"pseudorange": ("svd-ukf", "mfukf")},
+        _plain_svd,
+    ),
+    Trick(
+        "ukf-fade-subset",
+        "ukf._FadingBase._fade (unfaded runs reuse the χ² test's solve)",
+        {"cv2d": ("mfukf",), "gps-ins-rtk": ("mfukf", "nnmfukf")},
+        _plain_fade_subset,
+    ),
+]
+
+
+# ------------------------------------------------------------------------------ timing
+@functools.cache
+def case_data(case: str):
+    from navlab.experiment import ExperimentSpec, plan
+
+    scenario, runs, epochs = CASES[case]
+    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
+    return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
+
+
+def time_filter(case: str, key: str) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
+    from navlab.filters import make_filter
+
+    p, data = case_data(case)
+    f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
+    st = f.init(data.model, data.x0, data.P0)
+    t0 = time.process_time()
+    with np.errstate(all="ignore"):
+        for k in range(1, data.K + 1):
+            st = f.predict(data.model, st, k)
+            st, _ = f.update(data.model, st, k, data.z[:, k], data.side(k))
+    return (time.process_time() - t0) / (data.B * data.K)
+
+
+def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, float]]:
+    """Per (case, filter): best time with and without the trick, and the median of the paired
+    ratios with/without (each round measures both back to back, in alternating order).
+    """
+    rows = []
+    for case, keys in trick.uses.items():
+        for key in keys:
+            time_filter(case, key)  # warm up (first-call costs, caches)
+            ons, offs = [], []
+            for r in range(rounds):
+                for plain in (r % 2 == 1, r % 2 == 0):
+                    if plain:
+                        with trick.plain():
+                            offs.append(time_filter(case, key))
+                    else:
+                        ons.append(time_filter(case, key))
+            ratio = float(np.median(np.array(ons) / np.array(offs)))
+            rows.append((case, key, min(ons), min(offs), ratio))
+    return rows
+
+
+def joseph_worth(rounds: int) -> list[tuple[str, str, float, float, float]]:
+    """The Joseph form from U and S (linalg.joseph_from_gain) against the textbook
+    (I − K H) P (I − K H)ᵀ + K R Kᵀ, which needs H and R the filters no longer hand it: timed as
+    a kernel on each case's shapes and put against the filter's time per run-step (one call per
+    update).
+    """
+    from navlab.linalg import joseph_from_gain, mT, sym
+
+    def textbook(P, K, H, R):
+        IKH = np.eye(P.shape[-1]) - K @ H
+        return sym(IKH @ P @ mT(IKH) + K @ R @ mT(K))
+
+    rows = []
+    for case, key in (
+        ("cv2d", "kf"),
+        ("cv2d", "huber-kf"),
+        ("sins-gps", "huber-kf"),
+        ("gps-ins-rtk", "hakf"),
+    ):
+        _, data = case_data(case)
+        B, n, m = data.B, data.x0.shape[1], data.z.shape[2]
+        rng = np.random.default_rng(0)
+        A = rng.standard_normal((B, n, n))
+        P = A @ mT(A) + np.eye(n)
+        H, R = np.eye(n)[:m], np.eye(m)
+        U = P @ H.T
+        S = H @ U + R
+        K = U @ np.linalg.inv(S)
+
+        def t(fn, reps=200):
+            best = float("inf")
+            for _ in range(rounds):
+                t0 = time.process_time()
+                for _ in range(reps):
+                    fn()
+                best = min(best, (time.process_time() - t0) / reps)
+            return best
+
+        fast, slow = t(lambda: joseph_from_gain(P, K, U, S)), t(lambda: textbook(P, K, H, R))  # noqa: B023
+        step = time_filter(case, key) * B  # the filter's time per epoch (all runs)
+        rows.append((case, key, step / B, (step + slow - fast) / B, (slow - fast) / (step + slow - fast)))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--trick", help="comma-separated trick names (default: all)")
+    ap.add_argument("--list", action="store_true", help="list the tricks and exit")
+    a = ap.parse_args()
+    if a.list:
+        for t in TRICKS:
+            print(f"{t.name:>24}  {t.where}")
+        print(f"{'joseph-expansion':>24}  linalg.joseph_from_gain (a kernel timing)")
+        return
+    want = set(a.trick.split(",")) if a.trick else None
+    if not want or "joseph-expansion" in want:
+        print("\njoseph-expansion: linalg.joseph_from_gain (kernel timed on the case's shapes)")
+        print(f"{'case':>12} {'filter':>14} {'with':>9} {'without':>9} {'worth':>7}")
+        for case, key, on, off, worth in joseph_worth(a.rounds):
+            print(f"{case:>12} {key:>14} {1e6 * on:9.2f} {1e6 * off:9.2f} {100 * worth:6.1f}%", flush=True)
+    print(f"CPU µs per run-step (best of {a.rounds}); worth = 1 − median(with/without) over the rounds")
+    for t in TRICKS:
+        if want and t.name not in want:
+            continue
+        print(f"\n{t.name}: {t.where}")
+        print(f"{'case':>12} {'filter':>14} {'with':>9} {'without':>9} {'worth':>7}")
+        best = -1.0
+        for case, key, on, off, ratio in measure(t, a.rounds):
+            worth = 1.0 - ratio
+            best = max(best, worth)
+            print(f"{case:>12} {key:>14} {1e6 * on:9.2f} {1e6 * off:9.2f} {100 * worth:6.1f}%", flush=True)
+        verdict = "keep" if best >= 0.10 else "below 10 %"
+        print(f"{'':>12} {'max worth':>14} {'':>19} {100 * best:6.1f}%  {verdict}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,181 @@
+"""RRAE — robust residual-based adaptive estimation (RECONSTRUCTION; ALGORITHMS.md §4.7).
+
+S1 ref. [16] (Ge et al. 2018) could not be retrieved; navlab's reading, in §4.7's numbering::
+
+    1  x⁻, P⁻ ;  R̂_k by RAE eq. 3 (P⁺_{k−1}), R0 until the window (M = 10) is full
+    2  S = H P⁻ Hᵀ + R̂_k ;  ν = z − H x⁻ ;  ν̃_i = ν_i / √S_ii
+    3  IGG-III equivalent weights w_i (k0 = 1.5, k1 = 5)
+    4  middle zone: R̄_ii = R̂_k,ii / w_i ;  rejection zone: ν_i ← 0, R̄_ii = R̂_k,ii
+    5  K = P⁻ Hᵀ (H P⁻ Hᵀ + R̄)⁻¹ ;  x⁺ = x⁻ + K ν ;  P⁺ = (I − K H) P⁻  (short form on purpose)
+    6  η_k = z − H x⁺ into the window
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from navlab.filters.base import (
+    DOWNWEIGHTED,
+    REJECTED,
+    Filter,
+    KFLimit,
+    Model,
+    SideInfo,
+    StepOut,
+    Teaching,
+    flag_fix,
+    register,
+)
+from navlab.filters.sage_husa.kernels import (
+    Window,
+    check_k0_k1,
+    clamp_eig,
+    igg3_weights,
+    rae_estimate,
+    rhat_bounds,
+    scale_diag,
+)
+from navlab.linalg import Array, PHt, batched, diag, kf_gain, mask_missing, mT, mv, predict_cov, sym
+from navlab.params import param
+
+
+@dataclass(frozen=True)
+class RRAEParams:
+    """RRAE options (ALGORITHMS.md §4.7, RECONSTRUCTION of Ge et al. 2018)."""
+
+    window: int = param(10, lo=1, hi=5000, tune=(3, 100), help="RAE window M (R̂ = R0 until full)")
+    k0: float = param(1.5, lo=0.1, hi=1e6, tune=(0.5, 3.0), help="IGG-III down-weighting threshold k0 in σ")
+    k1: float = param(
+        5.0,
+        lo=0.1,
+        hi=1e6,
+        tune=(2.0, 10.0),
+        help="IGG-III rejection threshold k1 in σ (5 = top of S1's range; 3 locks out, §4.7)",
+    )
+    form: str = param(
+        "equivalent_variance",
+        choices=("equivalent_variance", "literal_scaling"),
+        help="middle zone as an inflated variance R̂ᵢᵢ/wᵢ (default) or ν scaled by w "
+        "(literal; locks out on clean data, spec uses k1 = 3 for it)",
+    )
+
+
+class RAEState(NamedTuple):
+    x: Array
+    P: Array
+    P_post: Array
+    win: Window
+
+
+@register
+class RRAE(Filter):
+    """Robust residual-based adaptive estimation (RECONSTRUCTION, ALGORITHMS.md §4.7).
+
+    RAE R̂ (eq. 3, P⁺_{k−1}); IGG-III equivalent weights on ν̃ = ν/√S_ii: the middle zone enters
+    as an inflated variance R̂_ii/w_i, the rejection zone sets ν_i = 0 while P is still updated
+    with the short form (I − KH)P⁻ as if the measurement had been used — the scheme S1 criticises.
+    """
+
+    key = "rrae"
+    label = "RRAE (reconstruction)"
+    family = "robust-adaptive"
+    paper = "Ge, Zhang, Sheng et al. 2018 (IEEE/CSAA GNC), cited as S1 ref. [16]"
+    spec_section = "§4.7"
+    summary = (
+        "RECONSTRUCTION (paper not retrievable): windowed residual R̂ with classical IGG-III "
+        "equivalent weights; rejected innovations are zeroed while P keeps shrinking."
+    )
+    reconstruction = True
+    estimates_R = True
+    Params = RRAEParams
+    kf_limit = KFLimit(
+        {"window": 5000, "k0": 1e6, "k1": 1e6},
+        why="a window longer than the run keeps R̂ = R0; thresholds → ∞ keep every weight 1",
+    )
+    teaching = Teaching(
+        idea=(
+            "Robust residual-based adaptive estimation (a reconstruction of Ge et al. 2018): R from "
+            "a window of posterior residuals, and Yang's IGG-III equivalent weights — full weight "
+            "for small innovations, a smoothly shrinking weight (as an inflated variance) in the "
+            "middle, and the innovation set to zero beyond k₁ while P still shrinks, the weakness "
+            "the IRAKF paper points out."
+        ),
+        equations=(
+            r"\hat R_k = \frac1M \sum_{j=k-M}^{k-1}\eta_j\eta_j^\top + H P^+_{k-1} H^\top",
+            r"w_i = \begin{cases} 1 & |\tilde\nu_i| \le k_0 \\ \dfrac{k_0}{|\tilde\nu_i|}"
+            r"\left(\dfrac{k_1 - |\tilde\nu_i|}{k_1 - k_0}\right)^2 & k_0 < |\tilde\nu_i| \le k_1 \\"
+            r" 0 & |\tilde\nu_i| > k_1 \end{cases}",
+            r"\bar R_{ii} = \hat R_{k,ii}/w_i \ (0<w_i<1), \qquad \nu_i \leftarrow 0\ (w_i = 0)",
+            r"K = P^- H^\top (H P^- H^\top + \bar R)^{-1}, \quad x^+ = x^- + K\nu, \quad "
+            r"P^+ = (I - KH)P^-",
+        ),
+    )
+
+    def __init__(self, params: Any = None, **kwargs: Any) -> None:
+        super().__init__(params, **kwargs)
+        check_k0_k1(self.key, self.params.k0, self.params.k1)
+
+    def init(self, model: Model, x0: Array, P0: Array) -> RAEState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = batched(np.asarray(P0, dtype=float), B).copy()
+        return RAEState(x0, P, P, Window.empty(B, self.params.window, model.m))
+
+    def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
+        x = model.f(state.x, k)
+        P = predict_cov(model.F(k), state.P, model.Q(k))
+        return state._replace(x=x, P=P, P_post=state.P)
+
+    def update(self, model: Model, state: RAEState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        x_m, P_m = state.x, state.P
+        H = model.H(x_m, k)
+        # 1  RAE R̂ with P⁺_{k−1} (S1 eq. 3), eigenvalue guard
+        flags = np.zeros((B, m), dtype=np.int8)
+        if state.win.full:
+            lo, hi = rhat_bounds(model.R0)
+            R_hat, clamped = clamp_eig(rae_estimate(state.win, PHt(state.P_post, H)[1], model.R0), lo, hi)
+            flag_fix(flags, clamped, overwrite=False)
+        else:
+            R_hat = batched(np.asarray(model.R0, dtype=float), B).copy()
+        # 2  innovation statistics with R̂
+        U, M = PHt(P_m, H)
+        mk = mask_missing(z, z - model.h(x_m, k), R_hat, U=U, M=M)
+        S = sym(mk.M + mk.R)
+        nt = mk.nu / np.sqrt(diag(S))  # ν̃_i = ν_i / √S_ii
+        # 3  IGG-III equivalent weights
+        w, zone = igg3_weights(nt, p.k0, p.k1)
+        w = np.where(mk.ok, w, 1.0)
+        zone = np.where(mk.ok, zone, 0)
+        if p.form == "literal_scaling":  # option: ν_i ← w_i ν_i in every zone, K and P from R̂
+            R_bar, nu_w = mk.R, w * mk.nu
+        else:  # 4  middle zone: R̄_ii = R̂_ii / w_i; rejection zone: ν_i ← 0
+            mid = zone == 1
+            R_bar = scale_diag(mk.R, np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0))
+            nu_w = np.where(zone == 2, 0.0, mk.nu)
+        # 5  gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
+        S_bar = sym(mk.M + R_bar)
+        K, fixed = kf_gain(mk.U, S_bar)
+        x = x_m + mv(K, nu_w)
+        P = sym(P_m - K @ mT(mk.U))  # (I − K H) P⁻, with H P⁻ = Uᵀ (P⁻ symmetric)
+        # 6  posterior residual into the window
+        win = state.win.push(z - model.h(x, k), mk.ok)
+        flags[zone == 1] = DOWNWEIGHTED
+        flags[zone == 2] = REJECTED
+        flag_fix(flags, fixed, overwrite=False)
+        out = StepOut(
+            x=x,
+            P=P,
+            innov=mk.nu,
+            S=S,
+            R_used=R_bar,
+            R_hat=R_hat,
+            weights=w,
+            flags=flags,
+            stats={"nu_tilde": nt},
+        )
+        return RAEState(x, P, P, win), out

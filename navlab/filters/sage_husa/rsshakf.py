@@ -1,0 +1,144 @@
+"""RSSHAKF — robust simplified Sage–Husa KF (RECONSTRUCTION; ALGORITHMS.md §4.9).
+
+S1 ref. [18] (Narasimhappa, Sabat, Nayak 2016) could not be retrieved; navlab's reading, in §4.9's
+numbering::
+
+    1  x⁻, P⁻ ;  ν = z − H x⁻ ;  S_p = H P⁻ Hᵀ + R̂_{k−1} ;  ν̃_i = ν_i / √S_p,ii
+    2  outlier channels O = { i : |ν̃_i| > c_r },  c_r = 2.5
+    3  R_used = R̂_{k−1} with R_used,ii ← R̂_{k−1,ii} |ν̃_i|/c_r for i ∈ O   (variance inflation)
+    4  KF update with R_used (Joseph)
+    5  R̂_k,ii = (1 − d_k) R̂_{k−1,ii} + d_k (ν_i² − (H P⁻ Hᵀ)_ii) on every channel (diagonal R̂,
+       clamped as §4.1; option: skip the channels in O)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from navlab.filters.base import (
+    DOWNWEIGHTED,
+    Filter,
+    KFLimit,
+    Model,
+    SideInfo,
+    StepOut,
+    Teaching,
+    flag_fix,
+    register,
+)
+from navlab.filters.kalman import kf_update, measurement_prediction
+from navlab.filters.sage_husa.kernels import (
+    RState,
+    forgetting_weight,
+    rhat_bounds,
+    sage_husa_R,
+    scale_diag,
+)
+from navlab.linalg import Array, batched, diag
+from navlab.params import param
+
+
+@dataclass(frozen=True)
+class RSSHAKFParams:
+    """RSSHAKF options (ALGORITHMS.md §4.9, RECONSTRUCTION of Narasimhappa et al. 2016)."""
+
+    b: float = param(0.98, lo=0.5, hi=1.0, tune=(0.8, 0.999), help="Sage–Husa forgetting factor b")
+    adapt: bool = param(True, help="estimate the diagonal R̂ (off: R̂ stays diag R0)")
+    c_r: float = param(
+        2.5,
+        lo=0.1,
+        hi=1e12,
+        tune=(1.0, 10.0),
+        help="outlier threshold c_r on |ν̃| (variance inflation above it)",
+    )
+    exclude_outliers: bool = param(
+        False,
+        help="skip the Sage–Husa update on outlier channels (variant; inverts S1's ranking, §4.9)",
+    )
+
+
+@register
+class RSSHAKF(Filter):
+    """Robust simplified Sage–Husa KF (RECONSTRUCTION, ALGORITHMS.md §4.9).
+
+    R-only, diagonal Sage–Husa; channels with |ν̃_i| > c_r (ν̃ from R̂_{k−1}) get their variance
+    inflated by |ν̃_i|/c_r for this update; the Sage–Husa update then runs on every channel.
+    """
+
+    key = "rsshakf"
+    label = "RSSHAKF (reconstruction)"
+    family = "robust-adaptive"
+    paper = "Narasimhappa, Sabat, Nayak 2016 (IEEE Sensors J. 16(10)), cited as S1 ref. [18]"
+    spec_section = "§4.9"
+    summary = (
+        "RECONSTRUCTION (paper not retrievable): diagonal Sage–Husa R̂ with variance inflation "
+        "of channels whose normalised innovation exceeds c_r."
+    )
+    reconstruction = True
+    estimates_R = True
+    Params = RSSHAKFParams
+    kf_limit = KFLimit(
+        {"adapt": False, "c_r": 1e12},
+        why="R̂ fixed at diag R0 and no channel above c_r → ∞ (the KF when R0 is diagonal)",
+    )
+    teaching = Teaching(
+        idea=(
+            "A robust simplified Sage–Husa filter (a reconstruction of Narasimhappa et al. 2016): "
+            "R-only Sage–Husa adaptation, and channels whose normalised innovation exceeds c_r get "
+            "their variance inflated in proportion for that epoch."
+        ),
+        equations=(
+            r"S_p = H P^- H^\top + \hat R_{k-1}, \qquad \tilde\nu_i = \nu_i/\sqrt{S_{p,ii}}",
+            r"R_{\mathrm{used},ii} = \hat R_{k-1,ii}\,|\tilde\nu_i|/c_r \quad "
+            r"\text{if } |\tilde\nu_i| > c_r = 2.5",
+            r"x^+, P^+ = \mathrm{KF}(x^-, P^-, R_{\mathrm{used}})",
+            r"\hat R_{k,ii} = (1 - d_k)\hat R_{k-1,ii} + d_k\left(\nu_i^2 - (HP^-H^\top)_{ii}\right)",
+        ),
+    )
+
+    def init(self, model: Model, x0: Array, P0: Array) -> RState:
+        x0 = np.array(x0, dtype=float)
+        B = x0.shape[0]
+        P = batched(np.asarray(P0, dtype=float), B).copy()
+        R = np.diag(np.diag(np.asarray(model.R0, dtype=float)))  # diagonal R̂ (§4.9)
+        return RState(x0, P, batched(R, B).copy(), 0)
+
+    def update(self, model: Model, state: RState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        B, m = z.shape
+        x_m, P_m = state.x, state.P
+        kk = state.k + 1
+        flags = np.zeros((B, m), dtype=np.int8)
+        # 1  normalised innovation with R̂_{k−1}
+        mk = measurement_prediction(model, x_m, P_m, k, z, state.R)
+        nt = mk.nu / np.sqrt(diag(mk.M) + diag(mk.R))  # diag of sym(H P⁻ Hᵀ + R̂_{k−1}), exactly
+        # 2–3  outlier channels: variance inflation R_ii · |ν̃_i|/c_r
+        out_ch = (np.abs(nt) > p.c_r) & mk.ok
+        infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)
+        R_used = scale_diag(mk.R, infl)
+        # 4  standard update with R_used (Joseph)
+        x, P, S, _, fixed = kf_update(x_m, P_m, mk.U, mk.M, mk.nu, R_used)
+        # 5  simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
+        R = state.R
+        if p.adapt:
+            lo, hi = rhat_bounds(model.R0)
+            upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok
+            d = forgetting_weight(kk, p.b)
+            R, clamped = sage_husa_R(state.R, mk.nu, mk.M, upd, d, lo, hi, diagonal=True)
+            flag_fix(flags, clamped, overwrite=False)
+        flags[out_ch] = DOWNWEIGHTED
+        flag_fix(flags, fixed, overwrite=False)
+        out = StepOut(
+            x=x,
+            P=P,
+            innov=mk.nu,
+            S=S,
+            R_used=R_used,
+            R_hat=R,
+            weights=np.where(out_ch, 1.0 / infl, 1.0),
+            flags=flags,
+            stats={"nu_tilde": nt},
+        )
+        return RState(x, P, R, kk), out

@@ -1,0 +1,446 @@
+"""Batched small-matrix linear algebra: the layer below filters, scenarios, noise and the INS.
+
+Shapes: a leading batch axis B (Monte Carlo runs) where a quantity differs between runs, none
+where it is shared: ``x`` is (B, n); ``P`` is (n, n) while it is the same in every run (the plain
+KF with a common P0) and (B, n, n) once it depends on the data. Everything here broadcasts, so a
+filter written with these helpers handles both without branches.
+
+Why the kernels look the way they do: with B runs of tiny matrices, numpy's per-call overhead,
+not arithmetic, is the cost (a stacked LAPACK call on 2×2 systems costs ≈ 10× its arithmetic), so
+a few kernels take a shorter road than the textbook formula. Each states the formula it equals
+(to round-off) and is tested against it (tests/contract/test_kernel_properties.py, hypothesis
+over B, n, m and missing-channel patterns). ``benchmarks/tricks.py`` measures what each shortcut
+is worth inside the filters; a shortcut stays only where it saves ≥ 10 % of some filter's time
+(the share quoted is the largest measured, on a shared 2-core machine):
+
+* :func:`selection`, :func:`PHt` — P Hᵀ and H P Hᵀ by indexing when H selects states (16 %,
+  chi2-kf on cv2d), H's structure cached by its content (26 %, kf);
+* :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3 (24 %,
+  rakf on cv2d);
+* :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S (18 %, kf);
+* :func:`shared_left` — M L for a shared M and stacked L as one GEMM on the stacked rows (12 %,
+  mfukf on gps-ins-rtk: the UKF's closed-form transform of a linear model);
+* :func:`bcast` — a broadcast view built directly (11 %, svd-ukf on cv2d);
+* :func:`select` — no ``np.where`` while the mask is everywhere true (31 %, hakf on cv2d);
+* :func:`chi2_threshold` — χ² quantiles from a cached table (43 %, chi2-kf);
+* :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape (27 %, chi2-kf on
+  cv2d): closed form for d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for d ≥ 4; the
+  method never depends on the batch, so a run's value is the same in any chunk.
+
+Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
+or H (7.5 %, −3 %), a hand-written forward substitution (4 %).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+Array = NDArray[np.float64]
+
+# OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4 and on all CPUs above. On a small shared
+# machine a threaded GEMM can wait many times its own cost for a busy CPU, so the stacked products
+# here (and the RBF network's training, navlab.filters.rbf.mm) are split into pieces below that size.
+SERIAL_GEMM = 65536 * 4
+
+
+# ------------------------------------------------------------------------------ shapes
+def mT(A: Array) -> Array:
+    """Transpose of the last two axes (the method, not np.swapaxes: a hot path, 10× less overhead)."""
+    return A.swapaxes(-1, -2)
+
+
+def mv(A: Array, x: Array) -> Array:
+    """Matrix-vector product ``A x`` for A (n, k) or (B, n, k) and x (B, k) -> (B, n)."""
+    if A.ndim == 2:
+        return x @ A.T
+    return (A @ x[..., None])[..., 0]
+
+
+def sym(P: Array) -> Array:
+    """Symmetrise ``(P + Pᵀ)/2`` (ALGORITHMS.md §0.2 rule 1); the result is exactly symmetric."""
+    return 0.5 * (P + mT(P))
+
+
+def diag(A: Array) -> Array:
+    """Diagonal of the last two axes."""
+    return A.diagonal(axis1=-2, axis2=-1)
+
+
+def diag_embed(d: Array) -> Array:
+    """(B, m) -> (B, m, m) diagonal matrices (written through a strided view, no eye product)."""
+    B, m = d.shape
+    out = np.zeros((B, m, m))
+    out.reshape(B, m * m)[:, :: m + 1] = d
+    return out
+
+
+def bcast(a: Array, shape: tuple[int, ...]) -> Array:
+    """``np.broadcast_to(a, shape)``: a read-only view (``a`` itself when it has the shape).
+
+    A C-contiguous ``a`` that only gains leading axes gets its zero-stride view built directly
+    (≈ 1 µs instead of ≈ 10 µs for ``np.broadcast_to``, which is called every epoch).
+    """
+    a = np.asarray(a)
+    if a.shape == shape:
+        return a
+    lead = len(shape) - a.ndim
+    if lead > 0 and shape[lead:] == a.shape and a.flags.c_contiguous and a.size:
+        v = np.ndarray(shape, a.dtype, a, 0, (0,) * lead + a.strides)
+        v.flags.writeable = False
+        return v
+    return np.broadcast_to(a, shape)
+
+
+def select(mask: Array | None, new: Array, old: Array | float) -> Array:
+    """``np.where(mask, new, old)``, with ``mask`` None meaning "everywhere": the usual case —
+    every channel present, every run still iterating — then costs no ``np.where`` at all.
+    """
+    return new if mask is None else np.where(mask, new, old)
+
+
+def batched(A: Array, B: int) -> Array:
+    """Matrix ``A`` (r, c) or (B, r, c) with a leading run axis: (B, r, c), a read-only view when
+    ``A`` is shared (``.copy()`` it for a per-run array of one's own).
+    """
+    return A if A.ndim > 2 else bcast(A, (B, *A.shape))
+
+
+def shared_left(M: Array, A: Array) -> Array:
+    """``M @ A`` for a shared M (p, n) and A (n, q) or (B, n, q).
+
+    A stack is multiplied as ONE matrix product on the stacked rows, (M A_b)ᵀ = A_bᵀ Mᵀ, instead
+    of numpy's loop of B small products (≈ 2× faster for n = 15), in pieces that keep BLAS on
+    one thread (:data:`SERIAL_GEMM`).
+    """
+    if M.ndim != 2 or A.ndim != 3:
+        return M @ A
+    B, n, q = A.shape
+    At = np.ascontiguousarray(mT(A)).reshape(B * q, n)
+    return mT(_rows_times(At, M.T).reshape(B, q, M.shape[0]))
+
+
+def _rows_times(X: Array, M: Array) -> Array:
+    """X (N, n) @ M (n, q) in row blocks of at most SERIAL_GEMM multiply-adds (same numbers)."""
+    rows = max(1, SERIAL_GEMM // max(1, M.shape[0] * M.shape[1]))
+    if X.shape[0] <= rows:
+        return X @ M
+    return np.concatenate([X[s : s + rows] @ M for s in range(0, X.shape[0], rows)])
+
+
+# ------------------------------------------------------------------------------ products of the KF
+@functools.lru_cache(maxsize=128)
+def _selection(shape: tuple[int, ...], data: bytes) -> Array | None:
+    H = np.frombuffer(data).reshape(shape)
+    is_sel = np.all((H == 0.0) | (H == 1.0)) and np.all(H.sum(axis=1) == 1.0)
+    if not is_sel:
+        return None
+    cols = np.argmax(H, axis=1)
+    cols.flags.writeable = False
+    return cols
+
+
+def selection(H: Array) -> Array | None:
+    """Column indices if H is a shared 0/1 selection matrix (one 1 per row), else None.
+
+    Cached by H's content (``functools.lru_cache`` is safe under the app's threads).
+    """
+    if H.ndim != 2:
+        return None
+    H = np.ascontiguousarray(H, dtype=float)
+    return _selection(H.shape, H.tobytes())
+
+
+def PHt(P: Array, H: Array) -> tuple[Array, Array]:
+    """``U = P Hᵀ`` and ``M = H P Hᵀ = H U`` (P symmetric).
+
+    By indexing when H selects states (exact: the products are with 1 and the sums with 0; a
+    stacked matmul costs several times more), the plain products otherwise.
+    """
+    sel = selection(H)
+    if sel is not None:
+        U = P[..., sel]
+        return U, U[..., sel, :]
+    U = P @ mT(H)
+    return U, H @ U
+
+
+def predict_cov(F: Array, P: Array, Q: Array) -> Array:
+    """``F P Fᵀ + Q``, symmetrised (§1.1 step 2)."""
+    return sym(F @ P @ mT(F) + Q)
+
+
+# ------------------------------------------------------------------------------ inverses and solves
+@functools.cache
+def cofactor_index(m: int) -> tuple[Array, Array]:
+    """Gather indices and signs giving the cofactor matrix C of an m×m matrix (m = 2, 3).
+
+    m = 3 (cyclic rule): C_ij = A[i+1,j+1]A[i+2,j+2] − A[i+1,j+2]A[i+2,j+1], indices mod 3;
+    the four factors are gathered in ONE fancy-index operation from the flattened matrix.
+    """
+    if m == 3:
+        i, j = np.divmod(np.arange(9), 3)
+        f = lambda a, b: 3 * ((i + a) % 3) + (j + b) % 3  # noqa: E731
+        return np.concatenate([f(1, 1), f(2, 2), f(1, 2), f(2, 1)]), np.ones(9)
+    return np.array([3, 2, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0])
+
+
+def cofactors(Sf: Array, m: int) -> Array:
+    """Cofactor matrix C of each symmetric m×m matrix (m ≤ 3), flattened: (B, m²) -> (B, m²).
+
+    adj(S) = Cᵀ = C for symmetric S, so S⁻¹ = C / det S with det S = Σ_j S_0j C_0j.
+    """
+    if m == 1:
+        return np.ones_like(Sf)
+    idx, sgn = cofactor_index(m)
+    G = Sf[:, idx]
+    return G * sgn if m == 2 else G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]
+
+
+_ADJ2_SIGN = np.array([[1.0, -1.0], [-1.0, 1.0]])
+
+
+def inv_small(S: Array) -> tuple[Array, Array]:
+    """Inverse of a stack of small SPD matrices (B, m, m), m ≤ 3, by adjugate/det (closed form).
+
+    m = 2: adj(S) = [[d, −b], [−c, a]], S with both axes reversed and the signs flipped, element
+    by element (no gather); m = 1, 3: the cofactors of :func:`cofactors`. Returns (S⁻¹, ill)
+    where ``ill`` (B,) marks det ≤ 1e-12·Π diag (the caller then uses LU); an ill run's inverse
+    is not meaningful.
+    """
+    B, m = S.shape[0], S.shape[-1]
+    if m == 2:
+        a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+        det = a * d - b * c
+        ill = ~(det > 1e-12 * (a * d))
+        inv = 1.0 / np.where(ill, 1.0, det)
+        return S[:, ::-1, ::-1] * _ADJ2_SIGN * inv[:, None, None], ill
+    Sf = np.ascontiguousarray(S).reshape(B, m * m)
+    cof = cofactors(Sf, m)
+    det = Sf[:, 0] * cof[:, 0]  # det S = Σ_j S_0j C_0j
+    for j in range(1, m):
+        det = det + Sf[:, j] * cof[:, j]
+    ill = ~(det > 1e-12 * np.prod(diag(S), axis=-1))
+    inv = 1.0 / np.where(ill, 1.0, det)
+    return cof.reshape(B, m, m) * inv[:, None, None], ill
+
+
+def inv_spd(S: Array) -> tuple[Array, Array]:
+    """``S⁻¹`` of symmetric positive-definite S (B, m, m) and the runs that needed a fix.
+
+    The closed form (:func:`inv_small`) for m ≤ 3, the LU solve ``S X = I`` of :func:`solve_sym`
+    otherwise or where any S of the stack is ill-conditioned (``fixed`` marks the runs that
+    needed jitter, flag 9).
+    """
+    if S.shape[-1] <= 3:
+        Sinv, ill = inv_small(S)
+        if not ill.any():
+            return Sinv, ill
+    return solve_sym(S, np.eye(S.shape[-1]))
+
+
+def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
+    """Solve ``S X = Y`` for symmetric positive-definite S (batched).
+
+    Returns ``(X, fixed)`` where ``fixed`` (B,) or () is True where S was singular and
+    ``1e-12·trace(S)/m·I`` had to be added (§0.2 rule 3; flag 9). A LU solve is used: for SPD S
+    it is the same solution as Cholesky and numpy batches it natively.
+    """
+    try:
+        return np.linalg.solve(S, Y), np.zeros(S.shape[:-2], dtype=bool)
+    except np.linalg.LinAlgError:
+        m = S.shape[-1]
+        jitter = 1e-12 * np.trace(S, axis1=-2, axis2=-1)[..., None, None] / m
+        jitter = np.maximum(jitter, 1e-300) * np.eye(m)
+        try:
+            cond = np.linalg.cond(S)
+            fixed = ~np.isfinite(cond) | (cond > 1e14)
+        except np.linalg.LinAlgError:
+            fixed = np.ones(S.shape[:-2], dtype=bool)
+        return np.linalg.solve(S + jitter, Y), fixed
+
+
+# ------------------------------------------------------------------------------ the KF update
+def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
+    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
+    an LU solve (:func:`solve_sym`), faster.
+
+    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
+    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
+    the LU path of :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed
+    jitter.
+    """
+    if S.ndim == 3 and S.shape[-1] <= 3:
+        Sinv, ill = inv_small(S)
+        if not ill.any():
+            return U @ Sinv, ill  # all False
+    Kt, fixed = solve_sym(S, mT(U))
+    return mT(Kt), fixed
+
+
+def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:
+    """The Joseph form ``(I−KH) P (I−KH)ᵀ + K R Kᵀ`` from U = P Hᵀ and S = H P Hᵀ + R, symmetrised.
+
+    Its exact expansion P − U Kᵀ − K Uᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ, valid for any gain K:
+    three n×m products instead of two n×n×n ones — the filter has U and S already.
+    """
+    return sym(P - U @ mT(K) + K @ mT(K @ S - U))
+
+
+class Masked(NamedTuple):
+    """Measurement-update inputs with the unavailable channels dropped (:func:`mask_missing`)."""
+
+    ok: Array  # (B, m) bool: channel available
+    nu: Array  # innovation, 0 on missing channels
+    R: Array | None  # R with a unit, uncorrelated R_ii on missing channels
+    H: Array | None = None  # H with zero rows on missing channels
+    U: Array | None = None  # P Hᵀ (the UKF's Pxy) with zero columns on missing channels
+    M: Array | None = None  # H P Hᵀ (the UKF's A) with zero rows and columns on missing channels
+
+
+def mask_missing(
+    z: Array,
+    nu: Array,
+    R: Array | None = None,
+    *,
+    H: Array | None = None,
+    U: Array | None = None,
+    M: Array | None = None,
+) -> Masked:
+    """Drop the unavailable channels (NaN in ``z``) of a measurement update exactly.
+
+    A missing channel i gets ν_i = 0, a zero row i of H (so a zero column i of U = P Hᵀ and a
+    zero row and column i of M = H P Hᵀ) and a unit, uncorrelated R_ii: S = M + R stays
+    invertible, block-diagonal in (i, the rest), so the gain column K[:, i] = (U S⁻¹)[:, i] is
+    exactly zero and the update equals the update with channel i removed. Give whichever of R, H,
+    U, M the filter uses. With every channel present the inputs come back unchanged (unbatched).
+    """
+    ok = np.isfinite(z)
+    if ok.all():
+        return Masked(ok, nu, R, H, U, M)
+    B, m = z.shape
+    okk = ok[:, :, None] & ok[:, None, :]
+    nu = np.where(ok, nu, 0.0)
+    if R is not None:
+        R = np.where(okk, bcast(R, (B, m, m)), 0.0) + np.eye(m) * (~ok)[:, None, :]
+    if H is not None:
+        H = bcast(H, (B, *H.shape[-2:])) * ok[..., None]
+    if U is not None:
+        U = bcast(U, (B, *U.shape[-2:])) * ok[:, None, :]
+    if M is not None:
+        M = np.where(okk, bcast(M, (B, m, m)), 0.0)
+    return Masked(ok, nu, R, H, U, M)
+
+
+def eigh_clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
+    """Clamp the eigenvalues of symmetric R (batched) into [lo, hi]; returns (R', clamped (B,))."""
+    R = sym(R)
+    w, V = np.linalg.eigh(R)
+    clamped = np.any((w < lo) | (w > hi), axis=-1)
+    w = np.clip(w, lo, hi)
+    return (V * w[..., None, :]) @ mT(V), clamped
+
+
+@functools.lru_cache(maxsize=64)
+def _chi2_table(alpha: float, m: int) -> Array:
+    return chi2.ppf(1.0 - alpha, np.maximum(np.arange(m + 1), 1))
+
+
+def chi2_threshold(alpha: float, dof: Array | int, m: int) -> Array:
+    """χ²_{1−α}(dof) for dof ∈ 0 … m (dof 0 reads as 1), from a cached table (scipy's ppf is slow)."""
+    return _chi2_table(float(alpha), int(m))[dof]
+
+
+# ------------------------------------------------------------------------------ quadratic forms
+def quad(v: Array, S: Array) -> Array:
+    """The quadratic form ``vᵀ S⁻¹ v`` (NIS, NEES), one dispatcher for every shape.
+
+    Parameters
+    ----------
+    v : (..., d).
+    S : (d, d) shared by every v, or (..., d, d) broadcastable to v's leading axes (an S constant
+        along the axis before the matrix axes — stride 0, e.g. the KF's P shared by every run —
+        is factored once).
+
+    Returns
+    -------
+    (...,) values; NaN where S is singular or not finite (never an exception).
+
+    The method depends on d only, never on the batch, so a value depends on its own v and S
+    only, never on the other runs of the chunk it was computed with: the closed form for d ≤ 2;
+    for d = 3 an unpivoted LDLᵀ elimination with the batch axes last (stable for positive-definite
+    S; a shared S factored once; ≈ 2× faster than LAPACK for thousands of matrices); for d ≥ 4 an
+    LU solve per matrix (LAPACK; faster than the elimination from d = 4 on at any batch size).
+    LU, one matrix at a time, also decides the entries a shortcut could not (a zero pivot or a
+    zero determinant of a singular or indefinite S).
+    """
+    v = np.asarray(v, dtype=float)
+    S = np.asarray(S, dtype=float)
+    d = v.shape[-1]
+    if d > 3:
+        Sb = np.broadcast_to(S, (*v.shape, d))
+        return _quad_lu(v.reshape(-1, d), Sb.reshape(-1, d, d)).reshape(v.shape[:-1])
+    # a singular or indefinite S legitimately gives inf/NaN in the shortcuts: redone by LU below
+    with np.errstate(all="ignore"):
+        if d <= 2:
+            q = np.asarray(_quad_closed(v, S))
+        else:
+            shared = S.ndim >= 3 and S.shape[-3] > 1 and S.strides[-3] == 0
+            Sm = S[..., :1, :, :] if shared else S
+            Sm = Sm.reshape((1,) * (v.ndim + 1 - Sm.ndim) + Sm.shape)  # one batch axis per v's
+            q = np.asarray(_quad_ldl(np.moveaxis(v, -1, 0), np.moveaxis(Sm, (-2, -1), (0, 1))))
+        q = np.broadcast_to(q, v.shape[:-1]).copy() if q.shape != v.shape[:-1] else q
+        if np.isfinite(q).all():
+            return q
+        Sb = np.broadcast_to(S, (*v.shape, d))
+        redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(Sb).all(axis=(-2, -1))
+    if redo.any():
+        q[redo] = _quad_lu(v[redo], Sb[redo])
+    return q
+
+
+def _quad_closed(v: Array, S: Array) -> Array:
+    """D = 1: v²/s; d = 2: (s11 v0² − 2 s01 v0 v1 + s00 v1²)/det S (any leading axes)."""
+    if v.shape[-1] == 1:
+        return v[..., 0] * v[..., 0] / S[..., 0, 0]
+    a, b, d = S[..., 0, 0], S[..., 0, 1], S[..., 1, 1]
+    v0, v1 = v[..., 0], v[..., 1]
+    return (d * v0 * v0 - 2.0 * b * v0 * v1 + a * v1 * v1) / (a * d - b * b)
+
+
+def _quad_lu(v: Array, S: Array) -> Array:
+    """vᵀ S⁻¹ v for v (N, d), S (N, d, d) by LU; NaN where S is singular."""
+    try:
+        return np.einsum("bi,bi->b", v, np.linalg.solve(S, v[..., None])[..., 0])
+    except np.linalg.LinAlgError:  # a singular S somewhere: NaN only where it is
+        q = np.full(v.shape[0], np.nan)
+        for i in range(q.size):
+            with contextlib.suppress(np.linalg.LinAlgError):
+                q[i] = v[i] @ np.linalg.solve(S[i], v[i])
+        return q
+
+
+def _quad_ldl(v: Array, S: Array) -> Array:
+    """vᵀ S⁻¹ v by symmetric elimination S = L D Lᵀ (no pivoting: stable for positive-definite S).
+
+    ``S`` is (d, d, *s) and ``v`` (d, *t) with the batch axes last and ``s`` broadcastable to
+    ``t``: a covariance shared by many runs is factored once, and every run's value is computed
+    with exactly the arithmetic it would get alone. q = Σᵢ yᵢ²/Dᵢ with L y = v.
+    """
+    d = S.shape[0]
+    A = np.array(S, dtype=float)  # the elimination works in place
+    y = np.array(v, dtype=float)
+    q = np.zeros(np.broadcast_shapes(S.shape[2:], v.shape[1:]))
+    for i in range(d):
+        piv = A[i, i]
+        q += y[i] ** 2 / piv
+        if i + 1 < d:
+            f = A[i + 1 :, i] / piv
+            A[i + 1 :, i:] -= f[:, None] * A[i, i:][None]
+            y[i + 1 :] = y[i + 1 :] - f * y[i]
+    return q
