@@ -255,7 +255,7 @@ def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation |
         return None
     n = int(fixed.any(axis=(1, 2)).sum())
     cls = registry().get(fr.key)
-    if cls is not None and cls.__module__ == "navlab.filters.sage_husa":
+    if cls is not None and cls.__module__.startswith("navlab.filters.sage_husa"):
         s = (
             f"{fr.label} — its Sage–Husa R̂ update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) lost positive-"
             f"definiteness and was clamped (a numerical fix, flag 9) on {_g(pct)} % of the "
