@@ -358,6 +358,8 @@ class PseudorangeModel:
         self.n = n = 6 + S
         c = slice(5, 5 + S)  # clock states; 5 + S is the drift
         self.R0 = np.eye(self.m)
+        # the pseudoranges' errors are one-sided (NLOS: too long); ‖d‖ and height are not
+        self.positive_skew = np.arange(self.m) < self.ms
         K1 = len(ep.t)
         T = np.r_[0.0, np.diff(ep.t)]
         F = np.broadcast_to(np.eye(n), (K1, n, n)).copy()

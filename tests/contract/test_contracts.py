@@ -130,6 +130,8 @@ class DropChannel:
         attr = getattr(self.base, name)
         if name == "nn_reference":  # a per-channel hook (NNMFUKF): its channels go too
             return lambda k: np.asarray(attr(k))[..., self.keep]
+        if name == "positive_skew":  # a per-channel mask (skew-t KF): its channel goes too
+            return np.asarray(attr)[self.keep]
         return attr
 
 

@@ -151,6 +151,15 @@ def test_robust_fix_recovers_position_clocks_and_honours_the_height():
     assert ecef_to_geodetic(r)[2] == pytest.approx(HGT, abs=0.5)
 
 
+def test_only_the_pseudoranges_are_positively_skewed():
+    """skew-t-kf reads ``positive_skew``: the satellites' channels, not ‖d‖ or the map height."""
+    ep, r0 = _epochs()
+    model = _model(ep, r0, sigma_height=2.0)
+    ms = ep.rho.shape[1]
+    assert model.positive_skew.shape == (model.m,) and model.m == ms + 2
+    assert model.positive_skew[:ms].all() and not model.positive_skew[ms:].any()
+
+
 def test_sagnac_is_about_30_m_at_most_at_gnss_ranges():
     ep, r0 = _epochs()
     rng, _ = geometric_range(ep.sat[0], r0)
