@@ -111,6 +111,14 @@ class Estimator:
     def influence(self) -> Array | None:
         return None
 
+    def psi(self) -> Array | None:
+        """:meth:`influence`, computed once per estimator (the delta method and every paired
+        comparison of this estimator reuse it).
+        """
+        if "_psi" not in self.__dict__:
+            self.__dict__["_psi"] = self.influence()
+        return self.__dict__["_psi"]
+
 
 def _safe_div(a: Array, b: Array) -> Array:
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -278,7 +286,7 @@ class _Combined(Estimator):
         return self._op(self.a.boot(W), self.b.boot(W))
 
     def influence(self) -> Array | None:
-        ia, ib = self.a.influence(), self.b.influence()
+        ia, ib = self.a.psi(), self.b.psi()
         if ia is None or ib is None:
             return None
         if not self.relative:
@@ -365,7 +373,7 @@ class Resampler:
     def method(self, est: Estimator) -> str:
         if self.n < MIN_RUNS:
             return ""
-        if self.n >= DELTA_FROM and est.influence() is not None:
+        if self.n >= DELTA_FROM and est.psi() is not None:
             return "delta"
         return "bootstrap"
 
@@ -398,7 +406,7 @@ class Resampler:
         if not np.isfinite(v):
             return Estimate(v, note="no value")
         if how == "delta":
-            psi = est.influence()
+            psi = est.psi()
             se = float(np.sqrt(np.sum(psi**2)) / self.n)
             return Estimate(v, v - Z * se, v + Z * se, "delta")
         got = self._bca(est, v)
@@ -417,7 +425,7 @@ class Resampler:
         if not e.method:
             return Comparison(e.value, e.lo, e.hi, float("nan"), "", self.n, e.note)
         if e.method == "delta":
-            psi = d.influence()
+            psi = d.psi()
             se = float(np.sqrt(np.sum(psi**2)) / self.n)
             return Comparison(e.value, e.lo, e.hi, _normal_p(e.value, se), "delta", self.n)
         t, z0, acc = self._bca(d, e.value)
