@@ -37,6 +37,7 @@ T. C. Hesterberg, "What teachers should know about the bootstrap", The American 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -297,6 +298,7 @@ class _Combined(Estimator):
         return (ia - (va / vb) * ib) / vb
 
 
+@functools.lru_cache(maxsize=256)
 def expanded_tail(n: int, level: float = LEVEL) -> float:
     """Tail probability α′/2 of the expanded percentile interval for ``n`` runs (module note)."""
     if n < 2:

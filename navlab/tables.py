@@ -178,12 +178,14 @@ def headline(
             f"{col}: paired over the same runs, Δ = filter − {ref_label} with its 95 % interval; "
             f"better/worse when Holm-corrected p < 0.05 across the {len(res.runs) - 1} other filters"
         )
-    notes += footnotes(res, sm, explanations)
+    notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
     return Table(cells, notes, {metric_name(m, data): HELP.get(m, "") for m in metrics if m in HELP})
 
 
-def footnotes(res: Results, sm: M.Summary | None = None, explanations: bool = True) -> list[str]:
+def footnotes(
+    res: Results, sm: M.Summary | None = None, explanations: bool = True, rows: pd.DataFrame | None = None
+) -> list[str]:
     """How the numbers were made: window, intervals, divergence, skipped entries, fixes."""
     sm = sm or M.summary(res)
     jd = sm.judgement
@@ -210,7 +212,7 @@ def footnotes(res: Results, sm: M.Summary | None = None, explanations: bool = Tr
             + "."
         )
     out.append("Divergence: " + sm.rule + ".")
-    t = sm.rows([])
+    t = sm.rows([]) if rows is None else rows
     skipped = t[t.metric.str.endswith("_skipped") & (t.value > 0)]
     for r in skipped.itertuples():
         what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
