@@ -102,6 +102,7 @@ class Estimator:
     """
 
     n: int  # runs
+    smooth = True  # a smooth function of run means: the BCa acceleration applies
 
     def point(self) -> float:
         raise NotImplementedError
@@ -215,8 +216,11 @@ class MeanSqrtRatio(Estimator):
 class MaxSqrtRatio(MeanSqrtRatio):
     """``scale · max_k √(Σ_r num_rk / Σ_r den_rk)``: the peak of the per-epoch Monte Carlo RMSE.
 
-    Not smooth (the epoch of the peak can change between resamples): bootstrap only.
+    Not smooth (the epoch of the peak can change between resamples): bootstrap only, bias
+    corrected but without the jackknife acceleration (meaningless for a maximum).
     """
+
+    smooth = False
 
     def _f(self, N: Array, D: Array) -> Array:
         r = np.sqrt(_safe_div(N, D))
@@ -233,8 +237,10 @@ class Quantile(Estimator):
 
     E.g. the median horizontal error over all epochs and runs. Bootstrap only (no delta form):
     the runs' values are sorted once, then each resample is a weighted quantile (cumulative run
-    weights along the sorted values).
+    weights along the sorted values). Not smooth: bias corrected, no jackknife acceleration.
     """
+
+    smooth = False
 
     def __init__(self, values: Array, q: float) -> None:
         v = np.asarray(values, dtype=float)
@@ -275,6 +281,7 @@ class _Combined(Estimator):
         if a.n != b.n:
             raise ValueError("a paired comparison needs the same runs for both estimators")
         self.a, self.b, self.relative, self.n = a, b, relative, a.n
+        self.smooth = a.smooth and b.smooth
 
     def _op(self, va, vb):
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -390,6 +397,8 @@ class Resampler:
             return t, 0.0, 0.0
         below = float(np.mean(t < v) + 0.5 * np.mean(t == v))
         z0 = float(ndtri(np.clip(below, 0.5 / self.n_boot, 1.0 - 0.5 / self.n_boot)))
+        if not est.smooth:  # a maximum or a quantile: bias-corrected percentile, no acceleration
+            return t, z0, 0.0
         j = self.jackknife(est)
         j = j[np.isfinite(j)]
         d = j.mean() - j if j.size else np.zeros(1)
