@@ -5,12 +5,15 @@ Pure (no streamlit); the Reproduce page shows the same rows.
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 import pandas as pd
 
 from navlab import stats as S
 from navlab.reproduce.engine import TOLERANCE, Outcome
 
+WIDTH = 100  # prose (notes, rules) wrapped to a terminal; the verdict table keeps its columns
 RULES = (
     f"Verdicts (docs/STATISTICS.md §4): a number is reproduced when the mean over the seeds lies within "
     f"±{TOLERANCE:.0%} of the paper's value, contradicted when the whole 95 % interval of that mean lies "
@@ -112,13 +115,17 @@ def text(o: Outcome) -> str:
     from navlab.tables import text_table
 
     body = text_table(verdict_table(o), index=False)
-    notes = [f"  {i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    notes = [
+        textwrap.fill(n, WIDTH, initial_indent=f"  {i}. ", subsequent_indent=" " * (4 + len(str(i))))
+        for i, n in enumerate(o.verdicts["note"], 1)
+        if n
+    ]
     counts = o.verdicts["verdict"].value_counts()
     summary = ", ".join(f"{counts.get(v, 0)} {v}" for v in ("reproduced", "contradicted", "inconclusive"))
     return (
         f"{header(o)}\n\n{body}\n\n{len(o.verdicts)} claims: {summary}.\n\nNotes:\n"
         + "\n".join(notes)
-        + f"\n\n{RULES}\n"
+        + f"\n\n{textwrap.fill(RULES, WIDTH)}\n"
     )
 
 
