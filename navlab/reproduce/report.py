@@ -130,12 +130,22 @@ def text(o: Outcome) -> str:
 
 
 def markdown(o: Outcome) -> str:
-    """The verdict table as Markdown (the README's reproduction summary is made from this)."""
-    t = verdict_table(o).drop(columns="#")
+    """The verdict table and its notes as Markdown (the README's reproduction summary is made
+    from this: ``tools/readme_reproductions.py``).
+    """
+    t = verdict_table(o)
     cols = list(t.columns)
-    lines = [f"**{o.reproduction.key}** — {o.seeds} seeds × {o.runs} runs", ""]
+    rep = o.reproduction
+    lines = [
+        f"**{rep.key}** — {rep.title}; {o.seeds} seeds × {o.runs} runs, base seed "
+        f"{o.seed}: `python -m navlab reproduce {rep.key} --seeds {o.seeds}`",
+        "",
+    ]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
     for row in t.itertuples(index=False):
         lines.append("| " + " | ".join(str(v).replace("|", "/") for v in row) + " |")
+    notes = [f"{i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    if notes:
+        lines += ["", "Notes (by claim number): " + " ".join(n.rstrip(".") + "." for n in notes)]
     return "\n".join(lines) + "\n"
