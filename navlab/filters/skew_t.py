@@ -14,8 +14,9 @@ channels the model marks ``positive_skew`` (all channels if it marks none); Δ_j
 Student-t) elsewhere.
 
 The posterior is approximated by q(x, u) q(λ) (the 2018 paper's factorisation: x and u coupled,
-because factorising them as well, as the 2015 filter does, makes P far too small — on
-smartloc-berlin that version locked onto a wrong heading), refined by N fixed-point iterations
+because factorising them as well, as the 2015 filter does, makes P far too small — the draft of
+this module noted that this version locked onto a wrong heading on smartloc-berlin; not
+re-measured, that variant is not in the code), refined by N fixed-point iterations
 per epoch from the prior (x⁻, P⁻), with H the Jacobian at x⁻ and ν = z − h(x⁻):
 
 1. the truncation u_j ≥ 0 is represented by a Gaussian site t_j(u_j) with natural parameters
