@@ -10,7 +10,7 @@ univariate skew-t, written hierarchically (2015, eqs. 3–5 as we read them)::
 so a channel's error is a symmetric core (σ = √R_j) plus a positive part Δ_j·u_j: a range that is
 too long (a reflected, non-line-of-sight signal) costs little, one that is too short costs as
 much as in a Student-t filter. Δ_j = δ √R_j (δ: ``delta``), R_j = s·R0_jj (s: ``r_scale``), on the
-channels the model marks ``positive_skew`` (all channels if it marks none); Δ_j = 0 (a per-channel
+channels the model marks ``positive_skew`` (none if it marks none: a per-channel Student-t); Δ_j = 0 (a per-channel
 Student-t) elsewhere.
 
 The posterior is approximated by q(x, u) q(λ) (the 2018 paper's factorisation: x and u coupled,
@@ -152,11 +152,13 @@ def skew_t_logpdf(e: Array, R: Array, delta: Array, dof: float) -> Array:
 
 def positive_skew(model: Model) -> Array:
     """(m,) bool: the channels whose errors are one-sided positive (``model.positive_skew``;
-    every channel when the model does not say).
+    none when the model does not say: then every channel is a symmetric Student-t, Δ = 0 — a skew
+    assumed where the errors are symmetric biases the estimate, e.g. cv2d: 4.94 m position RMSE with
+    every channel skewed vs the KF's 4.57 m).
     """
     mask = getattr(model, "positive_skew", None)
     if mask is None:
-        return np.ones(model.m, dtype=bool)
+        return np.zeros(model.m, dtype=bool)
     mask = np.asarray(mask, dtype=bool)
     if mask.shape != (model.m,):
         raise NavlabError(f"model.positive_skew has shape {mask.shape}, not ({model.m},)")

@@ -43,6 +43,23 @@ def _linear_data(seed, n=3, m=3, K=15, B=4, heavy=True):
     return model, np.zeros((B, n)), np.eye(n), z
 
 
+def _skewed(model):
+    """``model`` with every channel marked one-sided (frozen dataclass)."""
+    object.__setattr__(model, "positive_skew", np.ones(model.m, dtype=bool))
+    return model
+
+
+def test_a_model_that_marks_no_channel_gets_no_skew():
+    """Unmarked channels are symmetric (Δ = 0): the same estimates as δ = 0."""
+    model, x0, P0, z = _linear_data(5)
+    xs, Ps = _run("skew-t-kf", model, x0, P0, z, {"delta": 2.0})
+    x0_, P0_ = _run("skew-t-kf", model, x0, P0, z, {"delta": 0.0})
+    np.testing.assert_array_equal(xs, x0_)
+    np.testing.assert_array_equal(Ps, P0_)
+    xk, _ = _run("skew-t-kf", _skewed(model), x0, P0, z, {"delta": 2.0})
+    assert np.abs(xk - xs).max() > 1e-3  # marked, the skew does act
+
+
 def test_delta_zero_dof_infinite_is_the_kf():
     model, x0, P0, z = _linear_data(1)
     xs, Ps = _run("skew-t-kf", model, x0, P0, z, {"delta": 0.0, "dof": 1e15, "iters": 3})
@@ -81,7 +98,7 @@ def test_one_channel_skew_normal_is_the_exact_posterior(zval):
     """ν → ∞ (λ = 1), one channel: the one EP site is exact, so x⁺ and P⁺ are the true posterior's
     mean and variance under skew-normal noise (scipy.stats.skewnorm, an independent density)."""
     p, R, delta = 2.0, 0.5, 1.5
-    model = LinearModel(np.eye(1), np.zeros((1, 1)), np.eye(1), R * np.eye(1))
+    model = _skewed(LinearModel(np.eye(1), np.zeros((1, 1)), np.eye(1), R * np.eye(1)))
     f = make_filter("skew-t-kf", {"delta": delta, "dof": 1e15, "iters": 3})
     st = f.init(model, np.zeros((1, 1)), p * np.eye(1))
     _, out = f.update(model, st, 1, np.array([[zval]]), side(1, 1))
@@ -93,7 +110,7 @@ def test_one_channel_skew_normal_is_the_exact_posterior(zval):
 def test_long_range_is_explained_short_range_is_not():
     """The sign: a range 6σ too long moves the fix less than one 6σ too short (a flipped Δ would
     reverse the inequality; the exact values are pinned by the quadrature test above)."""
-    model = LinearModel(np.eye(1), np.zeros((1, 1)), np.eye(1), np.eye(1))
+    model = _skewed(LinearModel(np.eye(1), np.zeros((1, 1)), np.eye(1), np.eye(1)))
     f = make_filter("skew-t-kf", {"delta": 2.0, "dof": 5.0})
     st = f.init(model, np.zeros((2, 1)), 1.0 * np.eye(1))
     _, out = f.update(model, st, 1, np.array([[6.0], [-6.0]]), side(2, 1))

@@ -48,7 +48,7 @@ def skew_t_kf(model, x0, P0, z, sides, p) -> Trace:
     x, P = np.array(x0, float), np.array(P0, float)
     r_all = p.r_scale * np.diag(np.asarray(model.R0, dtype=float))
     skew_all = getattr(model, "positive_skew", None)
-    skew_all = np.ones(r_all.size, bool) if skew_all is None else np.asarray(skew_all, bool)
+    skew_all = np.zeros(r_all.size, bool) if skew_all is None else np.asarray(skew_all, bool)
     xs, Ps, ws, fls = [], [], [], []
     for k in range(1, z.shape[0]):
         x_m, P_m = plain.kf_predict(model, x, P, k, jacobian_at_x=True)
