@@ -10,8 +10,8 @@ univariate skew-t, written hierarchically (2015, eqs. 3–5 as we read them)::
 so a channel's error is a symmetric core (σ = √R_j) plus a positive part Δ_j·u_j: a range that is
 too long (a reflected, non-line-of-sight signal) costs little, one that is too short costs as
 much as in a Student-t filter. Δ_j = δ √R_j (δ: ``delta``), R_j = s·R0_jj (s: ``r_scale``), on the
-channels the model marks ``positive_skew`` (none if it marks none: a per-channel Student-t); Δ_j = 0 (a per-channel
-Student-t) elsewhere.
+channels the model marks ``positive_skew``; Δ_j = 0 (a per-channel Student-t) elsewhere, and on
+every channel of a model that marks none.
 
 The posterior is approximated by q(x, u) q(λ) (the 2018 paper's factorisation: x and u coupled,
 because factorising them as well, as the 2015 filter does, makes P far too small — the draft of
