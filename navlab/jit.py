@@ -23,6 +23,7 @@ import contextlib
 import os
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -67,10 +68,15 @@ class Kernel:
     ``kernel.get()`` returns the compiled dispatcher, or None without numba (or with
     ``NAVLAB_NUMBA=0``): the caller then runs its numpy path. The function must be plain
     numba-compatible Python over scalars and numpy arrays.
+
+    ``uses``: the kernels this one calls (by their function's name, as plain Python would), e.g.
+    a one-run mechanisation step shared by two loops. They are compiled first and the calls are
+    bound to their compiled versions (the Python functions themselves stay plain).
     """
 
-    def __init__(self, fn: Callable) -> None:
+    def __init__(self, fn: Callable, uses: tuple[Kernel, ...] = ()) -> None:
         self.fn = fn
+        self.uses = uses
         self._dispatcher: Any = None
 
     def get(self) -> Callable | None:
@@ -81,7 +87,17 @@ class Kernel:
             numba = _load_numba()
             if numba is None:
                 return None
-            self._dispatcher = numba.njit(cache=True, nogil=True)(self.fn)
+            fn = self.fn
+            if self.uses:  # the same function with its callees bound to their compiled versions
+                env = dict(fn.__globals__)
+                env.update({k.fn.__name__: k.get() for k in self.uses})
+                fn = types.FunctionType(fn.__code__, env, fn.__name__, fn.__defaults__, fn.__closure__)
+                fn.__qualname__, fn.__module__, fn.__doc__ = (
+                    self.fn.__qualname__,
+                    self.fn.__module__,
+                    self.fn.__doc__,
+                )
+            self._dispatcher = numba.njit(cache=True, nogil=True)(fn)
         return self._dispatcher
 
 
@@ -91,7 +107,14 @@ def carray(a: Any) -> np.ndarray:
     Keeps one compiled signature per kernel: a read-only or strided argument would compile
     another (seconds).
     """
+    if type(a) is np.ndarray and a.dtype == _F8:
+        flags = a.flags
+        if flags.c_contiguous and flags.writeable:
+            return a  # the usual case: no call of np.require (≈ 3 µs)
     return np.require(a, dtype=np.float64, requirements=["C", "W"])
+
+
+_F8 = np.dtype(np.float64)
 
 
 @contextlib.contextmanager
