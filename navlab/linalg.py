@@ -41,6 +41,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
+from navlab.jit import Kernel, carray
+
 Array = NDArray[np.float64]
 
 # OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4 and on all CPUs above. On a small shared
@@ -266,15 +268,109 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
 
 
 # ------------------------------------------------------------------------------ the KF update
-def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
-    an LU solve (:func:`solve_sym`), faster.
+def cholesky_lower(S, L):  # pragma: no cover - compiled by numba
+    """Lower Cholesky factor L of one symmetric m×m S (S = L Lᵀ); False if S is not positive definite.
 
-    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
-    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
-    the LU path of :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed
-    jitter.
+    A helper of the compiled kernels (navlab.jit: ``Kernel(..., uses=(CHOLESKY_LOWER,))``).
     """
+    m = S.shape[0]
+    for j in range(m):
+        d = S[j, j]
+        for c in range(j):
+            d -= L[j, c] * L[j, c]
+        if not d > 0.0:  # not positive definite (or NaN)
+            return False
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, m):
+            s = S[i, j]
+            for c in range(j):
+                s -= L[i, c] * L[j, c]
+            L[i, j] = s / L[j, j]
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+def cholesky_solve(L, y):  # pragma: no cover - compiled by numba
+    """Solve S x = y in place (y ← S⁻¹ y) for S = L Lᵀ: L w = y forward, then Lᵀ y = w backward.
+
+    A helper of the compiled kernels.
+    """
+    m = L.shape[0]
+    for i in range(m):
+        s = y[i]
+        for c in range(i):
+            s -= L[i, c] * y[c]
+        y[i] = s / L[i, i]
+    for i in range(m - 1, -1, -1):
+        s = y[i]
+        for c in range(i + 1, m):
+            s -= L[c, i] * y[c]
+        y[i] = s / L[i, i]
+
+
+def _gain_runs(U, S, K, ok):  # pragma: no cover - compiled by numba
+    """K[r] = U_r S_r⁻¹ (Kalman gain, U = P⁻Hᵀ) by Cholesky S = L Lᵀ, one run at a time.
+
+    U (1 or B, n, m), S (1 or B, m, m): a leading 1 is shared by every run. Row i of K solves
+    S kᵢᵀ = uᵢᵀ (S symmetric). ok[r] = False where S_r is not positive definite (K_r undefined).
+    """
+    B, n, m = K.shape
+    L = np.empty((m, m))
+    y = np.empty(m)
+    for r in range(B):
+        Ur = U[r if U.shape[0] > 1 else 0]
+        ok[r] = cholesky_lower(S[r if S.shape[0] > 1 else 0], L)
+        if not ok[r]:
+            continue
+        for i in range(n):
+            for c in range(m):
+                y[c] = Ur[i, c]
+            cholesky_solve(L, y)
+            for c in range(m):
+                K[r, i, c] = y[c]
+
+
+CHOLESKY_LOWER = Kernel(cholesky_lower)
+CHOLESKY_SOLVE = Kernel(cholesky_solve)
+_GAIN = Kernel(_gain_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+
+
+def _lead(*arrays: Array) -> tuple[int, bool]:
+    """(B, batched): the run count of stacked (3-D) arrays among ``arrays`` (1 if none is)."""
+    B = max((a.shape[0] for a in arrays if a.ndim == 3), default=1)
+    return B, any(a.ndim == 3 for a in arrays)
+
+
+def _stack3(a: Array) -> Array:
+    """``a`` as a C-contiguous float 3-D stack (a leading 1 for a shared matrix)."""
+    return carray(a if a.ndim == 3 else a[None])
+
+
+def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
+    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with ``fixed`` () or (B,) True
+    where S needed a numerical fix (flag 9, :func:`solve_sym`).
+
+    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call); where any S
+    is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes the
+    LU path of :func:`solve_sym`, so ``fixed`` marks exactly the runs that needed jitter. Where
+    LU would be needed (m > 3, or a shared S), a compiled Cholesky solve per run (navlab.jit:
+    :func:`_gain_runs`; the LU of :func:`solve_sym` is its reference) when numba is there; a run
+    whose S is not positive definite still goes through :func:`solve_sym`.
+    """
+    kernel = _GAIN.get() if S.shape[-1] > 3 or S.ndim < 3 else None
+    if kernel is not None:
+        B, batched_ = _lead(U, S)
+        K = np.empty((B, *U.shape[-2:]))
+        ok = np.empty(B, dtype=bool)
+        kernel(_stack3(U), _stack3(S), K, ok)
+        fixed = np.zeros(B, dtype=bool)
+        if not ok.all():  # not positive definite: LU, with jitter where singular (§0.2 rule 3)
+            bad = np.flatnonzero(~ok)
+            Ub, Sb = bcast(U, (B, *U.shape[-2:]))[bad], bcast(S, (B, *S.shape[-2:]))[bad]
+            Kt, fixed[bad] = solve_sym(Sb, mT(Ub))
+            K[bad] = mT(Kt)
+        return (K, fixed) if batched_ else (K[0], fixed[0])
     if S.ndim == 3 and S.shape[-1] <= 3:
         Sinv, ill = inv_small(S)
         if not ill.any():
@@ -283,12 +379,62 @@ def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
     return mT(Kt), fixed
 
 
+def _joseph_runs(P, K, U, S, out):  # pragma: no cover - compiled by numba
+    """out[r] = P − U Kᵀ + K (K S − U)ᵀ, symmetrised, one run at a time (see joseph_from_gain).
+
+    Every argument (1 or B, …): a leading 1 is shared by every run. With W = K S − U, row i of
+    P − U Kᵀ + K Wᵀ is P_i + Σ_c (K_ic W_c − U_ic K_c) over the columns c of K (rows of Kᵀ, Wᵀ).
+    """
+    B, n, _ = out.shape
+    m = K.shape[2]
+    Wt = np.empty((m, n))  # (K S − U)ᵀ
+    Kt = np.empty((m, n))
+    A = np.empty((n, n))
+    for r in range(B):
+        Pr = P[r if P.shape[0] > 1 else 0]
+        Kr = K[r if K.shape[0] > 1 else 0]
+        Ur = U[r if U.shape[0] > 1 else 0]
+        Sr = S[r if S.shape[0] > 1 else 0]
+        for c in range(m):
+            for i in range(n):
+                Kt[c, i] = Kr[i, c]
+                Wt[c, i] = -Ur[i, c]
+            for d in range(m):
+                s = Sr[d, c]
+                for i in range(n):
+                    Wt[c, i] += Kr[i, d] * s
+        for i in range(n):  # A = P − U Kᵀ + K Wᵀ
+            for j in range(n):
+                A[i, j] = Pr[i, j]
+            for c in range(m):
+                a, b = Kr[i, c], Ur[i, c]
+                for j in range(n):
+                    A[i, j] += a * Wt[c, j] - b * Kt[c, j]
+        for i in range(n):  # symmetrise (§0.2 rule 1)
+            out[r, i, i] = A[i, i]
+            for j in range(i + 1, n):
+                v = 0.5 * (A[i, j] + A[j, i])
+                out[r, i, j] = v
+                out[r, j, i] = v
+
+
+_JOSEPH = Kernel(_joseph_runs)
+
+
 def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:
     """The Joseph form ``(I−KH) P (I−KH)ᵀ + K R Kᵀ`` from U = P Hᵀ and S = H P Hᵀ + R, symmetrised.
 
     Its exact expansion P − U Kᵀ − K Uᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ, valid for any gain K:
-    three n×m products instead of two n×n×n ones — the filter has U and S already.
+    three n×m products instead of two n×n×n ones — the filter has U and S already. Compiled
+    (navlab.jit, one pass over each run's P: :func:`_joseph_runs`); the numpy expression below is
+    the reference.
     """
+    kernel = _JOSEPH.get()
+    if kernel is not None:
+        B, batched_ = _lead(P, K, U, S)
+        out = np.empty((B, *P.shape[-2:]))
+        kernel(_stack3(P), _stack3(K), _stack3(U), _stack3(S), out)
+        return out if batched_ else out[0]
     return sym(P - U @ mT(K) + K @ mT(K @ S - U))
 
 
