@@ -154,7 +154,32 @@ def warm() -> dict[str, float]:
     t0 = time.perf_counter()
     earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))
     times["earth rotation conversions"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _warm_filters()
+    times["filter kernels (solve, quadratic form, Joseph, VB, clamp)"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _warm_ins_model()
+    times["ins.lc model f, h, H"] = time.perf_counter() - t0
     return times
+
+
+def _warm_filters() -> None:
+    """The filter kernels, through the filters themselves (the signatures the runs use)."""
+    from navlab.experiment import ExperimentSpec, run_experiment
+
+    filters = ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf", "svd-ukf")
+    run_experiment(ExperimentSpec(scenario="gps-ins-rtk", filters=filters, runs=2, epochs=10))
+
+
+def _warm_ins_model() -> None:
+    """The INS model's kernels on a still, level IMU block (the real model needs a recording)."""
+    from navlab.ins import lc
+
+    x, C, f_b = np.zeros((2, 15)), np.eye(3), np.tile([0.0, 0.0, 9.8], (3, 1))
+    origin = np.array([0.7, -1.9, 1600.0, 6.4e6, 4.9e6])
+    lc._F_RUNS.get()(x, np.empty((2, 15)), C, C, f_b, np.zeros((3, 3)), np.full(3, 0.01), origin)
+    h, H = np.empty((2, 5)), np.empty((2, 5, 15))
+    lc._HH_RUNS.get()(x, C, np.zeros(3), np.eye(3), np.ones(5), True, h, H)
 
 
 if __name__ == "__main__":  # python -m navlab.jit: compile (or load) every kernel, print the times

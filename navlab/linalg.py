@@ -251,8 +251,56 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
 
     Returns ``(X, fixed)`` where ``fixed`` (B,) or () is True where S was singular and
     ``1e-12·trace(S)/m·I`` had to be added (§0.2 rule 3; flag 9). A LU solve is used: for SPD S
-    it is the same solution as Cholesky and numpy batches it natively.
+    it is the same solution as Cholesky and numpy batches it natively. Compiled (navlab.jit), for
+    S (m, m) or (B, m, m) and Y (m, q) or (B, m, q): a Cholesky solve per run (:func:`_solve_runs`),
+    the LU below (the reference) for the runs whose S is not exactly symmetric and positive
+    definite.
     """
+    kernel = _SOLVE.get() if S.ndim in (2, 3) and Y.ndim in (2, 3) else None
+    if kernel is None:
+        return _solve_lu(S, Y)
+    B, batched_ = _lead(S, Y)
+    m, q = S.shape[-1], Y.shape[-1]
+    X = np.empty((B, m, q))
+    ok = np.empty(B, dtype=bool)
+    kernel(_stack3(S), _stack3(Y), X, ok)
+    fixed = np.zeros(B, dtype=bool)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        X[bad], fixed[bad] = _solve_lu(bcast(S, (B, m, m))[bad], bcast(Y, (B, m, q))[bad])
+    # the shapes of the LU's: X batched if S or Y is, ``fixed`` S's leading shape (a shared S: ())
+    return X if batched_ else X[0], fixed if S.ndim == 3 else fixed[0]
+
+
+def _solve_runs(S, Y, X, ok):  # pragma: no cover - compiled by numba
+    """X[r] = S_r⁻¹ Y_r by Cholesky S = L Lᵀ, one run at a time (a leading 1: shared by every run).
+
+    ok[r] = False where S_r is not exactly symmetric or not positive definite (X_r undefined).
+    """
+    B, m, q = X.shape
+    L = np.empty((m, m))
+    y = np.empty(m)
+    for r in range(B):
+        Sr = S[r if S.shape[0] > 1 else 0]
+        Yr = Y[r if Y.shape[0] > 1 else 0]
+        sym_ = True
+        for i in range(m):
+            for j in range(i + 1, m):
+                if Sr[i, j] != Sr[j, i]:
+                    sym_ = False
+        ok[r] = sym_ and cholesky_lower(Sr, L)
+        if not ok[r]:
+            continue
+        for c in range(q):
+            for i in range(m):
+                y[i] = Yr[i, c]
+            cholesky_solve(L, y)
+            for i in range(m):
+                X[r, i, c] = y[i]
+
+
+def _solve_lu(S: Array, Y: Array) -> tuple[Array, Array]:
+    """:func:`solve_sym` by LU (numpy), with jitter where S is singular."""
     try:
         return np.linalg.solve(S, Y), np.zeros(S.shape[:-2], dtype=bool)
     except np.linalg.LinAlgError:
@@ -309,31 +357,9 @@ def cholesky_solve(L, y):  # pragma: no cover - compiled by numba
         y[i] = s / L[i, i]
 
 
-def _gain_runs(U, S, K, ok):  # pragma: no cover - compiled by numba
-    """K[r] = U_r S_r⁻¹ (Kalman gain, U = P⁻Hᵀ) by Cholesky S = L Lᵀ, one run at a time.
-
-    U (1 or B, n, m), S (1 or B, m, m): a leading 1 is shared by every run. Row i of K solves
-    S kᵢᵀ = uᵢᵀ (S symmetric). ok[r] = False where S_r is not positive definite (K_r undefined).
-    """
-    B, n, m = K.shape
-    L = np.empty((m, m))
-    y = np.empty(m)
-    for r in range(B):
-        Ur = U[r if U.shape[0] > 1 else 0]
-        ok[r] = cholesky_lower(S[r if S.shape[0] > 1 else 0], L)
-        if not ok[r]:
-            continue
-        for i in range(n):
-            for c in range(m):
-                y[c] = Ur[i, c]
-            cholesky_solve(L, y)
-            for c in range(m):
-                K[r, i, c] = y[c]
-
-
 CHOLESKY_LOWER = Kernel(cholesky_lower)
 CHOLESKY_SOLVE = Kernel(cholesky_solve)
-_GAIN = Kernel(_gain_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+_SOLVE = Kernel(_solve_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
 
 
 def _lead(*arrays: Array) -> tuple[int, bool]:
@@ -348,29 +374,13 @@ def _stack3(a: Array) -> Array:
 
 
 def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
-    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with ``fixed`` () or (B,) True
-    where S needed a numerical fix (flag 9, :func:`solve_sym`).
+    """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
+    :func:`solve_sym` (an LU solve, or compiled a Cholesky solve per run), faster.
 
-    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call); where any S
-    is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes the
-    LU path of :func:`solve_sym`, so ``fixed`` marks exactly the runs that needed jitter. Where
-    LU would be needed (m > 3, or a shared S), a compiled Cholesky solve per run (navlab.jit:
-    :func:`_gain_runs`; the LU of :func:`solve_sym` is its reference) when numba is there; a run
-    whose S is not positive definite still goes through :func:`solve_sym`.
+    For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
+    S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
+    :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed jitter.
     """
-    kernel = _GAIN.get() if S.shape[-1] > 3 or S.ndim < 3 else None
-    if kernel is not None:
-        B, batched_ = _lead(U, S)
-        K = np.empty((B, *U.shape[-2:]))
-        ok = np.empty(B, dtype=bool)
-        kernel(_stack3(U), _stack3(S), K, ok)
-        fixed = np.zeros(B, dtype=bool)
-        if not ok.all():  # not positive definite: LU, with jitter where singular (§0.2 rule 3)
-            bad = np.flatnonzero(~ok)
-            Ub, Sb = bcast(U, (B, *U.shape[-2:]))[bad], bcast(S, (B, *S.shape[-2:]))[bad]
-            Kt, fixed[bad] = solve_sym(Sb, mT(Ub))
-            K[bad] = mT(Kt)
-        return (K, fixed) if batched_ else (K[0], fixed[0])
     if S.ndim == 3 and S.shape[-1] <= 3:
         Sinv, ill = inv_small(S)
         if not ill.any():
@@ -529,6 +539,9 @@ def quad(v: Array, S: Array) -> Array:
     S = np.asarray(S, dtype=float)
     d = v.shape[-1]
     if d > 3:
+        kernel = _QUAD.get()
+        if kernel is not None:
+            return _quad_cholesky(kernel, v, S)
         Sb = np.broadcast_to(S, (*v.shape, d))
         return _quad_lu(v.reshape(-1, d), Sb.reshape(-1, d, d)).reshape(v.shape[:-1])
     # a singular or indefinite S legitimately gives inf/NaN in the shortcuts: redone by LU below
@@ -548,6 +561,70 @@ def quad(v: Array, S: Array) -> Array:
     if redo.any():
         q[redo] = _quad_lu(v[redo], Sb[redo])
     return q
+
+
+def _quad_runs(v, S, rep, q, ok):  # pragma: no cover - compiled by numba
+    """q[i] = vᵢᵀ Sⱼ⁻¹ vᵢ = |L⁻¹ vᵢ|² (Sⱼ = L Lᵀ, j = i // rep: an S shared by ``rep`` consecutive v's
+    is factored once); ok[i] = False where Sⱼ is not exactly symmetric or not positive definite
+    (q[i] undefined).
+    """
+    N, d = v.shape
+    L = np.empty((d, d))
+    y = np.empty(d)
+    last = -1
+    good = False
+    for i in range(N):
+        j = i // rep
+        if j != last:
+            good = True  # exactly symmetric (the factor reads one triangle only) and positive definite
+            for a in range(d):
+                for c in range(a + 1, d):
+                    if S[j, a, c] != S[j, c, a]:
+                        good = False
+            good = good and cholesky_lower(S[j], L)
+            last = j
+        ok[i] = good
+        if not good:
+            continue
+        s = 0.0
+        for a in range(d):  # forward substitution L y = v, q = Σ y²
+            t = v[i, a]
+            for c in range(a):
+                t -= L[a, c] * y[c]
+            y[a] = t / L[a, a]
+            s += y[a] * y[a]
+        q[i] = s
+
+
+_QUAD = Kernel(_quad_runs, uses=(CHOLESKY_LOWER,))
+
+
+def _quad_cholesky(kernel, v: Array, S: Array) -> Array:
+    """:func:`quad` by the compiled Cholesky kernel; LU decides where S is not exactly symmetric and
+    positive definite.
+    """
+    lead, d = v.shape[:-1], v.shape[-1]
+    N = int(np.prod(lead))
+    vf = carray(v.reshape(N, d))
+    if S.ndim == 2:
+        Sf, rep = S[None], max(N, 1)
+    else:
+        Sb = np.broadcast_to(S, (*lead, d, d))
+        if Sb.ndim >= 4 and Sb.strides[-3] == 0:  # constant along the last batch axis (a shared P)
+            Sf, rep = Sb[..., 0, :, :].reshape(-1, d, d), lead[-1]
+        else:
+            Sf, rep = Sb.reshape(-1, d, d), 1
+    q = np.empty(N)
+    ok = np.empty(N, dtype=bool)
+    kernel(vf, carray(Sf), rep, q, ok)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        Sbad = Sf[bad // rep]
+        q[bad] = np.nan
+        redo = np.isfinite(vf[bad]).all(axis=-1) & np.isfinite(Sbad).all(axis=(-2, -1))
+        if redo.any():
+            q[bad[redo]] = _quad_lu(vf[bad[redo]], Sbad[redo])
+    return q.reshape(lead)
 
 
 def _quad_closed(v: Array, S: Array) -> Array:
