@@ -1,14 +1,17 @@
 """Optional compiled kernels: numba where it is installed and imports, numpy everywhere else.
 
 A few loops of navlab are pure Python-call overhead when batched with numpy over a handful of
-runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch) or must
+runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch; the INS
+model's f, h, H; the small solves, quadratic forms, Joseph form, VB iterations and the Sage–Husa
+clamp's test of the filters, where numpy needs several calls per epoch) or must
 add numbers in one fixed order per run (the simulated truth: the same bits for run r alone or in
 a batch). For those, navlab keeps two paths:
 
 * the numpy path, batched over the runs: the reference, always available;
 * a kernel written for ONE run in textbook form (plain loops over the equations), compiled by
   numba (``nopython``, no ``fastmath``, so IEEE arithmetic in source order) and looped over the
-  runs. The tests compare the two paths (to round-off).
+  runs. The tests compare the two paths (to round-off: tests/unit/test_jit.py,
+  tests/unit/test_jit_kernels.py).
 
 The compiled path is used when numba imports; ``NAVLAB_NUMBA=0`` (or numba missing or broken)
 selects the numpy paths. Compiled kernels are cached on disk (numba's ``cache=True``: next to the

@@ -133,9 +133,16 @@ def headline_metrics(res: Results) -> list[str]:
     return [c for c in cols if c in present]
 
 
-def headline(res: Results, compare_to: str | None = None, metrics: list[str] | None = None) -> Table:
+def headline(
+    res: Results,
+    compare_to: str | None = None,
+    metrics: list[str] | None = None,
+    explanations: bool = True,
+) -> Table:
     """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
     the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
+    ``explanations``: the known failure mechanisms as footnotes (the app shows them as boxes with
+    a link to the Learn page instead).
     """
     sm = M.summary(res)
     data = res.data
@@ -171,12 +178,14 @@ def headline(res: Results, compare_to: str | None = None, metrics: list[str] | N
             f"{col}: paired over the same runs, Δ = filter − {ref_label} with its 95 % interval; "
             f"better/worse when Holm-corrected p < 0.05 across the {len(res.runs) - 1} other filters"
         )
-    notes += footnotes(res, sm)
+    notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
     return Table(cells, notes, {metric_name(m, data): HELP.get(m, "") for m in metrics if m in HELP})
 
 
-def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
+def footnotes(
+    res: Results, sm: M.Summary | None = None, explanations: bool = True, rows: pd.DataFrame | None = None
+) -> list[str]:
     """How the numbers were made: window, intervals, divergence, skipped entries, fixes."""
     sm = sm or M.summary(res)
     jd = sm.judgement
@@ -203,15 +212,23 @@ def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
             + "."
         )
     out.append("Divergence: " + sm.rule + ".")
-    t = sm.rows([])
+    t = sm.rows([]) if rows is None else rows
     skipped = t[t.metric.str.endswith("_skipped") & (t.value > 0)]
     for r in skipped.itertuples():
         what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
         out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden).")
     fixes = t[(t.metric == "numfix_pct") & (t.value > M.NUMFIX_SHOW_PCT)]
+    explained = set()
+    if explanations and sm.arrays:  # the known failure mechanisms (need the per-epoch arrays)
+        from navlab.diagnostics import explain
+
+        for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):
+            out.append(f"{e.sentence} (the Learn page shows how: filter {e.filter})")
+            explained.add((e.filter, e.kind))
     for r in fixes.itertuples():
-        out.append(
-            f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
-            "not outlier decisions."
-        )
+        if (r.filter, "numerical_fix") not in explained:
+            out.append(
+                f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
+                "not outlier decisions."
+            )
     return out

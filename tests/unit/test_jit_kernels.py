@@ -109,6 +109,7 @@ def test_compiled_quad_equals_lu(d):
         (v, S[0]),  # one shared S
         (rng.standard_normal((B, N, d)), linalg.bcast(S[:, None], (B, N, d, d))),  # stride 0 along N
         (rng.standard_normal((N, B, d)), S),  # S broadcast over a leading axis
+        (v, linalg.bcast(S[0], (B, d, d))),  # a shared P as the KF keeps it (stride 0)
         (rng.standard_normal((0, d)), S[0]),  # empty
     ]
     for vv, SS in cases:
