@@ -1,14 +1,17 @@
 """Optional compiled kernels: numba where it is installed and imports, numpy everywhere else.
 
 A few loops of navlab are pure Python-call overhead when batched with numpy over a handful of
-runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch) or must
+runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch; the INS
+model's f, h, H; the small solves, quadratic forms, Joseph form, VB iterations and the Sage–Husa
+clamp's test of the filters, where numpy needs several calls per epoch) or must
 add numbers in one fixed order per run (the simulated truth: the same bits for run r alone or in
 a batch). For those, navlab keeps two paths:
 
 * the numpy path, batched over the runs: the reference, always available;
 * a kernel written for ONE run in textbook form (plain loops over the equations), compiled by
   numba (``nopython``, no ``fastmath``, so IEEE arithmetic in source order) and looped over the
-  runs. The tests compare the two paths (to round-off).
+  runs. The tests compare the two paths (to round-off: tests/unit/test_jit.py,
+  tests/unit/test_jit_kernels.py).
 
 The compiled path is used when numba imports; ``NAVLAB_NUMBA=0`` (or numba missing or broken)
 selects the numpy paths. Compiled kernels are cached on disk (numba's ``cache=True``: next to the
@@ -23,6 +26,7 @@ import contextlib
 import os
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -67,10 +71,15 @@ class Kernel:
     ``kernel.get()`` returns the compiled dispatcher, or None without numba (or with
     ``NAVLAB_NUMBA=0``): the caller then runs its numpy path. The function must be plain
     numba-compatible Python over scalars and numpy arrays.
+
+    ``uses``: the kernels this one calls (by their function's name, as plain Python would), e.g.
+    a one-run mechanisation step shared by two loops. They are compiled first and the calls are
+    bound to their compiled versions (the Python functions themselves stay plain).
     """
 
-    def __init__(self, fn: Callable) -> None:
+    def __init__(self, fn: Callable, uses: tuple[Kernel, ...] = ()) -> None:
         self.fn = fn
+        self.uses = uses
         self._dispatcher: Any = None
 
     def get(self) -> Callable | None:
@@ -81,7 +90,17 @@ class Kernel:
             numba = _load_numba()
             if numba is None:
                 return None
-            self._dispatcher = numba.njit(cache=True, nogil=True)(self.fn)
+            fn = self.fn
+            if self.uses:  # the same function with its callees bound to their compiled versions
+                env = dict(fn.__globals__)
+                env.update({k.fn.__name__: k.get() for k in self.uses})
+                fn = types.FunctionType(fn.__code__, env, fn.__name__, fn.__defaults__, fn.__closure__)
+                fn.__qualname__, fn.__module__, fn.__doc__ = (
+                    self.fn.__qualname__,
+                    self.fn.__module__,
+                    self.fn.__doc__,
+                )
+            self._dispatcher = numba.njit(cache=True, nogil=True)(fn)
         return self._dispatcher
 
 
@@ -91,7 +110,14 @@ def carray(a: Any) -> np.ndarray:
     Keeps one compiled signature per kernel: a read-only or strided argument would compile
     another (seconds).
     """
+    if type(a) is np.ndarray and a.dtype == _F8:
+        flags = a.flags
+        if flags.c_contiguous and flags.writeable:
+            return a  # the usual case: no call of np.require (≈ 3 µs)
     return np.require(a, dtype=np.float64, requirements=["C", "W"])
+
+
+_F8 = np.dtype(np.float64)
 
 
 @contextlib.contextmanager
@@ -131,7 +157,32 @@ def warm() -> dict[str, float]:
     t0 = time.perf_counter()
     earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))
     times["earth rotation conversions"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _warm_filters()
+    times["filter kernels (solve, quadratic form, Joseph, VB, clamp)"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _warm_ins_model()
+    times["ins.lc model f, h, H"] = time.perf_counter() - t0
     return times
+
+
+def _warm_filters() -> None:
+    """The filter kernels, through the filters themselves (the signatures the runs use)."""
+    from navlab.experiment import ExperimentSpec, run_experiment
+
+    filters = ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf", "svd-ukf")
+    run_experiment(ExperimentSpec(scenario="gps-ins-rtk", filters=filters, runs=2, epochs=10))
+
+
+def _warm_ins_model() -> None:
+    """The INS model's kernels on a still, level IMU block (the real model needs a recording)."""
+    from navlab.ins import lc
+
+    x, C, f_b = np.zeros((2, 15)), np.eye(3), np.tile([0.0, 0.0, 9.8], (3, 1))
+    origin = np.array([0.7, -1.9, 1600.0, 6.4e6, 4.9e6])
+    lc._F_RUNS.get()(x, np.empty((2, 15)), C, C, f_b, np.zeros((3, 3)), np.full(3, 0.01), origin)
+    h, H = np.empty((2, 5)), np.empty((2, 5, 15))
+    lc._HH_RUNS.get()(x, C, np.zeros(3), np.eye(3), np.ones(5), True, h, H)
 
 
 if __name__ == "__main__":  # python -m navlab.jit: compile (or load) every kernel, print the times

@@ -27,6 +27,10 @@ is worth inside the filters; a shortcut stays only where it saves ≥ 10 % of so
   cv2d): closed form for d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for d ≥ 4; the
   method never depends on the batch, so a run's value is the same in any chunk.
 
+Compiled (navlab.jit, each kernel written for one run, its numpy path the reference, compared in
+tests/unit/test_jit_kernels.py): :func:`solve_sym` and :func:`quad` (d ≥ 4) by Cholesky, LU where
+S is not exactly symmetric and positive definite; :func:`joseph_from_gain` in one pass.
+
 Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
 or H (7.5 %, −3 %), a hand-written forward substitution (4 %).
 """
@@ -40,6 +44,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
+
+from navlab.jit import Kernel, carray
 
 Array = NDArray[np.float64]
 
@@ -249,8 +255,56 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
 
     Returns ``(X, fixed)`` where ``fixed`` (B,) or () is True where S was singular and
     ``1e-12·trace(S)/m·I`` had to be added (§0.2 rule 3; flag 9). A LU solve is used: for SPD S
-    it is the same solution as Cholesky and numpy batches it natively.
+    it is the same solution as Cholesky and numpy batches it natively. Compiled (navlab.jit), for
+    S (m, m) or (B, m, m) and Y (m, q) or (B, m, q): a Cholesky solve per run (:func:`_solve_runs`),
+    the LU below (the reference) for the runs whose S is not exactly symmetric and positive
+    definite.
     """
+    kernel = _SOLVE.get() if S.ndim in (2, 3) and Y.ndim in (2, 3) else None
+    if kernel is None:
+        return _solve_lu(S, Y)
+    B, batched_ = _lead(S, Y)
+    m, q = S.shape[-1], Y.shape[-1]
+    X = np.empty((B, m, q))
+    ok = np.empty(B, dtype=bool)
+    kernel(_stack3(S), _stack3(Y), X, ok)
+    fixed = np.zeros(B, dtype=bool)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        X[bad], fixed[bad] = _solve_lu(bcast(S, (B, m, m))[bad], bcast(Y, (B, m, q))[bad])
+    # the shapes of the LU's: X batched if S or Y is, ``fixed`` S's leading shape (a shared S: ())
+    return X if batched_ else X[0], fixed if S.ndim == 3 else fixed[0]
+
+
+def _solve_runs(S, Y, X, ok):  # pragma: no cover - compiled by numba
+    """X[r] = S_r⁻¹ Y_r by Cholesky S = L Lᵀ, one run at a time (a leading 1: shared by every run).
+
+    ok[r] = False where S_r is not exactly symmetric or not positive definite (X_r undefined).
+    """
+    B, m, q = X.shape
+    L = np.empty((m, m))
+    y = np.empty(m)
+    for r in range(B):
+        Sr = S[r if S.shape[0] > 1 else 0]
+        Yr = Y[r if Y.shape[0] > 1 else 0]
+        sym_ = True
+        for i in range(m):
+            for j in range(i + 1, m):
+                if Sr[i, j] != Sr[j, i]:
+                    sym_ = False
+        ok[r] = sym_ and cholesky_lower(Sr, L)
+        if not ok[r]:
+            continue
+        for c in range(q):
+            for i in range(m):
+                y[i] = Yr[i, c]
+            cholesky_solve(L, y)
+            for i in range(m):
+                X[r, i, c] = y[i]
+
+
+def _solve_lu(S: Array, Y: Array) -> tuple[Array, Array]:
+    """:func:`solve_sym` by LU (numpy), with jitter where S is singular."""
     try:
         return np.linalg.solve(S, Y), np.zeros(S.shape[:-2], dtype=bool)
     except np.linalg.LinAlgError:
@@ -266,14 +320,70 @@ def solve_sym(S: Array, Y: Array) -> tuple[Array, Array]:
 
 
 # ------------------------------------------------------------------------------ the KF update
+def cholesky_lower(S, L):  # pragma: no cover - compiled by numba
+    """Lower Cholesky factor L of one symmetric m×m S (S = L Lᵀ); False if S is not positive definite.
+
+    A helper of the compiled kernels (navlab.jit: ``Kernel(..., uses=(CHOLESKY_LOWER,))``).
+    """
+    m = S.shape[0]
+    for j in range(m):
+        d = S[j, j]
+        for c in range(j):
+            d -= L[j, c] * L[j, c]
+        if not d > 0.0:  # not positive definite (or NaN)
+            return False
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, m):
+            s = S[i, j]
+            for c in range(j):
+                s -= L[i, c] * L[j, c]
+            L[i, j] = s / L[j, j]
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+def cholesky_solve(L, y):  # pragma: no cover - compiled by numba
+    """Solve S x = y in place (y ← S⁻¹ y) for S = L Lᵀ: L w = y forward, then Lᵀ y = w backward.
+
+    A helper of the compiled kernels.
+    """
+    m = L.shape[0]
+    for i in range(m):
+        s = y[i]
+        for c in range(i):
+            s -= L[i, c] * y[c]
+        y[i] = s / L[i, i]
+    for i in range(m - 1, -1, -1):
+        s = y[i]
+        for c in range(i + 1, m):
+            s -= L[c, i] * y[c]
+        y[i] = s / L[i, i]
+
+
+CHOLESKY_LOWER = Kernel(cholesky_lower)
+CHOLESKY_SOLVE = Kernel(cholesky_solve)
+_SOLVE = Kernel(_solve_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+
+
+def _lead(*arrays: Array) -> tuple[int, bool]:
+    """(B, batched): the run count of stacked (3-D) arrays among ``arrays`` (1 if none is)."""
+    B = max((a.shape[0] for a in arrays if a.ndim == 3), default=1)
+    return B, any(a.ndim == 3 for a in arrays)
+
+
+def _stack3(a: Array) -> Array:
+    """``a`` as a C-contiguous float 3-D stack (a leading 1 for a shared matrix)."""
+    return carray(a if a.ndim == 3 else a[None])
+
+
 def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
     """Kalman gain ``K = U S⁻¹`` (U = P Hᵀ); returns (K, fixed) with the result and the flag of
-    an LU solve (:func:`solve_sym`), faster.
+    :func:`solve_sym` (an LU solve, or compiled a Cholesky solve per run), faster.
 
     For a batched S with m ≤ 3 the closed-form inverse (adjugate/det, no LAPACK call). Where any
     S is ill-conditioned (det ≤ 1e-12·Π diag, every singular S included) the whole batch takes
-    the LU path of :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed
-    jitter.
+    :func:`solve_sym`, so ``fixed`` (flag 9) marks exactly the runs that needed jitter.
     """
     if S.ndim == 3 and S.shape[-1] <= 3:
         Sinv, ill = inv_small(S)
@@ -283,12 +393,62 @@ def kf_gain(U: Array, S: Array) -> tuple[Array, Array]:
     return mT(Kt), fixed
 
 
+def _joseph_runs(P, K, U, S, out):  # pragma: no cover - compiled by numba
+    """out[r] = P − U Kᵀ + K (K S − U)ᵀ, symmetrised, one run at a time (see joseph_from_gain).
+
+    Every argument (1 or B, …): a leading 1 is shared by every run. With W = K S − U, row i of
+    P − U Kᵀ + K Wᵀ is P_i + Σ_c (K_ic W_c − U_ic K_c) over the columns c of K (rows of Kᵀ, Wᵀ).
+    """
+    B, n, _ = out.shape
+    m = K.shape[2]
+    Wt = np.empty((m, n))  # (K S − U)ᵀ
+    Kt = np.empty((m, n))
+    A = np.empty((n, n))
+    for r in range(B):
+        Pr = P[r if P.shape[0] > 1 else 0]
+        Kr = K[r if K.shape[0] > 1 else 0]
+        Ur = U[r if U.shape[0] > 1 else 0]
+        Sr = S[r if S.shape[0] > 1 else 0]
+        for c in range(m):
+            for i in range(n):
+                Kt[c, i] = Kr[i, c]
+                Wt[c, i] = -Ur[i, c]
+            for d in range(m):
+                s = Sr[d, c]
+                for i in range(n):
+                    Wt[c, i] += Kr[i, d] * s
+        for i in range(n):  # A = P − U Kᵀ + K Wᵀ
+            for j in range(n):
+                A[i, j] = Pr[i, j]
+            for c in range(m):
+                a, b = Kr[i, c], Ur[i, c]
+                for j in range(n):
+                    A[i, j] += a * Wt[c, j] - b * Kt[c, j]
+        for i in range(n):  # symmetrise (§0.2 rule 1)
+            out[r, i, i] = A[i, i]
+            for j in range(i + 1, n):
+                v = 0.5 * (A[i, j] + A[j, i])
+                out[r, i, j] = v
+                out[r, j, i] = v
+
+
+_JOSEPH = Kernel(_joseph_runs)
+
+
 def joseph_from_gain(P: Array, K: Array, U: Array, S: Array) -> Array:
     """The Joseph form ``(I−KH) P (I−KH)ᵀ + K R Kᵀ`` from U = P Hᵀ and S = H P Hᵀ + R, symmetrised.
 
     Its exact expansion P − U Kᵀ − K Uᵀ + K S Kᵀ = P − U Kᵀ + K (K S − U)ᵀ, valid for any gain K:
-    three n×m products instead of two n×n×n ones — the filter has U and S already.
+    three n×m products instead of two n×n×n ones — the filter has U and S already. Compiled
+    (navlab.jit, one pass over each run's P: :func:`_joseph_runs`); the numpy expression below is
+    the reference.
     """
+    kernel = _JOSEPH.get()
+    if kernel is not None:
+        B, batched_ = _lead(P, K, U, S)
+        out = np.empty((B, *P.shape[-2:]))
+        kernel(_stack3(P), _stack3(K), _stack3(U), _stack3(S), out)
+        return out if batched_ else out[0]
     return sym(P - U @ mT(K) + K @ mT(K @ S - U))
 
 
@@ -378,6 +538,8 @@ def quad(v: Array, S: Array) -> Array:
     matrices); for d ≥ 4 an LU solve per matrix (LAPACK; faster than the elimination from d = 4 on
     at any batch size), or, for a shared S, its inverse once and the form element by element
     (the KF's NEES at 10 000 runs: ≈ 10× faster than a solve per run; equal to it to round-off).
+    Compiled (navlab.jit), d ≥ 4: a Cholesky factor per distinct matrix (a shared S factored once)
+    and |L⁻¹ v|² (:func:`_quad_runs`); the numpy paths above are its reference.
     LU, one matrix at a time, also decides the entries a shortcut could not (a zero pivot or a
     zero determinant of a singular or indefinite S).
     """
@@ -385,6 +547,9 @@ def quad(v: Array, S: Array) -> Array:
     S = np.asarray(S, dtype=float)
     d = v.shape[-1]
     if d > 3:
+        kernel = _QUAD.get()
+        if kernel is not None:
+            return _quad_cholesky(kernel, v, S)
         if S.ndim == 2 or (S.ndim >= 3 and S.strides[-3] == 0):
             q = _quad_shared(v, S)
             if q is not None:
@@ -408,6 +573,72 @@ def quad(v: Array, S: Array) -> Array:
     if redo.any():
         q[redo] = _quad_lu(v[redo], Sb[redo])
     return q
+
+
+def _quad_runs(v, S, rep, q, ok):  # pragma: no cover - compiled by numba
+    """q[i] = vᵢᵀ Sⱼ⁻¹ vᵢ = |L⁻¹ vᵢ|² (Sⱼ = L Lᵀ, j = i // rep: an S shared by ``rep`` consecutive v's
+    is factored once); ok[i] = False where Sⱼ is not exactly symmetric or not positive definite
+    (q[i] undefined).
+    """
+    N, d = v.shape
+    L = np.empty((d, d))
+    y = np.empty(d)
+    last = -1
+    good = False
+    for i in range(N):
+        j = i // rep
+        if j != last:
+            good = True  # exactly symmetric (the factor reads one triangle only) and positive definite
+            for a in range(d):
+                for c in range(a + 1, d):
+                    if S[j, a, c] != S[j, c, a]:
+                        good = False
+            good = good and cholesky_lower(S[j], L)
+            last = j
+        ok[i] = good
+        if not good:
+            continue
+        s = 0.0
+        for a in range(d):  # forward substitution L y = v, q = Σ y²
+            t = v[i, a]
+            for c in range(a):
+                t -= L[a, c] * y[c]
+            y[a] = t / L[a, a]
+            s += y[a] * y[a]
+        q[i] = s
+
+
+_QUAD = Kernel(_quad_runs, uses=(CHOLESKY_LOWER,))
+
+
+def _quad_cholesky(kernel, v: Array, S: Array) -> Array:
+    """:func:`quad` by the compiled Cholesky kernel; LU decides where S is not exactly symmetric and
+    positive definite.
+    """
+    lead, d = v.shape[:-1], v.shape[-1]
+    N = int(np.prod(lead))
+    if N == 0:
+        return np.zeros(lead)
+    vf = carray(v.reshape(N, d))
+    if S.ndim == 2:
+        Sf, rep = S[None], N
+    else:
+        Sb = np.broadcast_to(S, (*lead, d, d))
+        if Sb.ndim >= 3 and Sb.strides[-3] == 0:  # constant along the last batch axis (a shared P)
+            Sf, rep = Sb[..., 0, :, :].reshape(-1, d, d), lead[-1]
+        else:
+            Sf, rep = Sb.reshape(-1, d, d), 1
+    q = np.empty(N)
+    ok = np.empty(N, dtype=bool)
+    kernel(vf, carray(Sf), rep, q, ok)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        Sbad = Sf[bad // rep]
+        q[bad] = np.nan
+        redo = np.isfinite(vf[bad]).all(axis=-1) & np.isfinite(Sbad).all(axis=(-2, -1))
+        if redo.any():
+            q[bad[redo]] = _quad_lu(vf[bad[redo]], Sbad[redo])
+    return q.reshape(lead)
 
 
 def _quad_shared(v: Array, S: Array) -> Array | None:

@@ -68,10 +68,15 @@ from navlab.filters.base import (
     register,
 )
 from navlab.filters.kalman import kf_update, measurement_prediction
+from navlab.jit import Kernel, carray
 from navlab.linalg import (
+    CHOLESKY_LOWER,
+    CHOLESKY_SOLVE,
     Array,
     batched,
     bcast,
+    cholesky_lower,
+    cholesky_solve,
     cofactor_index,
     diag,
     diag_embed,
@@ -177,6 +182,111 @@ class MeasSpace:
         resid = Rt * np.einsum("bij,bij->bi", C.reshape(-1, m, m), self.nu_f) * inv
         hph = self.dM - np.einsum("bij,bj->bi", self.MM, C) * inv
         return resid, hph, no_fix
+
+
+def _vb_runs(
+    M,
+    nu,
+    ok,
+    alpha,
+    beta_minus,
+    huber,
+    gamma,
+    irls,
+    robust_beta,
+    adapt,
+    iters,
+    tol,
+    beta,
+    Rt_out,
+    w_out,
+    n_iter,
+    delta,
+    fixed,
+):  # pragma: no cover - numba
+    """The VB iterations of one epoch (S0 eqs. 15–21), one run at a time (compiled).
+
+    M (1 or B, m, m) = H P⁻ Hᵀ (masked), nu (B, m) the prior innovation, ok (B, m) the channels
+    present, alpha (B, m) = α⁻ + ½, beta_minus (B, m) = β⁻. Every iteration restarts from the
+    prior, with S = H P⁻ Hᵀ + R̃ factored by Cholesky: z − H x⁺ = R̃ S⁻¹ ν (19) and
+    diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M) (20). Writes β (21), the last R̃ and Huber weights, the
+    iterations done, the last max |Δβ/β| and whether S needed jitter (flag 9).
+    """
+    B, m = nu.shape
+    S = np.empty((m, m))
+    L = np.empty((m, m))
+    y = np.empty(m)
+    Z = np.empty((m, m))  # S⁻¹ M, column by column
+    Rhat = np.empty(m)
+    resid = np.empty(m)
+    hph = np.empty(m)
+    for r in range(B):
+        Mr = M[r if M.shape[0] > 1 else 0]
+        for i in range(m):
+            beta[r, i] = beta_minus[r, i]  # β^(0) = β⁻
+            resid[i] = nu[r, i]
+            w_out[r, i] = 1.0
+            Rt_out[r, i] = 1.0
+        n_iter[r] = 0.0
+        delta[r] = 0.0
+        fixed[r] = False
+        for it in range(iters):
+            for i in range(m):
+                Rhat[i] = beta[r, i] / alpha[r, i]  # (15) R̂ = diag(β/α)
+                w = 1.0
+                if huber and ok[r, i]:  # (16) e = R̂^{-1/2} ν (posterior residual with irls), (9)
+                    e = (resid[i] if (irls and it > 0) else nu[r, i]) / np.sqrt(Rhat[i])
+                    w = gamma / max(abs(e), gamma)
+                w_out[r, i] = w
+                Rt_out[r, i] = Rhat[i] / w if ok[r, i] else 1.0  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
+            # (18) S = H P⁻ Hᵀ + R̃, from the prior
+            for i in range(m):
+                for j in range(m):
+                    S[i, j] = Mr[i, j]
+                S[i, i] += Rt_out[r, i]
+            if not cholesky_lower(S, L):
+                tr = 0.0
+                for i in range(m):
+                    tr += S[i, i]
+                for i in range(m):
+                    S[i, i] += max(1e-12 * tr / m, 1e-300)
+                if cholesky_lower(S, L) and np.isfinite(tr):
+                    fixed[r] = True
+            for i in range(m):
+                y[i] = nu[r, i]
+            cholesky_solve(L, y)
+            for i in range(m):
+                resid[i] = Rt_out[r, i] * y[i]  # (19) z − H x⁺ = R̃ S⁻¹ ν
+            for j in range(m):
+                for i in range(m):
+                    y[i] = Mr[i, j]
+                cholesky_solve(L, y)
+                for i in range(m):
+                    Z[i, j] = y[i]
+            for i in range(m):  # (20) diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M)
+                s = Mr[i, i]
+                for j in range(m):
+                    s -= Mr[i, j] * Z[j, i]
+                hph[i] = s
+            n_iter[r] += 1.0
+            if not adapt:
+                break
+            d = 0.0
+            for i in range(m):
+                if not ok[r, i]:
+                    continue
+                r2 = resid[i] * resid[i]
+                if huber and robust_beta:  # navlab extension: Huber-weighted residual in β
+                    r2 *= gamma / max(abs(resid[i] / np.sqrt(Rhat[i])), gamma)
+                b_new = beta_minus[r, i] + 0.5 * (r2 + hph[i])  # (21) β = β⁻ + ½ (r² + H P⁺ Hᵀ)
+                d = max(d, abs(b_new - beta[r, i]) / beta[r, i])
+                beta[r, i] = b_new
+            delta[r] = d
+            if tol > 0.0 and d < tol:  # converged: this run stops (its numbers never depend on the batch)
+                break
+
+
+_VB_RUNS = Kernel(_vb_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
 
 
 def _flags(down: Array, fixed: Array) -> Array:
@@ -345,15 +455,12 @@ class _VBBase(Filter):
     def _weights(self, e: Array) -> Array:
         return np.ones_like(e)
 
-    def update(self, model: Model, state: VBState, k: int, z: Array, side: SideInfo):
+    def _iterate(self, mk, beta_minus: Array, alpha: Array):
+        """The VB iterations of one epoch in numpy, batched (the reference of :func:`_vb_runs`)."""
         p = self.params
-        x0, P0 = state.x, state.P
-        B = z.shape[0]
-        mk = measurement_prediction(model, x0, P0, k, z, np.asarray(model.R0, dtype=float))
         ok, nu = mk.ok, mk.nu
+        B = nu.shape[0]
         ms = MeasSpace(batched(mk.M, B), nu)
-        beta_minus = state.beta
-        alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         beta = beta_minus  # β^(0) = β⁻
         resid = nu
         present = None if ok.all() else ok  # channel mask (None: every channel present)
@@ -390,6 +497,42 @@ class _VBBase(Filter):
                 if n_active == 0:
                     break
                 running = None if n_active == B else active
+        return beta, Rt_last, w_last, iters, delta, fixed
+
+    def update(self, model: Model, state: VBState, k: int, z: Array, side: SideInfo):
+        p = self.params
+        x0, P0 = state.x, state.P
+        B, m = z.shape
+        mk = measurement_prediction(model, x0, P0, k, z, np.asarray(model.R0, dtype=float))
+        ok, nu = mk.ok, mk.nu
+        alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
+        kernel = _VB_RUNS.get()
+        if kernel is not None:  # compiled, one run at a time; the numpy loop below is the reference
+            beta, Rt_last, w_last = np.empty((B, m)), np.empty((B, m)), np.empty((B, m))
+            iters, delta, fixed = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
+            M = mk.M if mk.M.ndim == 3 else mk.M[None]
+            kernel(
+                carray(M),
+                carray(nu),
+                np.ascontiguousarray(ok),
+                carray(alpha),
+                carray(state.beta),
+                self.huber,
+                float(getattr(p, "gamma", 1.0)),
+                bool(getattr(p, "irls", False)),
+                bool(getattr(p, "robust_beta", False)),
+                bool(p.adapt),
+                int(p.iters),
+                float(p.tol),
+                beta,
+                Rt_last,
+                w_last,
+                iters,
+                delta,
+                fixed,
+            )
+        else:
+            beta, Rt_last, w_last, iters, delta, fixed = self._iterate(mk, state.beta, alpha)
         R_used = mask_missing(z, nu, diag_embed(Rt_last)).R  # the R in the last gain, R̃^(N−1)
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu, R_used)  # (18)–(20) in state space
         R_hat = diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)

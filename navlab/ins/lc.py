@@ -36,15 +36,27 @@ import numpy as np
 from navlab.data.loaders import DriveRecording
 from navlab.errors import NavlabError
 from navlab.ins.align import AlignmentResult, align_moving, align_static, course_heading, motion_start_time
-from navlab.ins.earth import dcm_to_rotvec, radii, rotvec_to_dcm, skew
+from navlab.ins.earth import (
+    _DCM_TO_ROTVEC,
+    _ROTVEC_TO_DCM,
+    _dcm_to_rotvec_runs,
+    _rotvec_to_dcm_runs,
+    dcm_to_rotvec,
+    radii,
+    rotvec_to_dcm,
+    skew,
+)
 from navlab.ins.strapdown import (
+    _MECHANISE_RUN,
     InsState,
+    _mechanise_run,
     apply_correction,
     discretise,
     error_model_FG,
     init_state,
     propagate_block,
 )
+from navlab.jit import Kernel, carray
 from navlab.linalg import Array
 
 #: Sign flip between the §8.0 error state (ε = b − b̂) and the total state's bias estimates.
@@ -93,17 +105,15 @@ class ImuNoise:
     accel_bias_rw: float = 1e-3  # accelerometer-bias random walk [m/s²/√s]
     vib_gyro_factor: float = 0.5  # share of the measured gyro vibration [rad/√s] added to the ARW
 
-    def Qc(self, vib_g: float = 0.0) -> Array:
-        """Continuous PSDs; ``vib_g`` = the block's gyro vibration (raw std × √dt) [rad/√s]."""
-        arw = np.hypot(self.arw_rad_rts, self.vib_gyro_factor * float(vib_g))
-        return np.diag(
-            np.r_[
-                [arw**2] * 3,
-                [self.vrw_mps_rts**2] * 3,
-                [self.gyro_bias_rw**2] * 3,
-                [self.accel_bias_rw**2] * 3,
-            ]
-        )
+    def Qc(self, vib_g: float | Array = 0.0) -> Array:
+        """Continuous PSDs (12, 12); ``vib_g`` = the block's gyro vibration (raw std × √dt)
+        [rad/√s], a scalar or one per block (K,) -> (K, 12, 12).
+        """
+        arw = np.hypot(self.arw_rad_rts, self.vib_gyro_factor * np.asarray(vib_g, dtype=float))
+        one = np.ones_like(arw)
+        d = [arw**2] * 3 + [self.vrw_mps_rts**2 * one] * 3
+        d += [self.gyro_bias_rw**2 * one] * 3 + [self.accel_bias_rw**2 * one] * 3
+        return _diag_stack(d)
 
 
 def static_noise_densities(t_s: Array, f_b: Array, w_b: Array, tau_s: float = 1.0):
@@ -132,14 +142,24 @@ GAP_ACCEL_MPS2 = 2.0
 GAP_RATE_RADPS = 0.2
 
 
-def gap_Qc(gap_share: float) -> Array:
+def gap_Qc(gap_share: float | Array) -> Array:
     """Extra continuous PSD (12×12, the noise inputs of ``ImuNoise.Qc``: gyro, accelerometer white
     noise, then the two bias random walks) for the share of an aiding interval the IMU did not
     cover: the INS coasts on interpolated samples there while the vehicle may accelerate or turn.
+    One per block for an array of shares (K,) -> (K, 12, 12).
     """
-    return np.diag(
-        np.r_[[GAP_RATE_RADPS**2 * gap_share] * 3, [GAP_ACCEL_MPS2**2 * gap_share] * 3, np.zeros(6)]
-    )
+    g = np.asarray(gap_share, dtype=float)
+    d = [GAP_RATE_RADPS**2 * g] * 3 + [GAP_ACCEL_MPS2**2 * g] * 3 + [0.0 * g] * 6
+    return _diag_stack(d)
+
+
+def _diag_stack(d: list[Array]) -> Array:
+    """Diagonal matrices (..., n, n) from n diagonal entries of equal shape (...)."""
+    D = np.stack(d, axis=-1)
+    out = np.zeros((*D.shape, D.shape[-1]))
+    idx = np.arange(D.shape[-1])
+    out[..., idx, idx] = D
+    return out
 
 
 def bridge_gaps(t: Array, f: Array, w: Array, factor: float = 5.0, min_gap_s: float = 0.05):
@@ -254,18 +274,23 @@ class DriveSetup:
 
 
 def expm_batched(A: Array) -> Array:
-    """Matrix exponential of a stack (..., n, n): scaling and squaring with a 6th-order Taylor."""
+    """Matrix exponential of a stack (..., n, n): scaling and squaring with a 6th-order Taylor.
+
+    Each matrix is scaled by its own 2^s (s from its ∞-norm) and squared s times, so a matrix
+    gets the same numbers alone or in a stack.
+    """
     A = np.asarray(A, dtype=float)
-    nrm = np.abs(A).sum(axis=-1).max()
-    s = max(0, int(np.ceil(np.log2(max(nrm, 1e-300) / 0.25)))) if nrm > 0.25 else 0
-    A = A / 2.0**s
+    nrm = np.abs(A).sum(axis=-1).max(axis=-1)  # ∞-norm of each matrix
+    s = np.where(nrm > 0.25, np.ceil(np.log2(np.maximum(nrm, 1e-300) / 0.25)), 0.0)
+    s = np.maximum(s, 0.0).astype(int)
+    A = A / (2.0**s)[..., None, None]
     E = np.eye(A.shape[-1]) + A
     term = A
     for i in range(2, 7):
         term = term @ A / i
         E = E + term
-    for _ in range(s):
-        E = E @ E
+    for j in range(int(s.max(initial=0))):
+        E = np.where((s > j)[..., None, None], E @ E, E)
     return E
 
 
@@ -721,6 +746,115 @@ def run_closed_loop(
     return ClosedLoopResult(out["p"], out["v"], out["C"], out["bg"], out["ba"], out["fn"], out["Pd"])
 
 
+# ------------------------------------------------------------------------------ compiled model
+# InsGnssModel's f, h and H are called for every filter at every epoch on a handful of runs, where
+# numpy's per-call overhead (≈ 0.3 ms per f: the conversions around the mechanisation and the
+# mechanisation's own set-up) is the whole cost. So they run compiled (navlab.jit), each written
+# for one run as below; the numpy path (the methods' own code) is the reference the tests compare
+# with (tests/unit/test_jit.py).
+
+
+def _f_runs(x, out, C_prev, C_next, f_raw, w_raw, dts, origin):  # pragma: no cover - numba
+    """out[r] = f(x[r]): total state → INS solution → strapdown over the block → total state.
+
+    origin = (lat0, lon0, h0, R_Mh0, R_Nh0 cos lat0) of the local N, E, U metres; C_prev, C_next =
+    C_ref at k−1 and k; f_raw, w_raw (N, 3) the block's raw samples, dts (N,) their holding times.
+    """
+    lat0, lon0, h0, RM, RNc = origin[0], origin[1], origin[2], origin[3], origin[4]
+    nav = np.empty(3)
+    v = np.empty(3)
+    bg = np.empty(3)
+    ba = np.empty(3)
+    C = np.empty((3, 3))
+    E = np.empty((1, 3, 3))
+    phi = np.empty((1, 3))
+    D = np.empty((1, 3, 3))
+    sums = np.empty((3, 3))
+    for r in range(x.shape[0]):
+        # the INS solution of x: position from the local metres, C_bn = exp(−[a×]) C_ref,k−1
+        nav[0] = lat0 + x[r, 6] / RM
+        nav[1] = lon0 + x[r, 7] / RNc
+        nav[2] = h0 + x[r, 8]
+        for i in range(3):
+            phi[0, i] = -x[r, i]
+            v[i], bg[i], ba[i] = x[r, 3 + i], x[r, 9 + i], x[r, 12 + i]
+        _rotvec_to_dcm_runs(phi, E)
+        for i in range(3):
+            for j in range(3):
+                C[i, j] = E[0, i, 0] * C_prev[0, j] + E[0, i, 1] * C_prev[1, j] + E[0, i, 2] * C_prev[2, j]
+        sums[:] = 0.0
+        _mechanise_run(nav, v, C, f_raw, w_raw, ba, bg, dts, True, sums)
+        # back to the total state: a = −log(C_bn C_ref,kᵀ), the local metres
+        for i in range(3):
+            for j in range(3):
+                D[0, i, j] = C[i, 0] * C_next[j, 0] + C[i, 1] * C_next[j, 1] + C[i, 2] * C_next[j, 2]
+        _dcm_to_rotvec_runs(D, phi)
+        for i in range(3):
+            out[r, i] = -phi[0, i]
+            out[r, 3 + i], out[r, 9 + i], out[r, 12 + i] = v[i], bg[i], ba[i]
+        out[r, 6] = (nav[0] - lat0) * RM
+        out[r, 7] = (nav[1] - lon0) * RNc
+        out[r, 8] = nav[2] - h0
+
+
+def _hH_runs(x, C_ref, lever_b, C_bv, scale, nhc, h, H):  # pragma: no cover - numba
+    """h(x[r]) into h (B, m) and, if H.shape[0] > 0, its Jacobian into H (B, m, 15).
+
+    Rows N, E, U: p + C_bn l (lever arm l, C_bn = exp(−[a×]) C_ref), ∂/∂a = [u×] rows (N, E, U)
+    with u = C_bn l; with ``nhc`` the vehicle's right and up velocity C_bv C_bnᵀ v, ∂/∂v = those
+    rows of C_vn = C_bv C_bnᵀ, ∂/∂a = −C_vn [v×]. Every row divided by its scale.
+    """
+    E = np.empty((1, 3, 3))
+    phi = np.empty((1, 3))
+    C = np.empty((3, 3))
+    Cvn = np.empty((3, 3))
+    u = np.empty(3)
+    jac = H.shape[0] > 0
+    for r in range(x.shape[0]):
+        for i in range(3):
+            phi[0, i] = -x[r, i]
+        _rotvec_to_dcm_runs(phi, E)
+        for i in range(3):
+            for j in range(3):
+                C[i, j] = E[0, i, 0] * C_ref[0, j] + E[0, i, 1] * C_ref[1, j] + E[0, i, 2] * C_ref[2, j]
+        for i in range(3):  # u = C_bn l (E, N, U)
+            u[i] = C[i, 0] * lever_b[0] + C[i, 1] * lever_b[1] + C[i, 2] * lever_b[2]
+        # positions N, E, U: p + (C_bn l) reordered from E, N, U
+        h[r, 0] = (x[r, 6] + u[1]) / scale[0]
+        h[r, 1] = (x[r, 7] + u[0]) / scale[1]
+        h[r, 2] = (x[r, 8] + u[2]) / scale[2]
+        if jac:
+            for i in range(H.shape[1]):
+                for j in range(15):
+                    H[r, i, j] = 0.0
+            for i in range(3):
+                H[r, i, 6 + i] = 1.0 / scale[i]
+            # [u×] in rows N, E, U (= rows 1, 0, 2 of [u×])
+            H[r, 0, 0], H[r, 0, 2] = u[2] / scale[0], -u[0] / scale[0]
+            H[r, 1, 1], H[r, 1, 2] = -u[2] / scale[1], u[1] / scale[1]
+            H[r, 2, 0], H[r, 2, 1] = -u[1] / scale[2], u[0] / scale[2]
+        if nhc:
+            for i in range(3):  # C_vn = C_bv C_bnᵀ
+                for j in range(3):
+                    Cvn[i, j] = C_bv[i, 0] * C[j, 0] + C_bv[i, 1] * C[j, 1] + C_bv[i, 2] * C[j, 2]
+            v0, v1, v2 = x[r, 3], x[r, 4], x[r, 5]
+            for c in range(2):
+                i = 2 * c  # right (0) and up (2) rows of the vehicle frame
+                s = scale[3 + c]
+                h[r, 3 + c] = (Cvn[i, 0] * v0 + Cvn[i, 1] * v1 + Cvn[i, 2] * v2) / s
+                if jac:
+                    for j in range(3):
+                        H[r, 3 + c, 3 + j] = Cvn[i, j] / s
+                    # −C_vn [v×]: row i times [v×] = (c1 v2 − c2 v1, c2 v0 − c0 v2, c0 v1 − c1 v0)
+                    H[r, 3 + c, 0] = -(Cvn[i, 1] * v2 - Cvn[i, 2] * v1) / s
+                    H[r, 3 + c, 1] = -(Cvn[i, 2] * v0 - Cvn[i, 0] * v2) / s
+                    H[r, 3 + c, 2] = -(Cvn[i, 0] * v1 - Cvn[i, 1] * v0) / s
+
+
+_F_RUNS = Kernel(_f_runs, uses=(_ROTVEC_TO_DCM, _DCM_TO_ROTVEC, _MECHANISE_RUN))
+_HH_RUNS = Kernel(_hH_runs, uses=(_ROTVEC_TO_DCM,))
+
+
 class InsGnssModel:
     """Total-state loosely coupled INS/GNSS model for navlab's filters (see the module docstring).
 
@@ -748,7 +882,7 @@ class InsGnssModel:
         gnss_sigma_k: Array | None = None,
     ) -> None:
         self.setup = setup
-        self.C_ref = ref.C_bn[0]  # (K+1, 3, 3)
+        self.C_ref = carray(ref.C_bn[0])  # (K+1, 3, 3)
         self.nhc = nhc_sigma_mps > 0
         self.m = 5 if self.nhc else 3
         K = setup.K
@@ -764,20 +898,25 @@ class InsGnssModel:
         self.has_lever = bool(np.any(self.lever_b != 0))
         self._H = np.zeros((3, 15))
         self._H[:, 6:9] = np.eye(3)
+        R_Mh, R_Nh = radii(setup.lat0_rad, setup.h0_m)
+        self._origin = np.array(
+            [setup.lat0_rad, setup.lon0_rad, setup.h0_m, R_Mh, R_Nh * np.cos(setup.lat0_rad)], dtype=float
+        )
+        self._blocks: dict[int, tuple[Array, Array, Array]] = {}  # k -> IMU block (compiled f)
+        self._C_bv = carray(setup.C_bv)
+        self._lever = carray(self.lever_b)
         lat, _, h = setup.from_local(ref.p[0])
         self.Phi = np.empty((K + 1, 15, 15))
         self.Qd = np.empty((K + 1, 15, 15))
         self.Phi[0], self.Qd[0] = np.eye(15), np.zeros((15, 15))
         vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
         gap = setup.gap_s if setup.gap_s is not None else np.zeros(K + 1)
-        for k in range(1, K + 1):
-            F, G = error_model_FG(
-                lat[k - 1], h[k - 1], ref.v[0, k - 1], ref.f_n_mean[0, k], self.C_ref[k - 1]
-            )
-            T = float(setup.t[k] - setup.t[k - 1])
-            _, Qd = discretise(F, G, noise.Qc(vib[k]) + gap_Qc(gap[k] / T), T)
-            self.Phi[k] = SIGN @ expm_batched(F[0] * T) @ SIGN
-            self.Qd[k] = SIGN @ Qd[0] @ SIGN
+        # the transitions k−1 → k, k = 1 … K, all at once (each exactly as it would be alone)
+        T = np.diff(np.asarray(setup.t, dtype=float))
+        F, G = error_model_FG(lat[:-1], h[:-1], ref.v[0, :-1], ref.f_n_mean[0, 1:], self.C_ref[:-1])
+        _, Qd = discretise(F, G, noise.Qc(vib[1:]) + gap_Qc(gap[1:] / T), T)
+        self.Phi[1:] = SIGN @ expm_batched(F * T[:, None, None]) @ SIGN
+        self.Qd[1:] = SIGN @ Qd @ SIGN
 
     def whiten(self, z: Array) -> Array:
         """Measurements (B, K+1, m) in the model's units (divided by :attr:`scale`)."""
@@ -795,10 +934,34 @@ class InsGnssModel:
 
     def f(self, x: Array, k: int) -> Array:
         st = self.setup
+        kernel = _F_RUNS.get()
+        if kernel is not None:  # compiled, one run at a time (the numpy path below is the reference)
+            f_raw, w_raw, dts = self._block(k)
+            out = np.empty((x.shape[0], 15))
+            kernel(carray(x), out, self.C_ref[k - 1], self.C_ref[k], f_raw, w_raw, dts, self._origin)
+            return out
         s = _state_from_total(st, x, self.C_ref[k - 1], float(st.t[k - 1]))
         sl = st.imu_slice(k)
         s, _ = propagate_block(s, st.t_imu[sl], st.f_b[sl], st.w_b[sl], t_end_s=float(st.t[k]))
         return _total_from_state(st, s, self.C_ref[k])
+
+    def _block(self, k: int) -> tuple[Array, Array, Array]:
+        """The IMU samples of (t_{k−1}, t_k] and their holding times, as propagate_block takes them."""
+        blk = self._blocks.get(k)
+        if blk is None:
+            st = self.setup
+            sl = st.imu_slice(k)
+            t = st.t_imu[sl]
+            t0, t1 = float(st.t[k - 1]), float(st.t[k])
+            if t.size:
+                starts = np.concatenate([[t0], np.maximum(t[1:], t0)])
+                ends = np.minimum(np.concatenate([t[1:], [t1]]), t1)
+                dts = ends - starts
+            else:
+                dts = np.zeros(0)
+            blk = (carray(st.f_b[sl]), carray(st.w_b[sl]), carray(dts))
+            self._blocks[k] = blk
+        return blk
 
     def _C_bn(self, x: Array | None, k: int) -> Array:
         """(B, 3, 3) C_bn = exp(−[a×]) C_ref,k (the reference attitude when x is None)."""
@@ -810,9 +973,22 @@ class InsGnssModel:
         """(B, 3, 3) rotation ENU -> vehicle, C_bv C_bnᵀ."""
         return self.setup.C_bv @ np.swapaxes(self._C_bn(x, k), -1, -2)
 
+    def _hH(self, x: Array, k: int, jacobian: bool) -> tuple[Array, Array] | None:
+        """The compiled h and (if ``jacobian``) H; None without numba (then the numpy path)."""
+        kernel = _HH_RUNS.get()
+        if kernel is None:
+            return None
+        B = x.shape[0]
+        h = np.empty((B, self.m))
+        H = np.empty((B, self.m, 15) if jacobian else (0, self.m, 15))
+        kernel(carray(x), self.C_ref[k], self._lever, self._C_bv, self.scale[k], self.nhc, h, H)
+        return h, H
+
     def H(self, x: Array | None, k: int) -> Array:
         if not (self.nhc or self.has_lever or self.whitened):
             return self._H
+        if x is not None and (hH := self._hH(x, k, True)) is not None:
+            return hH[1]
         B = 1 if x is None else x.shape[0]
         H = np.zeros((B, self.m, 15))
         H[:, 0:3, 6:9] = np.eye(3)
@@ -830,6 +1006,8 @@ class InsGnssModel:
         return H[0] if x is None else H
 
     def h(self, x: Array, k: int) -> Array:
+        if (self.nhc or self.has_lever or self.whitened) and (hH := self._hH(x, k, False)) is not None:
+            return hH[0]
         p = x[:, 6:9]
         if self.has_lever:
             p = p + (self._C_bn(x, k) @ self.lever_b)[:, [1, 0, 2]]

@@ -249,121 +249,133 @@ def _step(lat, lon, h, v, C, f, w, dt):
     )
 
 
-def _mechanise_runs(lat, lon, h, v, C, f_raw, w_raw, bias_a, bias_g, dts, reorth, sums):  # pragma: no cover
-    """The compiled path of :func:`propagate_block`: every run through its block of samples.
+def _mechanise_run(nav, v, C, f_raw, w_raw, bias_a, bias_g, dts, reorth, sums):  # pragma: no cover
+    """One run through its block of samples, equation by equation as :func:`_step` (compiled).
 
-    Written for one run, equation by equation as :func:`_step` (the numpy reference, batched over
-    runs). Updates lat, lon, h (B,), v (B, 3), C (B, 3, 3) in place; sums (B, 3, 3) accumulates
-    Σ f^n dt, Σ f^b dt and Σ ω^b dt (bias-corrected). f_raw, w_raw (1 or B, N, 3) are the raw
-    samples (one block shared by every run, or one per run), bias_a, bias_g (B, 3) the running
-    bias estimates, dts (N,) the holding times (≤ 0: skipped).
+    Updates ``nav`` = (lat, lon, h) (3,), v (3,) and C (3, 3) in place; ``sums`` (3, 3) accumulates
+    Σ f^n dt, Σ f^b dt and Σ ω^b dt (bias-corrected). f_raw, w_raw (N, 3) are the raw samples,
+    bias_a, bias_g (3,) the running bias estimates, dts (N,) the holding times (≤ 0: skipped).
     """
-    B, N = lat.shape[0], dts.shape[0]
+    N = dts.shape[0]
     Cn = np.empty((3, 3))
     E = np.empty((3, 3))
     fn = np.empty(3)
-    for r in range(B):
+    for k in range(N):
+        dt = dts[k]
+        if dt <= 0.0:
+            continue
+        f0 = f_raw[k, 0] - bias_a[0]
+        f1 = f_raw[k, 1] - bias_a[1]
+        f2 = f_raw[k, 2] - bias_a[2]
+        g0 = w_raw[k, 0] - bias_g[0]
+        g1 = w_raw[k, 1] - bias_g[1]
+        g2 = w_raw[k, 2] - bias_g[2]
+        sL = np.sin(nav[0])
+        cL = np.cos(nav[0])
+        s2L = sL * sL
+        w2 = 1.0 - _E2 * s2L
+        sw = np.sqrt(w2)
+        R_Nh = _A / sw + nav[2]
+        R_Mh = _A * (1.0 - _E2) / (w2 * sw) + nav[2]
+        vE, vN, vU = v[0], v[1], v[2]
+        # ω_in^n = ω_ie^n + ω_en^n, and 2 ω_ie^n + ω_en^n (Coriolis + transport)
+        en_y = vE / R_Nh
+        wi0, wi1, wi2 = -vN / R_Mh, _WIE * cL + en_y, (_WIE + en_y / cL) * sL
+        wc0, wc1, wc2 = wi0, wi1 + _WIE * cL, wi2 + _WIE * sL
+        # attitude: C⁺ = (I − [ω_in dt ×]) C exp([ω_ib dt ×])
+        p0, p1, p2 = g0 * dt, g1 * dt, g2 * dt
+        a2 = p0 * p0 + p1 * p1 + p2 * p2
+        if a2 < 1e-2:  # Taylor series of sin(a)/a and (1 − cos a)/a² (error < 1e-16)
+            s1 = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0))
+            s2 = 0.5 - a2 / 24.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0))
+        else:
+            ang = np.sqrt(a2)
+            s1 = np.sin(ang) / ang
+            s2 = (1.0 - np.cos(ang)) / a2
+        # exp([p×]) = I + s1 [p×] + s2 [p×]², [p×]² = p pᵀ − a² I
+        E[0, 0] = 1.0 + s2 * (p0 * p0 - a2)
+        E[1, 1] = 1.0 + s2 * (p1 * p1 - a2)
+        E[2, 2] = 1.0 + s2 * (p2 * p2 - a2)
+        E[0, 1] = -s1 * p2 + s2 * p0 * p1
+        E[1, 0] = s1 * p2 + s2 * p0 * p1
+        E[0, 2] = s1 * p1 + s2 * p0 * p2
+        E[2, 0] = -s1 * p1 + s2 * p0 * p2
+        E[1, 2] = -s1 * p0 + s2 * p1 * p2
+        E[2, 1] = s1 * p0 + s2 * p1 * p2
+        q0, q1, q2 = wi0 * dt, wi1 * dt, wi2 * dt
+        for j in range(3):  # (I − [q×]) C, column j
+            c0, c1, c2 = C[0, j], C[1, j], C[2, j]
+            Cn[0, j] = c0 + q2 * c1 - q1 * c2
+            Cn[1, j] = c1 - q2 * c0 + q0 * c2
+            Cn[2, j] = c2 + q1 * c0 - q0 * c1
+        # f^n = ½ (C + C⁺) f^b, the mid-interval attitude
+        for i in range(3):
+            n0 = Cn[i, 0] * E[0, 0] + Cn[i, 1] * E[1, 0] + Cn[i, 2] * E[2, 0]
+            n1 = Cn[i, 0] * E[0, 1] + Cn[i, 1] * E[1, 1] + Cn[i, 2] * E[2, 1]
+            n2 = Cn[i, 0] * E[0, 2] + Cn[i, 1] * E[1, 2] + Cn[i, 2] * E[2, 2]
+            fn[i] = ((C[i, 0] + n0) * f0 + (C[i, 1] + n1) * f1 + (C[i, 2] + n2) * f2) * 0.5
+            C[i, 0], C[i, 1], C[i, 2] = n0, n1, n2
+        # WGS-84 normal gravity at (L, h)
+        g = (
+            _GE
+            * (1.0 + _GK * s2L)
+            / sw
+            * (1.0 - 2.0 / _A * (1.0 + _F + _GM_ - 2.0 * _F * s2L) * nav[2] + 3.0 / _A**2 * nav[2] * nav[2])
+        )
+        # v̇ = f^n − (2 ω_ie^n + ω_en^n) × v + g^n
+        a0 = fn[0] - (wc1 * vU - wc2 * vN)
+        a1 = fn[1] - (wc2 * vE - wc0 * vU)
+        a2_ = fn[2] - (wc0 * vN - wc1 * vE) - g
+        nE, nN, nU = vE + a0 * dt, vN + a1 * dt, vU + a2_ * dt
+        # position by the trapezoid rule
+        nav[0] += 0.5 * (vN + nN) / R_Mh * dt
+        nav[1] += 0.5 * (vE + nE) / (R_Nh * cL) * dt
+        nav[2] += 0.5 * (vU + nU) * dt
+        v[0], v[1], v[2] = nE, nN, nU
+        for i in range(3):
+            sums[0, i] += fn[i] * dt
+        sums[1, 0] += f0 * dt
+        sums[1, 1] += f1 * dt
+        sums[1, 2] += f2 * dt
+        sums[2, 0] += g0 * dt
+        sums[2, 1] += g1 * dt
+        sums[2, 2] += g2 * dt
+    if reorth:
+        # nearest rotation = the polar factor of C (the numpy path: U Vᵀ of an SVD), by
+        # Newton–Schulz, C ← C (3I − CᵀC)/2: quadratic convergence from a nearly orthonormal
+        # C (a block of steps leaves ‖CᵀC − I‖ ≈ 1e-13), round-off in one or two iterations
+        for _ in range(6):
+            err = 0.0
+            for i in range(3):
+                for j in range(3):
+                    g = C[0, i] * C[0, j] + C[1, i] * C[1, j] + C[2, i] * C[2, j]
+                    E[i, j] = (3.0 if i == j else 0.0) - g  # E: work array, 3I − CᵀC
+                    err = max(err, abs(g - (1.0 if i == j else 0.0)))
+            if err < 4e-16:
+                break
+            for i in range(3):
+                c0, c1, c2 = C[i, 0], C[i, 1], C[i, 2]
+                for j in range(3):
+                    C[i, j] = 0.5 * (c0 * E[0, j] + c1 * E[1, j] + c2 * E[2, j])
+
+
+def _mechanise_runs(lat, lon, h, v, C, f_raw, w_raw, bias_a, bias_g, dts, reorth, sums):  # pragma: no cover
+    """The compiled path of :func:`propagate_block`: every run through its block of samples.
+
+    Updates lat, lon, h (B,), v (B, 3), C (B, 3, 3) in place; sums (B, 3, 3) accumulates Σ f^n dt,
+    Σ f^b dt and Σ ω^b dt (bias-corrected). f_raw, w_raw (1 or B, N, 3) are the raw samples (one
+    block shared by every run, or one per run), bias_a, bias_g (B, 3) the running bias estimates.
+    """
+    nav = np.empty(3)
+    for r in range(lat.shape[0]):
         rs = r if f_raw.shape[0] > 1 else 0
-        for k in range(N):
-            dt = dts[k]
-            if dt <= 0.0:
-                continue
-            f0 = f_raw[rs, k, 0] - bias_a[r, 0]
-            f1 = f_raw[rs, k, 1] - bias_a[r, 1]
-            f2 = f_raw[rs, k, 2] - bias_a[r, 2]
-            g0 = w_raw[rs, k, 0] - bias_g[r, 0]
-            g1 = w_raw[rs, k, 1] - bias_g[r, 1]
-            g2 = w_raw[rs, k, 2] - bias_g[r, 2]
-            sL = np.sin(lat[r])
-            cL = np.cos(lat[r])
-            s2L = sL * sL
-            w2 = 1.0 - _E2 * s2L
-            sw = np.sqrt(w2)
-            R_Nh = _A / sw + h[r]
-            R_Mh = _A * (1.0 - _E2) / (w2 * sw) + h[r]
-            vE, vN, vU = v[r, 0], v[r, 1], v[r, 2]
-            # ω_in^n = ω_ie^n + ω_en^n, and 2 ω_ie^n + ω_en^n (Coriolis + transport)
-            en_y = vE / R_Nh
-            wi0, wi1, wi2 = -vN / R_Mh, _WIE * cL + en_y, (_WIE + en_y / cL) * sL
-            wc0, wc1, wc2 = wi0, wi1 + _WIE * cL, wi2 + _WIE * sL
-            # attitude: C⁺ = (I − [ω_in dt ×]) C exp([ω_ib dt ×])
-            p0, p1, p2 = g0 * dt, g1 * dt, g2 * dt
-            a2 = p0 * p0 + p1 * p1 + p2 * p2
-            if a2 < 1e-2:  # Taylor series of sin(a)/a and (1 − cos a)/a² (error < 1e-16)
-                s1 = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0))
-                s2 = 0.5 - a2 / 24.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0))
-            else:
-                ang = np.sqrt(a2)
-                s1 = np.sin(ang) / ang
-                s2 = (1.0 - np.cos(ang)) / a2
-            # exp([p×]) = I + s1 [p×] + s2 [p×]², [p×]² = p pᵀ − a² I
-            E[0, 0] = 1.0 + s2 * (p0 * p0 - a2)
-            E[1, 1] = 1.0 + s2 * (p1 * p1 - a2)
-            E[2, 2] = 1.0 + s2 * (p2 * p2 - a2)
-            E[0, 1] = -s1 * p2 + s2 * p0 * p1
-            E[1, 0] = s1 * p2 + s2 * p0 * p1
-            E[0, 2] = s1 * p1 + s2 * p0 * p2
-            E[2, 0] = -s1 * p1 + s2 * p0 * p2
-            E[1, 2] = -s1 * p0 + s2 * p1 * p2
-            E[2, 1] = s1 * p0 + s2 * p1 * p2
-            q0, q1, q2 = wi0 * dt, wi1 * dt, wi2 * dt
-            for j in range(3):  # (I − [q×]) C, column j
-                c0, c1, c2 = C[r, 0, j], C[r, 1, j], C[r, 2, j]
-                Cn[0, j] = c0 + q2 * c1 - q1 * c2
-                Cn[1, j] = c1 - q2 * c0 + q0 * c2
-                Cn[2, j] = c2 + q1 * c0 - q0 * c1
-            # f^n = ½ (C + C⁺) f^b, the mid-interval attitude
-            for i in range(3):
-                n0 = Cn[i, 0] * E[0, 0] + Cn[i, 1] * E[1, 0] + Cn[i, 2] * E[2, 0]
-                n1 = Cn[i, 0] * E[0, 1] + Cn[i, 1] * E[1, 1] + Cn[i, 2] * E[2, 1]
-                n2 = Cn[i, 0] * E[0, 2] + Cn[i, 1] * E[1, 2] + Cn[i, 2] * E[2, 2]
-                fn[i] = ((C[r, i, 0] + n0) * f0 + (C[r, i, 1] + n1) * f1 + (C[r, i, 2] + n2) * f2) * 0.5
-                C[r, i, 0], C[r, i, 1], C[r, i, 2] = n0, n1, n2
-            # WGS-84 normal gravity at (L, h)
-            g = (
-                _GE
-                * (1.0 + _GK * s2L)
-                / sw
-                * (1.0 - 2.0 / _A * (1.0 + _F + _GM_ - 2.0 * _F * s2L) * h[r] + 3.0 / _A**2 * h[r] * h[r])
-            )
-            # v̇ = f^n − (2 ω_ie^n + ω_en^n) × v + g^n
-            a0 = fn[0] - (wc1 * vU - wc2 * vN)
-            a1 = fn[1] - (wc2 * vE - wc0 * vU)
-            a2_ = fn[2] - (wc0 * vN - wc1 * vE) - g
-            nE, nN, nU = vE + a0 * dt, vN + a1 * dt, vU + a2_ * dt
-            # position by the trapezoid rule
-            lat[r] += 0.5 * (vN + nN) / R_Mh * dt
-            lon[r] += 0.5 * (vE + nE) / (R_Nh * cL) * dt
-            h[r] += 0.5 * (vU + nU) * dt
-            v[r, 0], v[r, 1], v[r, 2] = nE, nN, nU
-            for i in range(3):
-                sums[r, 0, i] += fn[i] * dt
-            sums[r, 1, 0] += f0 * dt
-            sums[r, 1, 1] += f1 * dt
-            sums[r, 1, 2] += f2 * dt
-            sums[r, 2, 0] += g0 * dt
-            sums[r, 2, 1] += g1 * dt
-            sums[r, 2, 2] += g2 * dt
-        if reorth:
-            # nearest rotation = the polar factor of C (the numpy path: U Vᵀ of an SVD), by
-            # Newton–Schulz, C ← C (3I − CᵀC)/2: quadratic convergence from a nearly orthonormal
-            # C (a block of steps leaves ‖CᵀC − I‖ ≈ 1e-13), round-off in one or two iterations
-            for _ in range(6):
-                err = 0.0
-                for i in range(3):
-                    for j in range(3):
-                        g = C[r, 0, i] * C[r, 0, j] + C[r, 1, i] * C[r, 1, j] + C[r, 2, i] * C[r, 2, j]
-                        E[i, j] = (3.0 if i == j else 0.0) - g  # E: work array, 3I − CᵀC
-                        err = max(err, abs(g - (1.0 if i == j else 0.0)))
-                if err < 4e-16:
-                    break
-                for i in range(3):
-                    c0, c1, c2 = C[r, i, 0], C[r, i, 1], C[r, i, 2]
-                    for j in range(3):
-                        C[r, i, j] = 0.5 * (c0 * E[0, j] + c1 * E[1, j] + c2 * E[2, j])
+        nav[0], nav[1], nav[2] = lat[r], lon[r], h[r]
+        _mechanise_run(nav, v[r], C[r], f_raw[rs], w_raw[rs], bias_a[r], bias_g[r], dts, reorth, sums[r])
+        lat[r], lon[r], h[r] = nav[0], nav[1], nav[2]
 
 
-_MECHANISE = Kernel(_mechanise_runs)
+_MECHANISE_RUN = Kernel(_mechanise_run)
+_MECHANISE = Kernel(_mechanise_runs, uses=(_MECHANISE_RUN,))
 
 
 def mechanise_step(state: InsState, f_b_mps2, w_b_radps, dt_s: float, return_fn: bool = False):
@@ -623,7 +635,7 @@ def error_model_FG(
     return F, G
 
 
-def discretise(F, G, Qc, T_s: float):
+def discretise(F, G, Qc, T_s):
     """Second-order discretisation of ALGORITHMS.md §8.0.
 
     ``Phi = I + F T + (F T)^2 / 2``; ``Q_d = (Phi G Qc G^T Phi^T + G Qc G^T) T / 2``.
@@ -631,8 +643,8 @@ def discretise(F, G, Qc, T_s: float):
     Parameters
     ----------
     F : (B, n, n); G : (B, n, q); Qc : (q, q) or (B, q, q) continuous PSDs.
-    T_s : float
-        Step [s].
+    T_s : float or (B,)
+        Step [s] (one per matrix of the stack for an array).
 
     Returns
     -------
@@ -640,6 +652,7 @@ def discretise(F, G, Qc, T_s: float):
     """
     F = np.asarray(F, dtype=float)
     n = F.shape[-1]
+    T_s = np.asarray(T_s, dtype=float)[..., None, None]
     FT = F * T_s
     Phi = np.eye(n) + FT + FT @ FT / 2.0
     GQG = G @ np.asarray(Qc, dtype=float) @ np.swapaxes(G, -1, -2)

@@ -163,7 +163,25 @@ def test_warm_compiles_every_kernel():
         "strapdown.propagate_block",
         "scenarios.base.propagate",
         "earth rotation conversions",
+        "filter kernels (solve, quadratic form, Joseph, VB, clamp)",
+        "ins.lc model f, h, H",
     }
+    # every kernel of the filters and the INS model is compiled (one signature each)
+    from navlab import linalg
+    from navlab.filters import huber_vb
+    from navlab.filters.sage_husa import kernels
+    from navlab.ins import lc
+
+    for k in (
+        linalg._SOLVE,
+        linalg._QUAD,
+        linalg._JOSEPH,
+        huber_vb._VB_RUNS,
+        kernels._INSIDE,
+        lc._F_RUNS,
+        lc._HH_RUNS,
+    ):
+        assert len(k.get().signatures) == 1, k.fn.__name__
 
 
 @needs_numba
