@@ -17,6 +17,7 @@ frame(
     "⚖️",
     "Every chosen filter runs on the same simulated measurements. Set the experiment in the "
     "sidebar, press Run; the curves update as batches of Monte Carlo runs finish.",
+    experiment=True,
 )
 
 spec = sidebar_experiment(PageDefaults(), "compare")
