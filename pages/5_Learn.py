@@ -5,6 +5,7 @@ import streamlit as st
 from navlab.learn import TinySpec, caveat
 from navlab.ui import learn as ui
 from navlab.ui.frame import frame
+from navlab.ui.views import chart
 
 frame(
     "Learn: filters step by step",
@@ -109,11 +110,11 @@ else:
     step = st.slider("Step (epoch k)", 1, res.epochs, key="step", bind="query-params")
     ui.step_buttons(res.epochs)
     ui.render_step(res, int(step))
-    st.plotly_chart(
+    chart(
+        st,
         ui.overview_figure(res, int(step)),
-        width="stretch",
-        config=ui.CONFIG,
-        alt="Step-through overview: measurements, NIS against the χ² threshold, R and weights",
+        "Step-through overview: measurements, NIS against the χ² threshold, R and weights",
+        name=f"learn-{key}-step-{int(step)}",
     )
     st.download_button(
         "Download the step table (CSV)",

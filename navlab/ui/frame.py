@@ -122,6 +122,7 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
     # navlab's own page menu (config: client.showSidebarNavigation = false): Streamlit's legacy
     # pages/ menu would list the home page under its file name, "app"
     _run.nav = st.sidebar.container()
+    _run.charts = 0
     if not experiment:
         fill_nav()
     st.sidebar.divider()
@@ -132,6 +133,13 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
         "navlab — robust & adaptive Kalman filters, batched Monte Carlo. "
         "Every setting is in the URL: copy it to share the exact run."
     )
+
+
+def next_chart_id() -> str:
+    """A key unique within this script run (a streamed view draws the same chart per chunk)."""
+    n = getattr(_run, "charts", 0) + 1
+    _run.charts = n
+    return f"_chart{n}"
 
 
 def carried_query(path: str) -> dict:
