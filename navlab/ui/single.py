@@ -93,7 +93,8 @@ def single_run_figure(
     frames: bool = True,
     relative: bool = True,
 ) -> go.Figure:
-    """One run (batch index ``run``) of the chosen ``filters``, three panels over time:
+    """One run (batch index ``run``) of the chosen ``filters`` in three panels over time.
+
 
     1 the truth of state ``state`` (black), each filter's estimate with ±2σ (√P) bounds, and the
       measurements of the channel that measures this state (outliers: red ×);

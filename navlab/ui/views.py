@@ -236,14 +236,35 @@ class CompareView:
 def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> None:
     """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
     ref = ref if ref in res.runs else None
-    t = tables.headline(res, compare_to=ref if len(res.runs) > 1 else None)
+    t = tables.headline(res, compare_to=ref if len(res.runs) > 1 else None, best=res.complete)
     config = {c: st.column_config.TextColumn(c, help=h) for c, h in t.help.items() if h}
-    table.dataframe(t.cells, width="stretch", column_config=config)
+    table.dataframe(highlight_best(t), width="stretch", column_config=config)
     with notes.container():
+        if res.complete and len(res.runs) > 1:
+            st.caption(
+                "**Bold on green**: the filter better than every other filter on that column "
+                "(paired test over the same runs, Holm-corrected, 95 %)"
+                + ("" if t.best else " — no column has one at this run count")
+                + "; no highlight where the best point estimate is not backed by the test."
+            )
         divergence_warnings(res)
         for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
         st.caption("  \n".join(t.notes))
+
+
+BEST_STYLE = "font-weight: bold; background-color: #dcf2e1"
+
+
+def highlight_best(t: Any) -> Any:
+    """The table's cells with each column's tested best filter highlighted (a pandas Styler)."""
+    cells = t.cells
+
+    def col_style(col: Any) -> list[str]:
+        who = t.best.get(col.name)
+        return [BEST_STYLE if who is not None and row == who else "" for row in col.index]
+
+    return cells.style.apply(col_style, axis=0) if t.best else cells
 
 
 def outlier_summary(res: Results, ch: int) -> str:
