@@ -92,8 +92,8 @@ PRESENT_JS = """
     ev.preventDefault();
     const top = e => e.getBoundingClientRect().top;
     let i;
-    if (d > 0) { i = cs.findIndex(e => top(e) > 8); if (i < 0) i = cs.length - 1; }
-    else { const up = cs.filter(e => top(e) < -8); i = up.length ? cs.indexOf(up[up.length - 1]) : 0; }
+    if (d > 0) { i = cs.findIndex(e => top(e) > 40); if (i < 0) i = cs.length - 1; }
+    else { const up = cs.filter(e => top(e) < -40); i = up.length ? cs.indexOf(up[up.length - 1]) : 0; }
     cs[i].scrollIntoView({block: 'start'});
     window.__navlabChart = i;
   });

@@ -155,7 +155,10 @@ class CompareView:
         st.markdown("##### Summary over the analysis window")
         self.table = st.empty()
         self.notes = st.empty()
-        left, right = st.columns(2)
+        from navlab.ui.frame import presenting
+
+        # side by side; in presentation mode one below the other (one chart per screen)
+        left, right = (st.container(), st.container()) if presenting() else st.columns(2)
         self.rhat = left.empty()
         self.nis = right.empty()
         self._made = False

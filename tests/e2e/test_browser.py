@@ -244,14 +244,23 @@ def test_stop_keeps_partial_results_and_run_resumes(page: Page):
     settle(page)
     button(page, "Run").click()
     expect(page.get_by_text(re.compile(r"\d+/3000 runs \(partial\)"))).to_be_visible(timeout=T)
-    button(page, "Stop").click()
+    # Stop beside Run (#16 item 5), pressed while a batch is in flight (the progress text
+    # "N/3000 runs…" is shown only while one computes): that batch is kept, not thrown away
+    inflight = page.get_by_text(re.compile(r"^\d+/3000 runs…$"))
+    expect(inflight).to_be_visible(timeout=T)
+    at_click = int(inflight.inner_text().split("/")[0])
+    stop = button(page, "Stop")
+    run_box = button(page, "Run").bounding_box()
+    stop_box = stop.bounding_box()
+    assert abs(stop_box["y"] - run_box["y"]) < 20  # on the Run button's line
+    stop.click()
     stopped = page.get_by_text(re.compile(r"Stopped after \d+ of 3000 runs"))
     expect(stopped).to_be_visible(timeout=T)
     settle(page)
     assert_no_exception(page)
     expect(page.locator(DRAWN).first).to_be_visible()  # the partial curves stay on the page
     done = int(re.search(r"after (\d+) of", stopped.inner_text()).group(1))
-    assert 0 < done < 3000
+    assert at_click <= done < 3000  # the batch in flight at the click is among the runs kept
     button(page, "Run").click()  # resumes, does not restart
     expect(page.get_by_text("3000/3000 runs (complete)")).to_be_visible(timeout=3 * T)
     settle(page)
