@@ -106,7 +106,7 @@ def test_side_by_side_steps_two_filters_on_the_same_example(open_page):
     assert float(w["KF"]) == 1.0 and float(w["HKF (Huber)"]) < 0.2  # the outlier at epoch 5
     at.multiselect(key="cmp").set_value(["kf", "huber-kf", "chi2-kf"]).run()
     assert_clean(at)
-    assert len([d for d in at.dataframe if "error after the update (m)" in d.value.columns][0].value) == 3
+    assert len(next(d for d in at.dataframe if "error after the update (m)" in d.value.columns).value) == 3
 
 
 def test_play_advances_the_step_and_stops_at_the_end(open_page):
