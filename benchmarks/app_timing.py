@@ -27,6 +27,8 @@ sys.path.insert(0, str(ROOT))
 
 
 def server_timings(repeat: int) -> None:
+    from navlab import tables
+    from navlab.diagnostics import explain
     from navlab.experiment import ExperimentSpec, run_experiment
     from navlab.filters import registry
     from navlab.scenarios import scenario_registry
@@ -61,18 +63,27 @@ def server_timings(repeat: int) -> None:
             pass
         return time.perf_counter() - t
 
+    def statistics(res) -> float:
+        """The page's table: every headline interval and the paired test against the KF."""
+        t = time.perf_counter()
+        tables.headline(res, compare_to="kf" if "kf" in res.runs else None, explanations=False)
+        explain(res)
+        return time.perf_counter() - t
+
     for name, spec in cases:
         print(f"\n{name}: filters {', '.join(spec.filters)}")
         for i in range(repeat):
             t = time.perf_counter()
-            run_experiment(spec)
+            res = run_experiment(spec)
             one = time.perf_counter() - t
+            stat = statistics(res)
             runner._COST.clear()  # the page's first run of these filters: the cost prior decides
             cold = paged(spec)
             warm = paged(spec)  # again: the costs learned decide
             print(
-                f"  [{i}] one-shot {one:6.2f} s   as the page runs it: first time "
-                f"{cold:6.2f} s, again {warm:6.2f} s"
+                f"  [{i}] one-shot {one:6.2f} s + intervals, paired tests and explanations "
+                f"{stat:5.2f} s = {one + stat:5.2f} s   as the page runs it: first time "
+                f"{cold:6.2f} s, again {warm:6.2f} s (+ the same statistics)"
             )
 
 

@@ -118,7 +118,7 @@ def main() -> int:
     print(f"load: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; {a.sessions} sessions × {a.runs} runs")
     port = free_port()
     url = f"http://127.0.0.1:{port}"
-    log = open(ROOT / "benchmarks" / ".load_test_server.log", "w")  # noqa: SIM115 (closed below)
+    log = open(Path(os.environ.get("TMPDIR", "/tmp")) / "navlab-load-test.log", "w")  # noqa: SIM115 (closed below)
     server = subprocess.Popen(
         [
             sys.executable,

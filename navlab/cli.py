@@ -206,12 +206,13 @@ def _reproduce(a: argparse.Namespace) -> int:
         try:
             out.mkdir(parents=True, exist_ok=True)
             o.verdicts.to_csv(out / f"{rep.key}_verdicts.csv", index=False)
+            (out / f"{rep.key}_verdicts.md").write_text(R.markdown(o), encoding="utf-8")
             o.readings.to_csv(out / f"{rep.key}_readings.csv", index=False)
             for name, df in o.curves.items():
                 df.to_csv(out / name, index=False)
         except OSError as exc:
             raise NavlabError(f"cannot write --outdir {a.outdir}: {exc.strerror}") from None
-        print(f"wrote {len(o.curves) + 2} CSV files to {out}", file=sys.stderr)
+        print(f"wrote {len(o.curves) + 2} CSV files and the verdicts as Markdown to {out}", file=sys.stderr)
     return 0
 
 

@@ -371,11 +371,13 @@ def quad(v: Array, S: Array) -> Array:
     -------
     (...,) values; NaN where S is singular or not finite (never an exception).
 
-    The method depends on d only, never on the batch, so a value depends on its own v and S
-    only, never on the other runs of the chunk it was computed with: the closed form for d ≤ 2;
-    for d = 3 an unpivoted LDLᵀ elimination with the batch axes last (stable for positive-definite
-    S; a shared S factored once; ≈ 2× faster than LAPACK for thousands of matrices); for d ≥ 4 an
-    LU solve per matrix (LAPACK; faster than the elimination from d = 4 on at any batch size).
+    The method depends on d and on whether S is shared, never on the batch, so a value depends on
+    its own v and S only, never on the other runs of the chunk it was computed with: the closed
+    form for d ≤ 2; for d = 3 an unpivoted LDLᵀ elimination with the batch axes last (stable for
+    positive-definite S; a shared S factored once; ≈ 2× faster than LAPACK for thousands of
+    matrices); for d ≥ 4 an LU solve per matrix (LAPACK; faster than the elimination from d = 4 on
+    at any batch size), or, for a shared S, its inverse once and the form element by element
+    (the KF's NEES at 10 000 runs: ≈ 10× faster than a solve per run; equal to it to round-off).
     LU, one matrix at a time, also decides the entries a shortcut could not (a zero pivot or a
     zero determinant of a singular or indefinite S).
     """
@@ -383,6 +385,10 @@ def quad(v: Array, S: Array) -> Array:
     S = np.asarray(S, dtype=float)
     d = v.shape[-1]
     if d > 3:
+        if S.ndim == 2 or (S.ndim >= 3 and S.strides[-3] == 0):
+            q = _quad_shared(v, S)
+            if q is not None:
+                return q
         Sb = np.broadcast_to(S, (*v.shape, d))
         return _quad_lu(v.reshape(-1, d), Sb.reshape(-1, d, d)).reshape(v.shape[:-1])
     # a singular or indefinite S legitimately gives inf/NaN in the shortcuts: redone by LU below
@@ -401,6 +407,30 @@ def quad(v: Array, S: Array) -> Array:
         redo = ~np.isfinite(q) & np.isfinite(v).all(axis=-1) & np.isfinite(Sb).all(axis=(-2, -1))
     if redo.any():
         q[redo] = _quad_lu(v[redo], Sb[redo])
+    return q
+
+
+def _quad_shared(v: Array, S: Array) -> Array | None:
+    """vᵀ S⁻¹ v for an S shared along the axis before its matrix axes (the KF's P, the same for
+    every run): S inverted once per distinct matrix (LAPACK), then q = Σᵢ vᵢ Σₖ vₖ (S⁻¹)ₖᵢ element by
+    element in a fixed order, so a value does not depend on the batch. None (the caller falls
+    back to LU per matrix) where an S is singular or not finite.
+    """
+    d = v.shape[-1]
+    Su = S if S.ndim == 2 else S[..., :1, :, :]  # the distinct matrices
+    if not np.isfinite(Su).all():
+        return None
+    try:
+        inv = np.linalg.inv(Su)
+    except np.linalg.LinAlgError:
+        return None
+    q = np.zeros(v.shape[:-1])
+    with np.errstate(over="ignore", invalid="ignore"):  # a run-away's v is inf: its value inf/NaN
+        for i in range(d):
+            y = v[..., 0] * inv[..., 0, i]
+            for k in range(1, d):
+                y += v[..., k] * inv[..., k, i]
+            q += y * v[..., i]
     return q
 
 

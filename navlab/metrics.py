@@ -31,6 +31,7 @@ differences against a reference filter.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -77,6 +78,7 @@ DIFF_COLUMNS = ["vs", "p_value", "p_holm", "verdict"]
 # --------------------------------------------------------------------------- array helpers
 
 
+@functools.lru_cache(maxsize=1024)
 def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
     """Two-sided band of an average over ``runs`` of χ²(dof) variables: χ²(N·dof)/N quantiles.
 

@@ -37,6 +37,7 @@ T. C. Hesterberg, "What teachers should know about the bootstrap", The American 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -101,6 +102,7 @@ class Estimator:
     """
 
     n: int  # runs
+    smooth = True  # a smooth function of run means: the BCa acceleration applies
 
     def point(self) -> float:
         raise NotImplementedError
@@ -110,6 +112,14 @@ class Estimator:
 
     def influence(self) -> Array | None:
         return None
+
+    def psi(self) -> Array | None:
+        """:meth:`influence`, computed once per estimator (the delta method and every paired
+        comparison of this estimator reuse it).
+        """
+        if "_psi" not in self.__dict__:
+            self.__dict__["_psi"] = self.influence()
+        return self.__dict__["_psi"]
 
 
 def _safe_div(a: Array, b: Array) -> Array:
@@ -206,8 +216,11 @@ class MeanSqrtRatio(Estimator):
 class MaxSqrtRatio(MeanSqrtRatio):
     """``scale · max_k √(Σ_r num_rk / Σ_r den_rk)``: the peak of the per-epoch Monte Carlo RMSE.
 
-    Not smooth (the epoch of the peak can change between resamples): bootstrap only.
+    Not smooth (the epoch of the peak can change between resamples): bootstrap only, bias
+    corrected but without the jackknife acceleration (meaningless for a maximum).
     """
+
+    smooth = False
 
     def _f(self, N: Array, D: Array) -> Array:
         r = np.sqrt(_safe_div(N, D))
@@ -224,8 +237,10 @@ class Quantile(Estimator):
 
     E.g. the median horizontal error over all epochs and runs. Bootstrap only (no delta form):
     the runs' values are sorted once, then each resample is a weighted quantile (cumulative run
-    weights along the sorted values).
+    weights along the sorted values). Not smooth: bias corrected, no jackknife acceleration.
     """
+
+    smooth = False
 
     def __init__(self, values: Array, q: float) -> None:
         v = np.asarray(values, dtype=float)
@@ -266,6 +281,7 @@ class _Combined(Estimator):
         if a.n != b.n:
             raise ValueError("a paired comparison needs the same runs for both estimators")
         self.a, self.b, self.relative, self.n = a, b, relative, a.n
+        self.smooth = a.smooth and b.smooth
 
     def _op(self, va, vb):
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -278,7 +294,7 @@ class _Combined(Estimator):
         return self._op(self.a.boot(W), self.b.boot(W))
 
     def influence(self) -> Array | None:
-        ia, ib = self.a.influence(), self.b.influence()
+        ia, ib = self.a.psi(), self.b.psi()
         if ia is None or ib is None:
             return None
         if not self.relative:
@@ -289,6 +305,7 @@ class _Combined(Estimator):
         return (ia - (va / vb) * ib) / vb
 
 
+@functools.lru_cache(maxsize=256)
 def expanded_tail(n: int, level: float = LEVEL) -> float:
     """Tail probability α′/2 of the expanded percentile interval for ``n`` runs (module note)."""
     if n < 2:
@@ -365,7 +382,7 @@ class Resampler:
     def method(self, est: Estimator) -> str:
         if self.n < MIN_RUNS:
             return ""
-        if self.n >= DELTA_FROM and est.influence() is not None:
+        if self.n >= DELTA_FROM and est.psi() is not None:
             return "delta"
         return "bootstrap"
 
@@ -380,6 +397,8 @@ class Resampler:
             return t, 0.0, 0.0
         below = float(np.mean(t < v) + 0.5 * np.mean(t == v))
         z0 = float(ndtri(np.clip(below, 0.5 / self.n_boot, 1.0 - 0.5 / self.n_boot)))
+        if not est.smooth:  # a maximum or a quantile: bias-corrected percentile, no acceleration
+            return t, z0, 0.0
         j = self.jackknife(est)
         j = j[np.isfinite(j)]
         d = j.mean() - j if j.size else np.zeros(1)
@@ -398,7 +417,7 @@ class Resampler:
         if not np.isfinite(v):
             return Estimate(v, note="no value")
         if how == "delta":
-            psi = est.influence()
+            psi = est.psi()
             se = float(np.sqrt(np.sum(psi**2)) / self.n)
             return Estimate(v, v - Z * se, v + Z * se, "delta")
         got = self._bca(est, v)
@@ -417,7 +436,7 @@ class Resampler:
         if not e.method:
             return Comparison(e.value, e.lo, e.hi, float("nan"), "", self.n, e.note)
         if e.method == "delta":
-            psi = d.influence()
+            psi = d.psi()
             se = float(np.sqrt(np.sum(psi**2)) / self.n)
             return Comparison(e.value, e.lo, e.hi, _normal_p(e.value, se), "delta", self.n)
         t, z0, acc = self._bca(d, e.value)

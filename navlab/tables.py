@@ -155,10 +155,16 @@ def headline_metrics(res: Results) -> list[str]:
 
 
 def headline(
-    res: Results, compare_to: str | None = None, metrics: list[str] | None = None, best: bool = False
+    res: Results,
+    compare_to: str | None = None,
+    metrics: list[str] | None = None,
+    explanations: bool = True,
+    best: bool = False,
 ) -> Table:
     """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
     the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
+    ``explanations``: the known failure mechanisms as footnotes (the app shows them as boxes with
+    a link to the Learn page instead).
 
     ``best``: find, per metric that has a direction (errors, detection rates), the filter that
     the paired test says is better than EVERY other filter (:func:`navlab.metrics.best_filter`,
@@ -207,7 +213,7 @@ def headline(
             key, _ = M.best_filter(res, m)
             if key is not None:
                 winners[metric_name(m, data)] = res.runs[key].label
-    notes += footnotes(res, sm)
+    notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
     helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
     helps.update(COLUMN_HELP)
@@ -219,7 +225,9 @@ def headline(
     return Table(cells, notes, {c: h for c, h in helps.items() if h and c in cells.columns}, winners)
 
 
-def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
+def footnotes(
+    res: Results, sm: M.Summary | None = None, explanations: bool = True, rows: pd.DataFrame | None = None
+) -> list[str]:
     """How the numbers were made: window, intervals, divergence, skipped entries, fixes."""
     sm = sm or M.summary(res)
     jd = sm.judgement
@@ -246,15 +254,23 @@ def footnotes(res: Results, sm: M.Summary | None = None) -> list[str]:
             + "."
         )
     out.append("Divergence: " + sm.rule + ".")
-    t = sm.rows([])
+    t = sm.rows([]) if rows is None else rows
     skipped = t[t.metric.str.endswith("_skipped") & (t.value > 0)]
     for r in skipped.itertuples():
         what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
         out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden).")
     fixes = t[(t.metric == "numfix_pct") & (t.value > M.NUMFIX_SHOW_PCT)]
+    explained = set()
+    if explanations and sm.arrays:  # the known failure mechanisms (need the per-epoch arrays)
+        from navlab.diagnostics import explain
+
+        for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):
+            out.append(f"{e.sentence} (the Learn page shows how: filter {e.filter})")
+            explained.add((e.filter, e.kind))
     for r in fixes.itertuples():
-        out.append(
-            f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
-            "not outlier decisions."
-        )
+        if (r.filter, "numerical_fix") not in explained:
+            out.append(
+                f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
+                "not outlier decisions."
+            )
     return out

@@ -19,7 +19,7 @@ import plotly.graph_objects as go
 from navlab.data.checks import Finding, run_messages
 from navlab.data.loaders import RTKX_SOURCE, SMARTLOC_SOURCE, load_generic
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, FilterRun, Results, plan, run_filters
+from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
 from navlab.ui.colors import TRUTH_COLOR, filter_colors
@@ -140,21 +140,23 @@ def show_findings(st: Any, findings: Sequence[Finding], expanded: bool = False) 
 def run_with_progress(
     spec: ExperimentSpec, on_progress: Callable[[float, str], None] | None = None
 ) -> Results:
-    """Load/prepare the data, then run every filter in one time loop, reporting per epoch."""
+    """Run ``spec`` through the one Monte Carlo driver (one batch: a recording's runs are noise
+    injections on the same data), reporting progress within the batch.
+    """
     t0 = time.perf_counter()
     if on_progress:
         on_progress(0.0, "loading the recording and aligning the INS…")
-    p = plan(spec)
-    data = p.scenario.simulate(p.schedule, p.outliers, list(range(spec.runs)), spec.seed)
-    K = data.K
-    every = max(1, K // 50)
+    last = [0.0]
 
-    def cb(k: int, total: int) -> None:
-        if on_progress and (k % every == 0 or k == total):
-            on_progress(k / total, f"epoch {k}/{total} · {time.perf_counter() - t0:.1f} s")
+    def tick(runs_done: float) -> None:  # progress within the batch, at most every 2 %
+        if on_progress and (runs_done - last[0] >= 0.02 * spec.runs or runs_done >= spec.runs):
+            last[0] = runs_done
+            on_progress(
+                runs_done / spec.runs,
+                f"{100 * runs_done / spec.runs:.0f} % · {time.perf_counter() - t0:.1f} s",
+            )
 
-    runs = run_filters(data, p.filters, on_epoch=cb)
-    return Results(spec=spec, data=data, runs=runs, complete=True, elapsed_s=time.perf_counter() - t0)
+    return list(iter_experiment(spec, on_epoch=tick))[-1]
 
 
 def _dec(n: int) -> slice:

@@ -239,7 +239,9 @@ class CompareView:
 def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> None:
     """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
     ref = ref if ref in res.runs else None
-    t = tables.headline(res, compare_to=ref if len(res.runs) > 1 else None, best=res.complete)
+    t = tables.headline(
+        res, compare_to=ref if len(res.runs) > 1 else None, explanations=False, best=res.complete
+    )
     config = {c: st.column_config.TextColumn(c, help=h) for c, h in t.help.items() if h}
     table.dataframe(highlight_best(t), width="stretch", column_config=config)
     with notes.container():
