@@ -559,7 +559,7 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
     mine = ev.per_set(c.better, c.quantity)
     others = np.array([ev.per_set(r, c.quantity) for r in c.than])
     holds = np.all(sign * (mine[None] - others) < 0, axis=0)
-    share = float(np.mean(holds[np.isfinite(mine)])) if np.isfinite(mine).any() else np.nan
+    share = float(np.mean(holds))  # a set on which the filter kept no run does not hold
     # the pooled paired test, Holm over the competitors; a filter diverging in more than 5 % of
     # the runs loses to a reliable one whatever its numbers
     comps = {r: ev.compare(c.better, r, c.quantity) for r in c.than}
