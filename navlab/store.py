@@ -1,8 +1,9 @@
 """The results store: finished Monte Carlo tasks on disk, keyed by a hash of their configuration.
 
 Every task of a sweep or a tuning (:mod:`navlab.tasks`: one filter's configuration × a block of
-runs) is stored when it finishes, under the SHA-256 of its full configuration and the navlab
-version, so
+runs) is stored when it finishes, under the SHA-256 of its full configuration, the navlab
+version and the code itself (:func:`code_id`: a changed filter, scenario or metric never gets an
+older result back, even between two commits of one version), so
 
 * an interrupted sweep or tuning resumes where it stopped (the finished tasks are found),
 * a repeated one returns at once (every task is found),
@@ -22,6 +23,7 @@ Entries are ``.npz`` files of plain arrays and one JSON header (``numpy.load`` w
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -48,9 +50,21 @@ def default_dir() -> Path:
     return Path(base) / "navlab" / "store"
 
 
+@functools.cache
+def code_id() -> str:
+    """SHA-256 (hex) of the navlab package's Python sources (their paths and contents)."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parent
+    for f in sorted(root.rglob("*.py")):
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
 def key_of(config: Any) -> str:
-    """SHA-256 (hex) of a JSON-serialisable configuration together with the navlab version."""
-    text = json.dumps({"config": config, "navlab": __version__}, sort_keys=True, separators=(",", ":"))
+    """SHA-256 (hex) of a JSON-serialisable configuration, the navlab version and its code."""
+    text = json.dumps(
+        {"config": config, "navlab": __version__, "code": code_id()}, sort_keys=True, separators=(",", ":")
+    )
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 

@@ -5,12 +5,15 @@ Pure (no streamlit); the Reproduce page shows the same rows.
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 import pandas as pd
 
 from navlab import stats as S
 from navlab.reproduce.engine import TOLERANCE, Outcome
 
+WIDTH = 100  # prose (notes, rules) wrapped to a terminal; the verdict table keeps its columns
 RULES = (
     f"Verdicts (docs/STATISTICS.md §4): a number is reproduced when the mean over the seeds lies within "
     f"±{TOLERANCE:.0%} of the paper's value, contradicted when the whole 95 % interval of that mean lies "
@@ -112,23 +115,37 @@ def text(o: Outcome) -> str:
     from navlab.tables import text_table
 
     body = text_table(verdict_table(o), index=False)
-    notes = [f"  {i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    notes = [
+        textwrap.fill(n, WIDTH, initial_indent=f"  {i}. ", subsequent_indent=" " * (4 + len(str(i))))
+        for i, n in enumerate(o.verdicts["note"], 1)
+        if n
+    ]
     counts = o.verdicts["verdict"].value_counts()
     summary = ", ".join(f"{counts.get(v, 0)} {v}" for v in ("reproduced", "contradicted", "inconclusive"))
     return (
         f"{header(o)}\n\n{body}\n\n{len(o.verdicts)} claims: {summary}.\n\nNotes:\n"
         + "\n".join(notes)
-        + f"\n\n{RULES}\n"
+        + f"\n\n{textwrap.fill(RULES, WIDTH)}\n"
     )
 
 
 def markdown(o: Outcome) -> str:
-    """The verdict table as Markdown (the README's reproduction summary is made from this)."""
-    t = verdict_table(o).drop(columns="#")
+    """The verdict table and its notes as Markdown (the README's reproduction summary is made
+    from this: ``tools/readme_reproductions.py``).
+    """
+    t = verdict_table(o)
     cols = list(t.columns)
-    lines = [f"**{o.reproduction.key}** — {o.seeds} seeds × {o.runs} runs", ""]
+    rep = o.reproduction
+    lines = [
+        f"**{rep.key}** — {rep.title}; {o.seeds} seeds × {o.runs} runs, base seed "
+        f"{o.seed}: `python -m navlab reproduce {rep.key} --seeds {o.seeds}`",
+        "",
+    ]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
     for row in t.itertuples(index=False):
         lines.append("| " + " | ".join(str(v).replace("|", "/") for v in row) + " |")
+    notes = [f"{i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    if notes:
+        lines += ["", "Notes (by claim number): " + " ".join(n.rstrip(".") + "." for n in notes)]
     return "\n".join(lines) + "\n"

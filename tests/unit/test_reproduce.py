@@ -98,7 +98,13 @@ def test_every_reproduction_gives_a_verdict_per_claim(key):
     assert len(o.readings) >= len(rep.quantities) and o.curves
     out = text(o)
     assert "None" not in out and "nan" not in out.lower()
-    assert markdown(o).count("\n|") >= len(rep.claims)
+    md = markdown(o)
+    assert md.count("\n|") >= len(rep.claims) and f"reproduce {key} --seeds 2" in md
+    assert "None" not in md and "nan" not in md.lower()
+    if "see note" in md:  # a row that points to a note has it beside the table
+        assert "Notes (by claim number)" in md
+    assert max(len(line) for line in out.splitlines() if not line.startswith(" ")) < 250
+    assert max(len(line) for line in out.splitlines() if line.startswith("  ")) <= 100  # wrapped notes
 
 
 @pytest.fixture(scope="module")

@@ -34,6 +34,14 @@ def test_key_depends_on_configuration_and_version(monkeypatch):
     assert ST.key_of({"x": 1}) == k1
     monkeypatch.setattr(ST, "__version__", "999.0")
     assert ST.key_of({"x": 1}) != k1
+    monkeypatch.undo()
+    assert ST.key_of({"x": 1}) == k1
+    monkeypatch.setattr(ST, "code_id", lambda: "0" * 64)  # a changed source file, same version
+    assert ST.key_of({"x": 1}) != k1
+
+
+def test_code_id_hashes_the_package_sources():
+    assert len(ST.code_id()) == 64 and ST.code_id() == ST.code_id()
 
 
 def test_a_corrupt_file_is_missing_and_removed(tmp_path):
