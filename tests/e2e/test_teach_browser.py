@@ -193,7 +193,7 @@ def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path
     script = _download(page, "Script (.py)").read_text()
     assert "run_experiment(SPEC)" in script
     nb = nbformat.read(nb_path, as_version=4)
-    nbclient.NotebookClient(nb, timeout=600, resources={"metadata": {"path": str(ROOT)}}).execute()
+    nbclient.NotebookClient(nb, timeout=600, resources={"metadata": {"path": str(tmp_path)}}).execute()
     out = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
     got = json.loads(out.strip().splitlines()[-1])
     want = metrics[metrics.metric == "rmse_pos"].set_index("filter")["value"]
