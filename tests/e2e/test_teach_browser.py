@@ -6,6 +6,7 @@ SVG download, and the downloaded notebook executed (nbclient) reproducing the ru
 from __future__ import annotations
 
 import json
+import os
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -183,7 +184,7 @@ def test_svg_download_is_a_publication_figure(page: Page):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path: Path):
+def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path: Path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     page.goto(f"/Compare?{SMALL}&seed=44&go=1")
@@ -193,6 +194,9 @@ def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path
     script = _download(page, "Script (.py)").read_text()
     assert "run_experiment(SPEC)" in script
     nb = nbformat.read(nb_path, as_version=4)
+    # the kernel runs in a temp folder (the notebook writes its figures there) and imports this
+    # checkout's navlab, installed or not
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     nbclient.NotebookClient(nb, timeout=600, resources={"metadata": {"path": str(tmp_path)}}).execute()
     out = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
     got = json.loads(out.strip().splitlines()[-1])
