@@ -2,8 +2,8 @@
 
 import streamlit as st
 
-from navlab.filters import registry
 from navlab.scenarios import scenario_registry
+from navlab.ui import home
 from navlab.ui.frame import frame, page_links
 
 frame(
@@ -44,9 +44,10 @@ Every setting lives in the URL: copy it to share the exact run.
     )
     page_links()
 with right:
-    reg, sreg = registry(), scenario_registry()
-    st.subheader("In this build")
-    st.markdown(f"**{len(reg)} filters:** " + ", ".join(f"`{k}`" for k in reg))
+    home.demo()
+    sreg = scenario_registry()
+    st.subheader("The filters, by family")
+    home.filters_by_family()
     st.markdown(f"**{len(sreg)} scenarios:** " + ", ".join(f"`{k}`" for k in sreg))
     st.subheader("Data sources")
     st.markdown(

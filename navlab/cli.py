@@ -230,8 +230,16 @@ def app_command(args: Sequence[str]) -> list[str]:
 
 
 def _app(args: Sequence[str]) -> int:
-    """Become the Streamlit server (exec): stopping ``navlab app`` stops the server."""
+    """Become the Streamlit server (exec): stopping ``navlab app`` stops the server.
+
+    It runs in app.py's folder, whatever the caller's: Streamlit reads navlab's
+    ``.streamlit/config.toml`` from the working directory (a relative NAVLAB_DATA is made absolute
+    first, so it still names the same folder).
+    """
     cmd = app_command(args)
+    if os.environ.get("NAVLAB_DATA"):
+        os.environ["NAVLAB_DATA"] = os.path.abspath(os.environ["NAVLAB_DATA"])
+    os.chdir(Path(cmd[4]).parent)
     sys.stdout.flush()
     sys.stderr.flush()
     os.execv(cmd[0], cmd)

@@ -43,7 +43,27 @@ HELP = {
     "false_alarm_pct": "share of clean measurements flagged as outliers (codes 1–5)",
     "numfix_pct": "share of measurements where the filter needed a numerical repair (code 9)",
     "diverged": "runs lost to divergence (rule in the footnote)",
+    "h_err_median": "median of the horizontal position error over all epochs and runs",
+    "h_err_p90": "90th percentile of the horizontal position error over all epochs and runs",
 }
+COLUMN_HELP = {
+    "diverged runs": "runs lost to divergence (rule in the footnotes)",
+    "µs per run·step": "filter CPU time per run and epoch (batched over the runs)",
+}
+
+
+def metric_help(metric: str, data) -> str:
+    """The tooltip of a metric's column: what it is, over what, and its interval."""
+    if metric in HELP:
+        return HELP[metric] + "; [lo, hi]: its 95 % interval over runs"
+    for prefix, word in (("mean_rmse_", "mean over runs of each run's RMSE"), ("rmse_", "RMSE")):
+        if metric.startswith(prefix) and metric[len(prefix) :] in data.groups:
+            g = data.groups[metric[len(prefix) :]]
+            return (
+                f"{word} of the {g.label} error ({g.unit}), pooled over the analysis window's epochs "
+                "and the judged runs; [lo, hi]: its 95 % interval over runs"
+            )
+    return ""
 
 
 def metric_name(metric: str, data) -> str:
@@ -109,6 +129,7 @@ class Table:
     cells: pd.DataFrame
     notes: list[str] = field(default_factory=list)
     help: dict[str, str] = field(default_factory=dict)  # column -> tooltip
+    best: dict[str, str] = field(default_factory=dict)  # column -> the row label better than all
 
     def text(self) -> str:
         body = text_table(self.cells) if len(self.cells) else "(no filters)"
@@ -138,11 +159,17 @@ def headline(
     compare_to: str | None = None,
     metrics: list[str] | None = None,
     explanations: bool = True,
+    best: bool = False,
 ) -> Table:
     """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
     the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
     ``explanations``: the known failure mechanisms as footnotes (the app shows them as boxes with
     a link to the Learn page instead).
+
+    ``best``: find, per metric that has a direction (errors, detection rates), the filter that
+    the paired test says is better than EVERY other filter (:func:`navlab.metrics.best_filter`,
+    Holm-corrected): ``Table.best`` maps the column to that row; a column where no filter is
+    better than all others (a point-estimate winner the test does not back) has no entry.
     """
     sm = M.summary(res)
     data = res.data
@@ -178,9 +205,24 @@ def headline(
             f"{col}: paired over the same runs, Δ = filter − {ref_label} with its 95 % interval; "
             f"better/worse when Holm-corrected p < 0.05 across the {len(res.runs) - 1} other filters"
         )
+    winners: dict[str, str] = {}
+    if best and len(res.runs) > 1:
+        for m in metrics:
+            if M.direction(m) == 0:
+                continue
+            key, _ = M.best_filter(res, m)
+            if key is not None:
+                winners[metric_name(m, data)] = res.runs[key].label
     notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
-    return Table(cells, notes, {metric_name(m, data): HELP.get(m, "") for m in metrics if m in HELP})
+    helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
+    helps.update(COLUMN_HELP)
+    if compare_to is not None and compare_to in res.runs and metrics:
+        helps[f"vs {res.runs[compare_to].label}, {metric_name(metrics[0], data)}"] = (
+            "paired difference from the reference over the same runs, with its 95 % interval and "
+            "the Holm-corrected verdict"
+        )
+    return Table(cells, notes, {c: h for c, h in helps.items() if h and c in cells.columns}, winners)
 
 
 def footnotes(

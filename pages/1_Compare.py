@@ -3,11 +3,13 @@
 import streamlit as st
 
 from navlab.metrics import summarize
+from navlab.notebook import default_figures, notebook, script
 from navlab.ui import figures as F
+from navlab.ui import single
 from navlab.ui.frame import frame
 from navlab.ui.runner import request_run, run_live, run_requested
-from navlab.ui.share import config_download, csv_download
-from navlab.ui.views import CompareView, show_stored
+from navlab.ui.share import config_download, csv_download, run_on_open, text_download
+from navlab.ui.views import CompareView, headline_groups, show_stored
 from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "compare"
@@ -17,15 +19,19 @@ frame(
     "⚖️",
     "Every chosen filter runs on the same simulated measurements. Set the experiment in the "
     "sidebar, press Run; the curves update as batches of Monte Carlo runs finish.",
+    experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "compare")
+spec = sidebar_experiment(PageDefaults(), PAGE)
 
-c1, c2, c3, c4 = st.columns([1, 1, 1, 3])
-if c1.button("Run", type="primary", key="run_compare"):
+# Run, Stop and the progress on one line, above the charts
+c1, c2, c3 = st.columns([1, 1, 6], vertical_alignment="center")
+if c1.button("Run", type="primary", key="run_compare") or run_on_open(PAGE, spec):
     request_run(PAGE, spec)
-config_download(spec, key="dl_cfg_compare", container=c2)
-live = c3.toggle(
+stop_box, progress_box = c2.empty(), c3.container()
+o1, o2, o3 = st.columns([1, 1, 4], vertical_alignment="center")
+config_download(spec, key="dl_cfg_compare", container=o1)
+live = o2.toggle(
     "Live updates",
     value=True,
     key="compare_live",
@@ -35,7 +41,7 @@ live = c3.toggle(
     "batch, which is faster because every batch pays the per-epoch overhead "
     "of every filter once",
 )
-c4.caption(
+o3.caption(
     f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "
     f"noise `{spec.noise_schedule}` · outliers `{spec.outliers}`"
 )
@@ -43,14 +49,24 @@ c4.caption(
 view = CompareView(PAGE)
 if run_requested(PAGE, spec):
     view.live = True
-    res = run_live(spec, PAGE, view.render, first_chunk=None if live else spec.runs)
+    res = run_live(
+        spec,
+        PAGE,
+        view.render,
+        first_chunk=None if live else spec.runs,
+        progress_container=progress_box,
+        stop_container=stop_box,
+    )
     view.live = False
 else:
     res = show_stored(view, spec)
 
 if res is not None and res.complete:
+    group = view.group if view.group in res.data.groups else headline_groups(res)[0]
+    single.render(res, PAGE, group)
     st.markdown("##### Downloads")
-    d1, d2, _ = st.columns([1, 1, 3])
+    figs = default_figures(group, view.channel or 0)
+    d1, d2, d3, d4, _ = st.columns([1, 1, 1, 1, 2])
     csv_download(
         lambda: summarize(res, compare_to=view.ref),
         "Metrics (CSV)",
@@ -64,4 +80,22 @@ if res is not None and res.complete:
         "navlab-rmse-per-epoch.csv",
         "dl_curves_compare",
         container=d2,
+    )
+    text_download(
+        lambda: notebook(spec, figs),
+        "Notebook (.ipynb)",
+        "navlab-run.ipynb",
+        "dl_nb_compare",
+        "application/x-ipynb+json",
+        "a Jupyter notebook that re-runs this experiment with navlab and redraws these figures",
+        container=d3,
+    )
+    text_download(
+        lambda: script(spec, figs),
+        "Script (.py)",
+        "navlab-run.py",
+        "dl_py_compare",
+        "text/x-python",
+        "a Python script that re-runs this experiment and writes the figures as SVG and PNG",
+        container=d4,
     )

@@ -2,38 +2,30 @@
 
 import streamlit as st
 
-from navlab.filters import registry
 from navlab.ui.frame import frame
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download
-from navlab.ui.views import NoiseView, show_stored
+from navlab.ui.views import NoiseView, noise_preset_button, show_stored
 from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "noise"
-
-
-def noise_defaults() -> PageDefaults:
-    """A step in σ plus isolated outliers, the KF and (up to 5) filters that estimate R."""
-    reg = registry()
-    est = [k for k, c in reg.items() if c.estimates_R and k != "oracle-kf"][:4]
-    filters = tuple(k for k in ("kf", "oracle-kf", *est) if k in reg)
-    return PageDefaults(filters=filters, runs=50, noise_schedule="step", outliers="isolated")
-
 
 frame(
     "Noise: R̂ inspection",
     "📈",
     "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
     "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.",
+    experiment=True,
 )
 
-spec = sidebar_experiment(noise_defaults(), "noise")
+spec = sidebar_experiment(PageDefaults(), "noise")
 
-c1, c2, c3 = st.columns([1, 1, 4])
+c1, c2, c3, c4 = st.columns([1, 1, 2, 3])
 if c1.button("Run", type="primary", key="run_noise"):
     request_run(PAGE, spec)
 config_download(spec, key="dl_cfg_noise", container=c2)
-c3.caption(
+noise_preset_button(spec, c3)
+c4.caption(
     f"{len(spec.filters)} filters × {spec.runs} runs · noise `{spec.noise_schedule}` · "
     f"outliers `{spec.outliers}`"
 )

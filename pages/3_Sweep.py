@@ -19,9 +19,10 @@ frame(
     "🎚️",
     "Vary one parameter — contamination ratio, outlier scale, noise level, a filter's tuning "
     "constant — or two at once, over a range, and compare every chosen filter at each value.",
+    experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(runs=30), "sweep", header="Base experiment")
+spec = sidebar_experiment(PageDefaults(), "sweep", header="Base experiment")
 
 params = {s.id: s for s in U.sweepables(spec)}
 if not params:

@@ -10,6 +10,7 @@ from navlab.reproduce.report import RULES, header
 from navlab.ui import reproduce as ui
 from navlab.ui.frame import frame
 from navlab.ui.runner import show_error
+from navlab.ui.views import chart
 
 frame(
     "Reproduce the papers",
@@ -109,12 +110,7 @@ with st.expander("Why each verdict (notes per claim) and the rules"):
         if note:
             st.markdown(f"{i}. {note}")
     st.caption(RULES)
-st.plotly_chart(
-    ui.claims_figure(o),
-    width="stretch",
-    config=ui.CONFIG,
-    alt="navlab's value relative to the paper's for every number claim",
-)
+chart(st, ui.claims_figure(o), "navlab's value relative to the paper's for every number claim", name="claims")
 st.download_button(
     "Verdicts (CSV)",
     o.verdicts.to_csv(index=False).encode(),
@@ -139,7 +135,7 @@ if o.curves:
     tabs = st.tabs([n.removeprefix(f"{key}_").removesuffix(".csv") for n in names])
     for tab, name in zip(tabs, names, strict=True):
         with tab:
-            st.plotly_chart(ui.curve_figure(o, name), width="stretch", config=ui.CONFIG, alt=f"Curves {name}")
+            chart(st, ui.curve_figure(o, name), f"Curves {name}", name=name)
             st.download_button(
                 f"Download {name}",
                 o.curves[name].to_csv(index=False).encode(),

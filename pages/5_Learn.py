@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from navlab.learn import TinySpec, caveat
+from navlab.learn import TinySpec
 from navlab.ui import learn as ui
 from navlab.ui.frame import frame
 
@@ -28,6 +28,8 @@ DEFAULTS = {
     "ex_noise": 1.0,
     "ex_seed": 0,
     "step": 1,
+    "lmode": "One filter",
+    "cmp": ["kf", "huber-kf"],
 }
 for k, v in DEFAULTS.items():
     st.session_state.setdefault(k, v)
@@ -38,10 +40,35 @@ if not keys:
     st.stop()
 if st.session_state["filter"] not in keys:
     st.session_state["filter"] = keys[0]
-# no format_func: a bound selectbox puts the formatted option in the URL; keys keep it short
-key = st.selectbox("Filter (registry key)", keys, key="filter", bind="query-params")
-
-ui.render_filter_card(key)
+mode = (
+    st.segmented_control(
+        "View",
+        ["One filter", "Side by side"],
+        key="lmode",
+        bind="query-params",
+        help="side by side: two or three filters on the same tiny example and the same outlier, "
+        "stepped together",
+    )
+    or "One filter"
+)
+if mode == "Side by side":
+    ok = [k for k in st.session_state["cmp"] if k in keys][:3]
+    if ok != list(st.session_state["cmp"]):
+        st.session_state["cmp"] = ok or keys[:2]
+    compared = st.multiselect(
+        "Filters side by side (2 or 3)",
+        keys,
+        key="cmp",
+        max_selections=3,
+        bind="query-params",
+        format_func=lambda k: f"{k} — {ui.registry()[k].label}",
+    )
+    key = compared[0] if compared else keys[0]
+else:
+    compared = []
+    # no format_func: a bound selectbox puts the formatted option in the URL; keys keep it short
+    key = st.selectbox("Filter (registry key)", keys, key="filter", bind="query-params")
+    ui.render_filter_card(key)
 
 st.divider()
 st.subheader("Step through single updates")
@@ -95,33 +122,11 @@ spec = TinySpec(
     noise_scale=float(ns),
     seed=int(seed),
 )
-res = ui.safe_step_through(key, spec)
-if res is None:
-    st.stop()
-if not res.applicable:
-    st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}", icon=":material/block:")
+if mode == "Side by side":
+    ui.render_side_by_side(compared, spec)
 else:
-    note = caveat(key)
-    if note:
-        st.info(note, icon=":material/info:")
-    if st.session_state["step"] > res.epochs:
-        st.session_state["step"] = res.epochs
-    step = st.slider("Step (epoch k)", 1, res.epochs, key="step", bind="query-params")
-    ui.step_buttons(res.epochs)
-    ui.render_step(res, int(step))
-    st.plotly_chart(
-        ui.overview_figure(res, int(step)),
-        width="stretch",
-        config=ui.CONFIG,
-        alt="Step-through overview: measurements, NIS against the χ² threshold, R and weights",
-    )
-    st.download_button(
-        "Download the step table (CSV)",
-        res.steps.to_csv(index=False).encode(),
-        file_name=f"navlab-learn-{key}.csv",
-        mime="text/csv",
-        on_click="ignore",
-    )
+    ui.render_one(key, spec)
+ui.compare_link(compared or [key], spec)
 
 with st.expander("Which filters can run on the tiny example?"):
     st.dataframe(ui.cached_applicability(spec), hide_index=True, width="stretch")

@@ -9,6 +9,7 @@ from navlab.ui import realdata as R
 from navlab.ui.frame import frame
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
+from navlab.ui.views import chart
 from navlab.ui.widgets import BIND
 
 frame(
@@ -186,11 +187,9 @@ else:
         f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
         "Median/90 % horizontal errors pool every epoch and run."
     )
-    st.plotly_chart(R.track_figure(res, run), width="stretch", config={"displaylogo": False}, key="rd_track")
+    chart(st, R.track_figure(res, run), "track in local east/north metres", key="rd_track", name="track")
     log_y = st.toggle("log scale", False, key="rd_log")
-    st.plotly_chart(
-        R.error_figure(res, run, log_y), width="stretch", config={"displaylogo": False}, key="rd_err"
-    )
+    chart(st, R.error_figure(res, run, log_y), "horizontal error over time", key="rd_err", name="error")
     if any(fr.R_hat is not None for fr in res.runs.values()):
         ch = st.selectbox(
             "Channel (satellite or axis) for R̂",
@@ -198,15 +197,13 @@ else:
             format_func=lambda i: d.channel_names[i],
             key="rd_ch",
         )
-        st.plotly_chart(
-            R.rhat_figure(res, ch, run), width="stretch", config={"displaylogo": False}, key="rd_rhat"
-        )
+        chart(st, R.rhat_figure(res, ch, run), "R-hat per channel", key="rd_rhat", name="rhat")
         if d.scenario == "smartloc-berlin":
             st.caption(
                 "Pseudorange channels are whitened by the variance model: R̂ is a variance "
                 "multiplier (1 = the model is right)."
             )
-    st.plotly_chart(R.flags_figure(res, run), width="stretch", config={"displaylogo": False}, key="rd_flags")
+    chart(st, R.flags_figure(res, run), "flagged epochs", key="rd_flags", name="flags")
     ft = R.flag_table(res)
     if not ft.empty and ft.shape[1]:
         st.caption("Share of measurement entries per decision (%)")

@@ -28,9 +28,10 @@ frame(
     "Is a filter better, or just better tuned? Every chosen filter's hyper-parameters are tuned "
     "on the same budget on training seeds; default and tuned filters are then compared on other "
     "(test) seeds with paired statistics.",
+    experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(runs=30), "tune", header="Experiment (test runs)")
+spec = sidebar_experiment(PageDefaults(), "tune", header="Experiment (test runs)")
 
 c1, c2, c3, c4 = st.columns([1, 1, 2, 1])
 budget = int(

@@ -109,6 +109,7 @@ class Cv2d(Scenario):
                 "x_pos": MetricGroup((0,), "m", "x position"),
                 "x_vel": MetricGroup((1,), "m/s", "x velocity"),
                 "y_pos": MetricGroup((2,), "m", "y position"),
+                "y_vel": MetricGroup((3,), "m/s", "y velocity"),
             },
             window=window,
         )

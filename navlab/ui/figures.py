@@ -18,6 +18,9 @@ never one per minor tick; a reference (the true R(t), the χ² band) is drawn in
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import json
 import warnings
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -34,6 +37,7 @@ from navlab.metrics import (
     rmse_per_epoch,
     sq_error,
 )
+from navlab.params import describe
 from navlab.ui.colors import TRUTH_COLOR, filter_colors, rgba
 
 if TYPE_CHECKING:
@@ -902,8 +906,31 @@ def tune_landscape(
     return clean_log_ticks(fig)
 
 
-def schedule_preview(spec, height: int = 220) -> go.Figure:
-    """The chosen noise schedule's true σ(t)/σ_nominal over the run (cheap; shown before a run).
+@functools.lru_cache(maxsize=64)
+def _channels(scenario: str, scenario_json: str) -> tuple[tuple[str, ...], tuple[str, ...], int]:
+    """(channel names, units, m) of a scenario configuration, from a 3-epoch probe (cached)."""
+    from navlab.noise import make_outliers, make_schedule
+    from navlab.scenarios import scenario_registry
+
+    cls = scenario_registry()[scenario]
+    params = json.loads(scenario_json)
+    if cls.simulated and "epochs" in {f["name"] for f in describe(cls.Params)}:
+        params = {**params, "epochs": 3}
+    data = cls(params).simulate(make_schedule("constant"), make_outliers("none"), [0], 0)
+    m = int(data.z.shape[2])
+    names = tuple(data.channel_names[:m]) + tuple(str(i) for i in range(len(data.channel_names), m))
+    units = tuple(data.channel_units[:m]) + ("",) * max(0, m - len(data.channel_units))
+    return names, units, m
+
+
+MAX_PREVIEW_CHANNELS = 12  # beyond this the preview draws the channels' envelope
+
+
+def schedule_preview(spec, height: int = 240) -> go.Figure:
+    """The chosen noise schedule's true σ(t)/σ_nominal over the run, one line per measurement
+    channel (cheap; shown before a run). Channels with the same factor share one line (named
+    after all of them); more than ``MAX_PREVIEW_CHANNELS`` distinct lines are drawn as their
+    lowest and highest factor.
 
     It also makes the browser load plotly.js while the user is still configuring.
     """
@@ -911,18 +938,43 @@ def schedule_preview(spec, height: int = 220) -> go.Figure:
 
     p = plan(spec)
     K = p.scenario.epochs or 100
-    f = p.schedule.std(np.ones(1), K)[:, 0]
+    try:
+        sp = {f.name: getattr(p.scenario.params, f.name) for f in dataclasses.fields(p.scenario.params)}
+        names, _units, m = _channels(spec.scenario, json.dumps(sp, sort_keys=True, default=list))
+    except Exception:  # the preview must never stop the page: one curve, as before
+        names, m = ("all channels",), 1
+    f = p.schedule.std(np.ones(m), K)  # (K+1, m)
     k = np.arange(K + 1, dtype=float)
+    lines: dict[bytes, list[int]] = {}
+    for ch in range(m):
+        lines.setdefault(np.round(f[:, ch], 9).tobytes(), []).append(ch)
     traces: list = []
-    add_line(traces, k, f, "σ(t) / σ nominal", TRUTH_COLOR, "truth", width=2)
+    dashes = ("solid", "dash", "dot", "dashdot", "longdash", "longdashdot")
+    if len(lines) > MAX_PREVIEW_CHANNELS:
+        add_line(traces, k, f.min(axis=1), "lowest channel", TRUTH_COLOR, "lo", width=2)
+        add_line(traces, k, f.max(axis=1), "highest channel", TRUTH_COLOR, "hi", dash="dash", width=2)
+    else:
+        for i, chans in enumerate(lines.values()):
+            label = ", ".join(names[c] for c in chans[:6]) + (" …" if len(chans) > 6 else "")
+            add_line(
+                traces,
+                k,
+                f[:, chans[0]],
+                f"channel {label}" if len(chans) == 1 else f"channels {label}",
+                TRUTH_COLOR if i == 0 else ("#6e7781", "#d62728", "#1f77b4", "#2ca02c")[i % 4],
+                f"ch{i}",
+                dash=dashes[i % len(dashes)],
+                width=2,
+            )
     fig = _figure(
         traces,
         f"Noise schedule '{spec.noise_schedule}': true σ(t) relative to the σ the filters assume",
         "epoch",
         "σ / σ nominal",
         height=height,
+        subtitle=f"{m} measurement channel" + ("s" if m != 1 else ""),
     )
-    fig.update_layout(showlegend=False, hovermode="closest")
+    fig.update_layout(hovermode="closest")
     return fig
 
 

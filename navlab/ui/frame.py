@@ -1,4 +1,13 @@
-"""The frame every page draws first: page config, sidebar footer, data/licence note."""
+"""The frame every page draws first: page config, the page menu, presentation mode.
+
+* The page menu (sidebar) links carry the experiment from one page to the next: the links to the
+  run pages (Compare, Noise, Sweep, Tune) hold the last experiment's URL parameters
+  (:func:`navlab.ui.widgets.spec_query`), so the experiment chosen on one page is the experiment
+  on the next; on a run page they are drawn after its widgets (:func:`fill_nav`).
+* Presentation mode (``?present=1`` on any page, carried by every link): large type, no sidebar,
+  charts sized to fill a screen, and the keyboard moves between charts (→ / PageDown / n next,
+  ← / PageUp / p previous); a chart's export buttons are hidden.
+"""
 
 from __future__ import annotations
 
@@ -17,6 +26,9 @@ PAGES = (  # (file, sidebar label, title on the home page, icon)
     ("pages/5_Learn.py", "Learn", "Learn: filters step by step", ":material/school:"),
     ("pages/6_Real_data.py", "Real data", "Real data", ":material/directions_car:"),
 )
+RUN_PAGES = ("pages/1_Compare.py", "pages/2_Noise.py", "pages/3_Sweep.py", "pages/7_Tune.py")
+PRESENT = "present"  # the URL flag of presentation mode
+_run = threading.local()  # this script run's page-menu container (script runs are per thread)
 
 
 def _warm() -> None:
@@ -42,17 +54,77 @@ def _warm_once() -> threading.Thread:
     return t
 
 
-def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
-    """Page config + title (+ an intro line) + sidebar footer. Call first on every page.
+def presenting() -> bool:
+    """Whether this page is shown in presentation mode (``?present=1``)."""
+    with contextlib.suppress(Exception):  # no script run (a test calling a view directly)
+        return str(st.query_params.get(PRESENT, "")).lower() in ("1", "true", "yes")
+    return False
 
-    The first page view of a server process also warms the plotting and filtering code in a
-    background thread, so the first Run does not pay for cold imports.
+
+PRESENT_CSS = """
+<style>
+html { font-size: 22px; }
+[data-testid="stSidebar"], [data-testid="stSidebarCollapsedControl"],
+[data-testid="stExpandSidebarButton"], header[data-testid="stHeader"] { display: none !important; }
+[data-testid="stMainBlockContainer"] { max-width: 100% !important; padding: 1rem 3rem 40vh 3rem; }
+[data-testid="stPlotlyChart"] { scroll-margin-top: 0.5rem; }
+h1 { font-size: 2.4rem !important; }
+</style>
+"""
+# → / PageDown / n: the next chart to the top of the screen; ← / PageUp / p: the previous one
+# (not while typing in a widget or moving a slider).
+PRESENT_JS = """
+<script>
+(() => {
+  if (window.__navlabPresent) return;
+  window.__navlabPresent = true;
+  const charts = () => Array.from(document.querySelectorAll('[data-testid="stPlotlyChart"]'))
+    .filter(e => e.getBoundingClientRect().height > 0);
+  document.addEventListener('keydown', ev => {
+    const t = ev.target;
+    if (ev.altKey || ev.ctrlKey || ev.metaKey) return;
+    const typing = 'input, textarea, select, [role="slider"], [contenteditable="true"]';
+    if (t && t.closest && t.closest(typing)) return;
+    const d = ['ArrowRight', 'PageDown', 'n'].includes(ev.key) ? 1
+      : ['ArrowLeft', 'PageUp', 'p'].includes(ev.key) ? -1 : 0;
+    const cs = charts();
+    if (!d || !cs.length) return;
+    ev.preventDefault();
+    const top = e => e.getBoundingClientRect().top;
+    let i;
+    if (d > 0) { i = cs.findIndex(e => top(e) > 40); if (i < 0) i = cs.length - 1; }
+    else { const up = cs.filter(e => top(e) < -40); i = up.length ? cs.indexOf(up[up.length - 1]) : 0; }
+    cs[i].scrollIntoView({block: 'start'});
+    window.__navlabChart = i;
+  });
+})();
+</script>
+"""
+
+
+def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experiment: bool = False) -> None:
+    """Page config + title (+ an intro line) + page menu + sidebar footer. Call first on every page.
+
+    ``experiment``: the page draws the shared experiment sidebar (its page menu is drawn after
+    those widgets, so the links carry this page's experiment). The first page view of a server
+    process also warms the plotting and filtering code in a background thread, so the first Run
+    does not pay for cold imports.
     """
-    st.set_page_config(page_title=f"{title} · navlab", page_icon=icon, layout="wide")
+    st.set_page_config(
+        page_title=f"{title} · navlab",
+        page_icon=icon,
+        layout="wide",
+        initial_sidebar_state="collapsed" if presenting() else "auto",
+    )
     _warm_once()
+    if presenting():
+        st.html(PRESENT_CSS + PRESENT_JS, unsafe_allow_javascript=True)
     # navlab's own page menu (config: client.showSidebarNavigation = false): Streamlit's legacy
     # pages/ menu would list the home page under its file name, "app"
-    page_links(st.sidebar, short=True)
+    _run.nav = st.sidebar.container()
+    _run.charts = 0
+    if not experiment:
+        fill_nav()
     st.sidebar.divider()
     st.title(title)
     if intro:
@@ -63,8 +135,37 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None) -> None:
     )
 
 
+def next_chart_id() -> str:
+    """A key unique within this script run (a streamed view draws the same chart per chunk)."""
+    n = getattr(_run, "charts", 0) + 1
+    _run.charts = n
+    return f"_chart{n}"
+
+
+def carried_query(path: str) -> dict:
+    """The URL parameters a link to page ``path`` carries: the session's experiment (run pages)
+    and presentation mode.
+    """
+    from navlab.ui.widgets import CARRY_KEY
+
+    q = dict(st.session_state.get(CARRY_KEY) or {}) if path in RUN_PAGES else {}
+    if presenting():
+        q[PRESENT] = "1"
+    return q
+
+
+def fill_nav() -> None:
+    """Draw this run's page menu (once) into the container :func:`frame` reserved."""
+    nav = getattr(_run, "nav", None)
+    _run.nav = None
+    if nav is not None:
+        page_links(nav, short=True)
+
+
 def page_links(container=None, short: bool = False) -> None:
-    """Links to the pages that exist (others' pages appear when their files are added)."""
+    """Links to the pages that exist (others' pages appear when their files are added), each
+    carrying the session's experiment and presentation mode (:func:`carried_query`).
+    """
     from pathlib import Path
 
     c = container if container is not None else st
@@ -73,4 +174,6 @@ def page_links(container=None, short: bool = False) -> None:
         if (root / path).exists():
             # a page file added after the server started is not registered yet: no link
             with contextlib.suppress(st.errors.StreamlitAPIException):
-                c.page_link(path, label=label if short else title, icon=icon)
+                c.page_link(
+                    path, label=label if short else title, icon=icon, query_params=carried_query(path) or None
+                )

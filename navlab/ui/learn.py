@@ -376,3 +376,320 @@ def safe_step_through(key: str, spec: TinySpec) -> StepThrough | None:
     except NavlabError as exc:
         st.error(str(exc))
         return None
+
+
+# ------------------------------------------------------------------------------ side by side
+def side_by_side_figure(results: list[StepThrough], step: int) -> go.Figure:
+    """Two or three filters on the same tiny example, stacked panels over the epochs, the current
+    ``step`` marked: 1 the measurements of the first channel (the outlier red ×), the truth and
+    each filter's posterior estimate of the measured state; 2 each filter's weight on that
+    channel; 3 the R each used in its gain (log) against the true R; 4 each filter's position
+    error |x⁺ − x|.
+    """
+    fig = make_subplots(
+        rows=4,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.05,
+        row_heights=(0.34, 0.2, 0.23, 0.23),
+        subplot_titles=(
+            "measurement z, truth and each filter's estimate x⁺ (first channel)",
+            "weight on the first channel (1 = untouched)",
+            "R used in the gain (first channel) and the true R",
+            "position error |x⁺ − x| (all measured axes)",
+        ),
+    )
+    first = results[0]
+    ch0 = first.data.channel_names[0]
+    st0 = first.steps[first.steps["channel"] == ch0]
+    x = _a(st0["epoch"])
+    names = first.data.channel_names
+    nmeas = len(names)
+    for res in results:
+        color = filter_color(res.key)
+        g = res.steps[res.steps["channel"] == ch0]
+        post = res.states[(res.states["state"] == res.data.state_names[0]) & (res.states["epoch"] > 0)]
+        fig.add_trace(
+            go.Scatter(
+                x=_a(post["epoch"]),
+                y=_a(post["posterior"]),
+                name=res.label,
+                mode="lines+markers",
+                line={"color": color, "width": 2.5},
+                legendgroup=res.key,
+            ),
+            row=1,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=_a(g["epoch"]),
+                y=_a(g["weight"]),
+                name=res.label,
+                mode="lines+markers",
+                line={"color": color},
+                text=g["flag_name"].astype(str).to_numpy(),
+                hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
+                legendgroup=res.key,
+                showlegend=False,
+            ),
+            row=2,
+            col=1,
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=_a(g["epoch"]),
+                y=_a(g["R_used"]),
+                name=res.label,
+                mode="lines+markers",
+                line={"color": color},
+                legendgroup=res.key,
+                showlegend=False,
+            ),
+            row=3,
+            col=1,
+        )
+        err = res.states[res.states["epoch"] > 0].copy()
+        err = err[err["state"].isin(res.data.state_names[:nmeas])]
+        e = err.assign(sq=err["error"].to_numpy(dtype=float) ** 2).groupby("epoch")["sq"].sum() ** 0.5
+        fig.add_trace(
+            go.Scatter(
+                x=_a(pd.Series(e.index, dtype=float)),
+                y=_a(e),
+                name=res.label,
+                mode="lines+markers",
+                line={"color": color},
+                legendgroup=res.key,
+                showlegend=False,
+            ),
+            row=4,
+            col=1,
+        )
+    fig.add_trace(
+        go.Scatter(
+            x=x,
+            y=_a(st0["z"]),
+            name="measurement z",
+            mode="markers",
+            marker={"color": "#555555", "symbol": "circle-open", "size": 9},
+        ),
+        row=1,
+        col=1,
+    )
+    out = st0[st0["outlier"]]
+    if len(out):
+        fig.add_trace(
+            go.Scatter(
+                x=_a(out["epoch"]),
+                y=_a(out["z"]),
+                name="outlier",
+                mode="markers",
+                marker={"color": "#d62728", "symbol": "x", "size": 13},
+            ),
+            row=1,
+            col=1,
+        )
+    fig.add_trace(
+        go.Scatter(
+            x=x, y=_a(st0["truth"]), name="truth", mode="lines", line={"color": TRUTH_COLOR, "width": 2}
+        ),
+        row=1,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=x,
+            y=_a(st0["R_true"]),
+            name="true R",
+            mode="lines",
+            line={"color": TRUTH_COLOR, "width": 2.5},
+            showlegend=False,
+        ),
+        row=3,
+        col=1,
+    )
+    for r in (1, 2, 3, 4):
+        fig.add_vline(x=step, line={"color": "#f0a500", "width": 2}, opacity=0.5, row=r, col=1)
+    fig.update_yaxes(title_text=f"{ch0} (m)", row=1, col=1)
+    fig.update_yaxes(range=[-0.05, 1.1], title_text="weight", row=2, col=1)
+    fig.update_yaxes(type="log", title_text="R (m²)", row=3, col=1)
+    fig.update_yaxes(title_text="error (m)", row=4, col=1)
+    fig.update_xaxes(title_text="epoch k", dtick=1 if first.epochs <= 20 else 2, row=4, col=1)
+    fig.update_layout(height=860, hovermode="x unified")
+    readable(fig, title_above=False)
+    fig.update_layout(margin_t=40)
+    return fig
+
+
+def side_by_side_table(results: list[StepThrough], step: int) -> pd.DataFrame:
+    """One row per filter at epoch ``step``: innovation, NIS against the threshold, weight and
+    flag of each channel, the R it used, its error after the update.
+    """
+    rows = []
+    for res in results:
+        s = res.steps[res.steps["epoch"] == step]
+        states = res.states[res.states["epoch"] == step]
+        nmeas = len(res.data.channel_names)
+        err = float(np.sqrt((states["error"].to_numpy(dtype=float)[:nmeas] ** 2).sum()))
+        rows.append(
+            {
+                "filter": res.label,
+                "innovation ν": ", ".join(f"{v:.3g}" for v in s["innov"]),
+                "NIS": f"{s['nis'].iloc[0]:.3g}",
+                "χ² threshold": f"{s['nis_threshold'].iloc[0]:.3g}",
+                "weight": ", ".join(f"{v:.3g}" for v in s["weight"]),
+                "flag": ", ".join(s["flag_name"].astype(str)),
+                "R used": ", ".join(f"{v:.3g}" for v in s["R_used"]),
+                "error after the update (m)": f"{err:.3g}",
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+# ------------------------------------------------------------------------------ play button
+PLAY_EVERY_S = 0.8
+
+
+def play_button(n_steps: int, key: str = "step", container=None) -> None:
+    """▶ play / ❚❚ pause for the step slider ``key`` (a full rerun starts or stops the timer of
+    :func:`stepper`); at the last step, play starts again from the first.
+    """
+    c = container if container is not None else st
+    flag = f"{key}_playing"
+
+    def toggle() -> None:
+        on = not st.session_state.get(flag, False)
+        st.session_state[flag] = on
+        if on and st.session_state.get(key, 1) >= n_steps:
+            st.session_state[key] = 1
+
+    playing = st.session_state.get(flag, False)
+    c.button(
+        "❚❚ pause" if playing else "▶ play",
+        on_click=toggle,
+        key=f"{key}_play",
+        width="stretch",
+        help=f"step through the epochs, one every {PLAY_EVERY_S:g} s",
+    )
+
+
+def stepper(n_steps: int, draw, key: str = "step") -> None:
+    """The bound step slider and ``draw(step)`` in a fragment that, while playing
+    (:func:`play_button`), advances the step every :data:`PLAY_EVERY_S` seconds (only this
+    fragment reruns) and stops at the last step.
+    """
+    flag = f"{key}_playing"
+    playing = bool(st.session_state.get(flag, False))
+
+    def body() -> None:
+        ss = st.session_state
+        if ss.get(flag, False):
+            if ss.get(key, 1) >= n_steps:
+                ss[flag] = False
+                st.rerun()  # the whole page: the fragment is drawn again without a timer
+            ss[key] = int(min(n_steps, ss.get(key, 1) + 1))
+        if ss.get(key, 1) > n_steps:
+            ss[key] = n_steps
+        step = st.slider("Step (epoch k)", 1, n_steps, key=key, bind="query-params")
+        draw(int(step))
+
+    st.fragment(body, run_every=PLAY_EVERY_S if playing else None)()
+
+
+# ------------------------------------------------------------------------------ page sections
+def _navigation(n_steps: int) -> None:
+    b = st.columns([1, 1, 1, 1, 4])
+    play_button(n_steps, container=b[0])
+
+    def move(d: int) -> None:
+        st.session_state["step"] = int(min(n_steps, max(1, st.session_state.get("step", 1) + d)))
+        st.session_state["step_playing"] = False
+
+    b[1].button("◀ previous", on_click=move, args=(-1,), key="step_prev", width="stretch")
+    b[2].button("next ▶", on_click=move, args=(1,), key="step_next", width="stretch")
+    b[3].button("⟲ first", on_click=move, args=(-n_steps,), key="step_first", width="stretch")
+
+
+def render_one(key: str, spec: TinySpec) -> None:
+    """The step-through of one filter: caveat, navigation and play, the step's tables, the chart."""
+    from navlab.learn import caveat
+    from navlab.ui.views import chart
+
+    res = safe_step_through(key, spec)
+    if res is None:
+        return
+    if not res.applicable:
+        st.warning(f"**{res.label}** cannot be stepped through here: {res.reason}", icon=":material/block:")
+        return
+    note = caveat(key)
+    if note:
+        st.info(note, icon=":material/info:")
+    _navigation(res.epochs)
+
+    def draw(step: int) -> None:
+        render_step(res, step)
+        chart(
+            st,
+            overview_figure(res, step),
+            "Step-through overview: measurements, NIS against the χ² threshold, R and weights",
+            name=f"learn-{key}-step-{step}",
+        )
+        st.download_button(
+            "Download the step table (CSV)",
+            res.steps.to_csv(index=False).encode(),
+            file_name=f"navlab-learn-{key}.csv",
+            mime="text/csv",
+            on_click="ignore",
+        )
+
+    stepper(res.epochs, draw)
+
+
+def render_side_by_side(keys: list[str], spec: TinySpec) -> None:
+    """Two or three filters on the same tiny example, one step slider and one play button."""
+    from navlab.ui.views import chart
+
+    if len(keys) < 2:
+        st.info("Choose two or three filters to compare them on the same example.")
+        return
+    results = [r for r in (safe_step_through(k, spec) for k in keys) if r is not None]
+    bad = [r for r in results if not r.applicable]
+    for r in bad:
+        st.warning(f"**{r.label}** cannot be stepped through here: {r.reason}", icon=":material/block:")
+    results = [r for r in results if r.applicable]
+    if len(results) < 2:
+        return
+    labels = " · ".join(f"**{r.label}**: {registry()[r.key].summary}" for r in results)
+    st.markdown(labels)
+    _navigation(results[0].epochs)
+
+    def draw(step: int) -> None:
+        st.markdown(f"**Epoch {step}**, every filter after its update")
+        st.dataframe(side_by_side_table(results, step), hide_index=True, width="stretch")
+        chart(
+            st,
+            side_by_side_figure(results, step),
+            "Filters side by side: estimates, weights, R used and errors on the same example",
+            name="learn-side-by-side-" + "-".join(r.key for r in results),
+        )
+
+    stepper(results[0].epochs, draw)
+
+
+def compare_link(keys: list[str], spec: TinySpec) -> None:
+    """A link to Compare running these filters on the 2-D tracking scenario with outliers, its
+    single-run view below the averages.
+    """
+    from navlab.ui.frame import carried_query
+
+    reg = registry()
+    flt = [k for k in keys if k in reg and reg[k].family != "nonlinear"] or ["kf"]
+    if "kf" not in flt:
+        flt = ["kf", *flt]
+    q = {**carried_query("pages/1_Compare.py"), "flt": flt, "runs": "50", "go": "1"}
+    st.page_link(
+        "pages/1_Compare.py",
+        label="These filters on one Monte Carlo run of the 2-D tracking scenario (Compare, single-run view)",
+        icon=":material/play_circle:",
+        query_params=q,
+    )

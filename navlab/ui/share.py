@@ -109,3 +109,36 @@ def config_upload(key: str = "up_cfg", container=None) -> None:
     if msg:
         kind, text = msg
         (c.error if kind == "error" else c.success)(text)
+
+
+def text_download(
+    make: Callable[[], str],
+    label: str,
+    name: str,
+    key: str,
+    mime: str,
+    help: str,
+    container=None,
+) -> None:
+    """Download button for generated text (made only when clicked)."""
+    c = container if container is not None else st
+    c.download_button(label, make, file_name=name, mime=mime, key=key, on_click="ignore", help=help)
+
+
+GO_KEY = "_navlab_go_done"  # session: the specs a ``go=1`` link has already started
+
+
+def run_on_open(page: str, spec: ExperimentSpec) -> bool:
+    """Whether this page was opened by a link asking to run at once (``go=1``, e.g. from Learn or
+    the home page's demo): True once per link, then the flag leaves the URL (a reload does not
+    run again).
+    """
+    if str(st.query_params.get("go", "")) != "1":
+        return False
+    del st.query_params["go"]
+    done = st.session_state.setdefault(GO_KEY, set())
+    key = (page, spec.to_json())
+    if key in done:
+        return False
+    done.add(key)
+    return True

@@ -24,11 +24,70 @@ if TYPE_CHECKING:
     from navlab.experiment import Results
 
 PLOTLY_CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}}
+PRESENT_HEIGHT = 700  # px: one chart fills a projector screen below its title
 
 
-def chart(container: Any, fig: Any, alt: str) -> None:
-    """``st.plotly_chart`` with navlab's defaults."""
-    container.plotly_chart(fig, width="stretch", config=PLOTLY_CONFIG, theme=None, alt=alt)
+def present_style(fig: Any) -> Any:
+    """A copy of ``fig`` sized and lettered for a projector (presentation mode)."""
+    import plotly.graph_objects as go
+
+    out = go.Figure(fig)
+    out.update_layout(
+        height=max(PRESENT_HEIGHT, int(fig.layout.height or 0)),
+        font={"size": 18},
+        legend={"font": {"size": 17}},
+    )
+    if out.layout.title.text:
+        out.update_layout(title_font_size=24)
+    return out
+
+
+def _slug(text: str) -> str:
+    import re
+
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")[:60] or "figure"
+
+
+def chart(container: Any, fig: Any, alt: str, *, key: str | None = None, name: str | None = None) -> None:
+    """``st.plotly_chart`` with navlab's defaults, and the chart's publication downloads (SVG and
+    PNG, :mod:`navlab.ui.export`, made only when clicked) below it; in presentation mode the
+    chart is sized for a screen and the downloads are left out.
+    """
+    from navlab.ui.frame import next_chart_id, presenting
+
+    present = presenting()
+    dl_key = key or next_chart_id()
+    with container.container():
+        st.plotly_chart(
+            present_style(fig) if present else fig,
+            width="stretch",
+            config=PLOTLY_CONFIG,
+            theme=None,
+            alt=alt,
+            key=key,
+        )
+        if not present:
+            figure_downloads(fig, name or _slug(alt), dl_key)
+
+
+def figure_downloads(fig: Any, name: str, key: str) -> None:
+    """Two small download buttons (publication SVG and PNG of ``fig``), rendered on click only."""
+    from navlab.ui import export
+
+    base = f"navlab-{_slug(name)}"
+    c1, c2, _ = st.columns([1, 1, 6])
+    for c, fmt, mime in ((c1, "svg", "image/svg+xml"), (c2, "png", "image/png")):
+        c.download_button(
+            f"{fmt.upper()}",
+            (lambda f=fmt: export.render(fig, f)),
+            file_name=f"{base}.{fmt}",
+            mime=mime,
+            key=f"{key}_{fmt}",
+            on_click="ignore",
+            icon=":material/download:",
+            help=f"this chart as {fmt.upper()} in a print style (6.5 in wide, legend below, no UI)",
+            type="tertiary",
+        )
 
 
 def divergence_warnings(res: Results, container: Any = None) -> None:
@@ -96,7 +155,10 @@ class CompareView:
         st.markdown("##### Summary over the analysis window")
         self.table = st.empty()
         self.notes = st.empty()
-        left, right = st.columns(2)
+        from navlab.ui.frame import presenting
+
+        # side by side; in presentation mode one below the other (one chart per screen)
+        left, right = (st.container(), st.container()) if presenting() else st.columns(2)
         self.rhat = left.empty()
         self.nis = right.empty()
         self._made = False
@@ -177,14 +239,37 @@ class CompareView:
 def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> None:
     """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
     ref = ref if ref in res.runs else None
-    t = tables.headline(res, compare_to=ref if len(res.runs) > 1 else None, explanations=False)
+    t = tables.headline(
+        res, compare_to=ref if len(res.runs) > 1 else None, explanations=False, best=res.complete
+    )
     config = {c: st.column_config.TextColumn(c, help=h) for c, h in t.help.items() if h}
-    table.dataframe(t.cells, width="stretch", column_config=config)
+    table.dataframe(highlight_best(t), width="stretch", column_config=config)
     with notes.container():
+        if res.complete and len(res.runs) > 1:
+            st.caption(
+                "**Bold on green**: the filter better than every other filter on that column "
+                "(paired test over the same runs, Holm-corrected, 95 %)"
+                + ("" if t.best else " — no column has one at this run count")
+                + "; no highlight where the best point estimate is not backed by the test."
+            )
         divergence_warnings(res)
         for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
         st.caption("  \n".join(t.notes))
+
+
+BEST_STYLE = "font-weight: bold; background-color: #dcf2e1"
+
+
+def highlight_best(t: Any) -> Any:
+    """The table's cells with each column's tested best filter highlighted (a pandas Styler)."""
+    cells = t.cells
+
+    def col_style(col: Any) -> list[str]:
+        who = t.best.get(col.name)
+        return [BEST_STYLE if who is not None and row == who else "" for row in col.index]
+
+    return cells.style.apply(col_style, axis=0) if t.best else cells
 
 
 def outlier_summary(res: Results, ch: int) -> str:
@@ -283,9 +368,7 @@ class NoiseView:
     def _chart(self, container: Any, fig: Any, name: str) -> None:
         # a streamed run renders once per chunk in the same script run, and the figures of two
         # chunks can be identical (no filter estimates R): the key keeps the element ids unique
-        container.plotly_chart(
-            fig, width="stretch", config=PLOTLY_CONFIG, theme=None, key=f"{self.page}_{name}_{self._drawn}"
-        )
+        chart(container, fig, name, key=f"{self.page}_{name}_{self._drawn}", name=name)
 
     def render(self, res: Results) -> None:
         self._controls(res)
@@ -323,3 +406,42 @@ class NoiseView:
             self.internals.caption("None of the chosen filters reports per-step statistics.")
         elif res.complete:  # drawn once the run is complete (fewer browser redraws)
             self._chart(self.internals, F.internals_vs_time(res, self.stat, ch), "internals")
+
+
+def noise_preset() -> dict[str, Any]:
+    """The Noise page's suggestion: a step in σ plus isolated outliers, the KF, the oracle and
+    (up to 4) filters that estimate R, 50 runs.
+    """
+    from navlab.filters import registry
+
+    reg = registry()
+    est = [k for k, c in reg.items() if c.estimates_R and k != "oracle-kf"][:4]
+    filters = [k for k in ("kf", "oracle-kf", *est) if k in reg]
+    return {"flt": filters, "runs": 50, "noise": "step", "out": "isolated"}
+
+
+def _apply_preset(values: dict[str, Any]) -> None:
+    for k, v in values.items():
+        st.session_state[k] = v
+
+
+def noise_preset_button(spec: Any, container: Any) -> None:
+    """A button that sets the experiment to :func:`noise_preset` (every page keeps the same
+    defaults, so the Noise page's suggestion is a button, not a different default).
+    """
+    pre = noise_preset()
+    same = (
+        spec.noise_schedule == pre["noise"]
+        and spec.outliers == pre["out"]
+        and list(spec.filters) == pre["flt"]
+        and spec.runs == pre["runs"]
+    )
+    container.button(
+        "Try: σ step + isolated outliers",
+        key="noise_preset",
+        on_click=_apply_preset,
+        args=(pre,),
+        disabled=same,
+        help="a step in the true σ and isolated outliers, with the KF, the oracle and filters that "
+        "estimate R (" + ", ".join(pre["flt"]) + "), 50 runs",
+    )

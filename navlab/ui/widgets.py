@@ -19,13 +19,17 @@ URL / session-state keys (short and stable):
 =========================  =============================================
 
 Only values that differ from their defaults enter the spec (and the URL), so configurations stay
-short and new defaults propagate.
+short and new defaults propagate. Every run page starts from the same defaults
+(:class:`PageDefaults`), so a link means the same experiment on every page, and the page links
+carry the experiment (:func:`spec_query`) from one page to the next. A link value the widgets
+cannot take (``runs=-1``, ``flt=unknown``, ``ol.mixture.contamination=5``) is named in a notice
+with the reason (:func:`url_problems`) instead of silently falling back to the default.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +47,9 @@ UI_MAX_RUNS = min(MAX_RUNS, 5000)  # a browser user cannot start more than this 
 SEED_MAX = 2**31 - 1
 BIND = "query-params"
 EXTRA_KEY = "_navlab_extra_params"  # uploaded settings that have no widget (kept per session)
+CARRY_KEY = "_navlab_carry"  # session: the URL parameters of the last experiment shown
+NOTICE_KEY = "_navlab_url_notice"  # session: {page: (messages, spec json)} — rejected link values
+CORE_KEYS = (SCN, FLT, RUNS, SEED, NOISE, OUT)
 
 
 def pkey(kind: str, owner: str, name: str) -> str:
@@ -475,18 +482,220 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     return no_widget
 
 
+# --------------------------------------------------------------------------- spec <-> URL
+
+
+def url_value(v: Any) -> str:
+    """A parameter value as the widgets write it into the URL."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def _owners(kind: str) -> Mapping[str, Any]:
+    return {
+        "sc": scenario_registry(),
+        "ns": SCHEDULES,
+        "ol": OUTLIERS,
+        "fp": registry(),
+    }[kind]
+
+
+def _widget_params(cls: Any) -> dict[str, dict[str, Any]]:
+    """The parameters of ``cls.Params`` that have a widget, by name."""
+    return {
+        p["name"]: p
+        for p in describe(cls.Params)
+        if p.get("ui", True) and not isinstance(p["default"], (tuple, list))
+    }
+
+
+def spec_query(spec: ExperimentSpec) -> dict[str, str | list[str]]:
+    """The URL query of ``spec`` on any run page: the values that differ from the shared defaults
+    (the widgets' keys; settings without a widget are not in a URL). Raises NavlabError for a spec
+    naming something unknown.
+    """
+    plan(spec)  # validates every key and value first
+    d = PageDefaults()
+    scls = scenario_registry()[spec.scenario]
+    q: dict[str, str | list[str]] = {}
+    if spec.scenario != d.scenario:
+        q[SCN] = spec.scenario
+    if list(spec.filters) != default_filters(spec.scenario, d):
+        q[FLT] = list(spec.filters)
+    if int(spec.runs) != default_runs(spec.scenario, d):
+        q[RUNS] = str(int(spec.runs))
+    if int(spec.seed) != d.seed:
+        q[SEED] = str(int(spec.seed))
+    if spec.noise_schedule != d.noise_schedule:
+        q[NOISE] = spec.noise_schedule
+    if spec.outliers != d.outliers:
+        q[OUT] = spec.outliers
+    sp = dict(spec.scenario_params)
+    if spec.epochs is not None:
+        sp["epochs"] = spec.epochs
+    op = dict(spec.outlier_params)
+    if spec.contamination is not None:
+        op["contamination"] = spec.contamination
+    if spec.outlier_scale is not None:
+        op["scale"] = spec.outlier_scale
+    groups: list[tuple[str, str, Any, dict[str, Any], dict[str, Any]]] = [
+        ("sc", spec.scenario, scls, sp, {}),
+        ("ns", spec.noise_schedule, SCHEDULES[spec.noise_schedule], dict(spec.noise_params), {}),
+        ("ol", spec.outliers, OUTLIERS[spec.outliers], op, scls.outlier_defaults.get(spec.outliers, {})),
+    ]
+    groups += [
+        ("fp", k, registry()[k], dict(spec.filter_params.get(k, {})), scls.filter_defaults.get(k, {}))
+        for k in spec.filters
+    ]
+    for kind, owner, cls, values, over in groups:
+        params = _widget_params(cls)
+        for name, v in values.items():
+            if name in params and v != over.get(name, params[name]["default"]):
+                q[pkey(kind, owner, name)] = url_value(v)
+    return q
+
+
+def is_experiment_key(key: str) -> bool:
+    """Whether URL parameter ``key`` belongs to the experiment (the shared sidebar's widgets)."""
+    parts = key.split(".")
+    return key in CORE_KEYS or (len(parts) == 3 and parts[0] in ("sc", "ns", "ol", "fp"))
+
+
+def _check_value(p: dict[str, Any], default: Any, raw: str) -> str | None:
+    """Why ``raw`` is not a value the widget of parameter ``p`` takes (None if it is)."""
+    lo, hi = p.get("lo"), p.get("hi")
+    if isinstance(default, bool):
+        return None if raw.lower() in ("true", "false") else "must be true or false"
+    if isinstance(default, (int, float)):
+        whole = isinstance(default, int)
+        try:
+            v = float(raw)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v) or (whole and v != int(v)):
+            return "must be a whole number" if whole else "must be a number"
+        lo_w = None if lo is None else (math.ceil(lo) if whole else lo)
+        hi_w = None if hi is None else (math.floor(hi) if whole else hi)
+        if (lo_w is not None and v < lo_w) or (hi_w is not None and v > hi_w):
+            rng = (
+                f"from {lo_w:g} to {hi_w:g}"
+                if lo_w is not None and hi_w is not None
+                else (f"at least {lo_w:g}" if lo_w is not None else f"at most {hi_w:g}")
+            )
+            return f"must be {rng}"
+        return None
+    choices = p.get("choices")
+    if choices and raw not in choices:
+        return "must be one of " + ", ".join(map(str, choices))
+    return None
+
+
+def url_problems(query: Mapping[str, Sequence[str]], runs_max: int = UI_MAX_RUNS) -> list[str]:
+    """Why each experiment value of a link (``{key: [values]}``) is rejected or left unused, one
+    message per value naming the parameter; [] when the link is fine. Other pages' own keys are
+    not judged here.
+    """
+    reg, sreg = registry(), scenario_registry()
+    get = lambda k, d: (list(query.get(k) or []) or [d])[-1]  # noqa: E731
+    scn, noise, out = get(SCN, "cv2d"), get(NOISE, "constant"), get(OUT, "mixture")
+    scn = scn if scn in sreg else "cv2d"
+    chosen = list(query.get(FLT) or [])
+    msgs: list[str] = []
+
+    def say(key: str, raw: str, why: str) -> None:
+        msgs.append(f"`{key}={raw}`: {why}")
+
+    options = {
+        SCN: (scenario_keys(), "no such scenario"),
+        NOISE: (list(SCHEDULES), "no such noise schedule"),
+        OUT: (list(OUTLIERS), "no such outlier model"),
+    }
+    for key, raws in query.items():
+        if not is_experiment_key(key):
+            continue
+        for raw in raws:
+            if key in options:
+                opts, what = options[key]
+                if raw not in opts:
+                    say(key, raw, f"{what} (one of: {', '.join(opts)})")
+            elif key == FLT:
+                if raw not in reg:
+                    say(key, raw, "no filter is registered under this key (`python -m navlab list filters`)")
+            elif key in (RUNS, SEED):
+                hi = runs_max if key == RUNS else SEED_MAX
+                why = _check_value({"lo": 1 if key == RUNS else 0, "hi": hi}, 1, raw)
+                if why:
+                    name = "Monte Carlo runs" if key == RUNS else "the seed"
+                    say(key, raw, f"{name} {why}")
+            else:
+                kind, owner, name = key.split(".")
+                owners = _owners(kind)
+                noun = {"sc": "scenario", "ns": "noise schedule", "ol": "outlier model", "fp": "filter"}[kind]
+                if owner not in owners:
+                    say(key, raw, f"no {noun} '{owner}'")
+                    continue
+                params = _widget_params(owners[owner])
+                if name not in params:
+                    say(key, raw, f"the {noun} '{owner}' has no parameter '{name}' with a widget")
+                    continue
+                why = _check_value(params[name], params[name]["default"], raw)
+                if why:
+                    say(key, raw, f"{name.replace('_', ' ')} {why}")
+                    continue
+                active = {"sc": scn, "ns": noise, "ol": out}.get(kind)
+                if kind == "fp" and owner not in (chosen or default_filters(scn, PageDefaults())):
+                    say(key, raw, f"not used: the filter '{owner}' is not among the chosen filters")
+                elif active is not None and owner != active:
+                    say(key, raw, f"not used: this link's {noun} is '{active}', not '{owner}'")
+    return msgs
+
+
+def _link_query() -> dict[str, list[str]]:
+    qp = st.query_params
+    return {k: qp.get_all(k) for k in qp}
+
+
+def link_notice(page: str, spec: ExperimentSpec | None, problems: list[str]) -> None:
+    """Show the rejected link values (kept on screen, across reruns, until the experiment changes)."""
+    notes = st.session_state.setdefault(NOTICE_KEY, {})
+    key = None if spec is None else spec.to_json()
+    if problems:
+        notes[page] = (problems, key)
+    msgs, at = notes.get(page, ([], None))
+    if not msgs or (at is not None and key is not None and at != key):
+        notes.pop(page, None)
+        return
+    st.warning(
+        "Some settings of this link were not used; the page shows its defaults for them:\n"
+        + "\n".join(f"- {m}" for m in msgs),
+        icon=":material/link_off:",
+    )
+
+
 def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experiment") -> ExperimentSpec:
     """The sidebar every run page shares: experiment widgets, config upload, skipped filters.
 
-    Stops the page with the message when the configuration is invalid.
+    Every run page passes the same :class:`PageDefaults` (so a link is the same experiment on
+    every page). Link values the widgets reject are named in a notice; the page links (drawn by
+    :func:`navlab.ui.frame.frame`) carry this experiment to the next page. Stops the page with the
+    message when the configuration is invalid.
     """
+    from navlab.ui.frame import fill_nav
     from navlab.ui.share import config_upload  # share imports this module
 
+    problems = url_problems(_link_query())
     with st.sidebar:
         st.header(header)
     cfg = experiment_config(defaults)
     with st.sidebar.expander("Load / save configuration"):
         config_upload(key=f"up_cfg_{page}")
+    if cfg.spec is not None:
+        st.session_state[CARRY_KEY] = spec_query(cfg.spec)
+    fill_nav()
+    link_notice(page, cfg.spec, problems)
     for key, why in cfg.skipped.items():
         st.warning(f"`{key}` is left out: it {why}.")
     if cfg.error:

@@ -38,7 +38,7 @@ def test_small_run_completes_with_charts_and_table(open_page):
     at.button(key="run_compare").click().run()
     assert_clean(at)
     figs = plotly_figs(at)
-    assert len(figs) == 3  # error vs time, R vs R-hat, NIS vs chi2
+    assert len(figs) == 4  # error vs time, R vs R-hat, NIS vs chi2, the single-run view
     types = {t["type"] for f in figs for t in f["data"]}
     assert types <= {"scatter", "scattergl"}
     names = [t.get("name", "") for t in figs[0]["data"]]
@@ -55,6 +55,7 @@ def test_small_run_completes_with_charts_and_table(open_page):
     assert any("6/6 runs (complete)" in c.value for c in at.caption)
     labels = [b.label for b in at.get("download_button")]
     assert {"Configuration (JSON)", "Metrics (CSV)", "RMSE per epoch (CSV)"} <= set(labels)
+    assert {"Notebook (.ipynb)", "Script (.py)", "SVG", "PNG"} <= set(labels)
 
 
 def test_view_controls_do_not_recompute(open_page, monkeypatch):
@@ -78,7 +79,7 @@ def test_view_controls_do_not_recompute(open_page, monkeypatch):
 def test_changed_parameter_needs_a_new_run(open_page):
     at = open_page(PAGE, seed="13", **SMALL)
     at.button(key="run_compare").click().run()
-    assert len(plotly_figs(at)) == 3
+    assert len(plotly_figs(at)) == 4
     at.number_input(key="seed").set_value(14).run()
     assert_clean(at)
     # the old results are not shown for a new configuration (only the schedule preview)
@@ -121,7 +122,7 @@ def test_run_without_live_updates(open_page, monkeypatch):
     at.button(key="run_compare").click().run()
     assert_clean(at)
     assert sizes == [6]  # one batch
-    assert len(plotly_figs(at)) == 3
+    assert len(plotly_figs(at)) == 4
 
 
 def test_a_link_that_would_exhaust_memory_is_refused_with_a_message(open_page):
@@ -132,3 +133,73 @@ def test_a_link_that_would_exhaust_memory_is_refused_with_a_message(open_page):
     (err,) = [e.value for e in at.error]
     assert "would hold about" in err and "memory budget" in err and "fewer runs or epochs" in err
     assert runner.ledger().in_use == 0  # nothing left reserved
+
+
+# ------------------------------------------------------------------ #16 teaching and presenting
+
+
+def test_single_run_view_shows_one_run_with_a_player(open_page):
+    from navlab.experiment import ExperimentSpec, run_experiment
+    from navlab.ui.single import most_different_run
+
+    at = open_page(PAGE, seed="31", **SMALL)
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    one = plotly_figs(at)[-1]
+    assert one["layout"]["title"]["text"].startswith("Monte Carlo run ")
+    assert one["layout"]["updatemenus"][0]["buttons"][0]["label"] == "▶ play"
+    assert len(one["layout"]["sliders"][0]["steps"]) == len(one["frames"]) > 10
+    names = {t.get("name", "") for t in one["data"]}
+    assert {"KF", "Oracle KF", "χ²-gated KF", "truth (the zero line)"} <= names
+    # by default the run where the filters differ most (the library's choice on the same runs)
+    spec = ExperimentSpec(filters=("kf", "oracle-kf", "chi2-kf"), runs=6, seed=31, epochs=30)
+    want = int(run_experiment(spec).data.runs[most_different_run(run_experiment(spec), "pos")])
+    assert one["layout"]["title"]["text"].startswith(f"Monte Carlo run {want},")
+    at.radio(key="compare_one_how").set_value("run number").run()
+    at.number_input(key="compare_one_run").set_value(2).run()
+    assert_clean(at)
+    assert plotly_figs(at)[-1]["layout"]["title"]["text"].startswith("Monte Carlo run 2,")
+    at.multiselect(key="compare_one_flt").set_value(["kf"]).run()
+    names = {t.get("name", "") for t in plotly_figs(at)[-1]["data"]}
+    assert "KF" in names and "Oracle KF" not in names
+
+
+def test_rejected_link_values_are_named_with_the_reason(open_page):
+    at = open_page(PAGE, runs="-1", flt=["kf", "unknown"], **{"ol.mixture.contamination": "5"})
+    assert not at.exception
+    (w,) = [w.value for w in at.warning if "were not used" in w.value]
+    assert "`runs=-1`: Monte Carlo runs must be from 1 to 5000" in w
+    assert "`flt=unknown`: no filter is registered under this key" in w
+    assert "`ol.mixture.contamination=5`: contamination must be from 0 to 0.5" in w
+    assert at.number_input(key="runs").value == 100  # the default, as the notice says
+    at.number_input(key="seed").set_value(3).run()  # the notice stays until the experiment changes
+    assert not [w for w in at.warning if "were not used" in w.value]
+
+
+def test_go_link_runs_once_on_open(open_page):
+    at = open_page(PAGE, go="1", seed="32", **SMALL)
+    assert_clean(at)
+    assert len(plotly_figs(at)) == 4  # ran without a click
+    assert "go" not in at.query_params
+
+
+def test_best_value_is_highlighted_only_where_the_test_backs_it(open_page):
+    at = open_page(PAGE, seed="33", **SMALL)  # 6 runs: too few for a test, nothing highlighted
+    at.button(key="run_compare").click().run()
+    assert any("no column has one at this run count" in c.value for c in at.caption)
+    at = open_page(PAGE, seed="33", runs="60", **{"sc.cv2d.epochs": "30"})
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    assert any("Bold on green" in c.value and "no column" not in c.value for c in at.caption)
+
+
+def test_presentation_mode_sizes_charts_and_hides_the_exports(open_page):
+    at = open_page(PAGE, present="1", seed="34", **SMALL)
+    at.button(key="run_compare").click().run()
+    assert_clean(at)
+    figs = plotly_figs(at)
+    assert all(f["layout"]["height"] >= 700 for f in figs)
+    labels = {b.label for b in at.get("download_button")}
+    assert "SVG" not in labels and "PNG" not in labels
+    links = [el for el in at.get("page_link")]
+    assert links and all("present=1" in el.proto.page or "present" in str(el.proto) for el in links)

@@ -8,3 +8,26 @@ def test_home_renders_papers_and_sources(open_page):
     for word in ("HAKF", "IRAKF", "NNMFUKF", "VB-EKF", "Where to start", "smartLoc", "rtkx"):
         assert word in text or word in " ".join(s.value for s in at.subheader), word
     assert at.title[0].value.startswith("navlab")
+
+
+def test_home_demo_shows_a_result_figure_in_one_click(open_page):
+    at = open_page()
+    assert not at.get("plotly_chart")
+    at.button(key="home_demo").click().run()
+    assert_clean(at)
+    (fig,) = [el for el in at.get("plotly_chart")]
+    import json
+
+    names = {t.get("name") for t in json.loads(fig.proto.spec)["data"]}
+    assert {"KF", "χ²-gated KF", "HKF (Huber)", "Oracle KF"} <= names
+
+
+def test_home_lists_the_filters_by_family_with_one_line_each(open_page):
+    from navlab.filters import registry
+
+    at = open_page()
+    text = " ".join(m.value for m in at.markdown)
+    for head in ("**Baselines**", "**Robust**", "**Adaptive**", "**Robust and adaptive**"):
+        assert head in text
+    for key, cls in registry().items():
+        assert f"**{cls.label}** (`{key}`) — {cls.summary}" in text

@@ -3,8 +3,31 @@ from apphelpers import assert_clean, plotly_figs
 PAGE = "pages/2_Noise.py"
 
 
+def test_noise_page_has_the_shared_defaults_and_offers_its_preset(open_page):
+    """#16 item 4: a link means the same experiment on every page (the Compare defaults); the
+    Noise page's suggestion (σ step + isolated outliers) is a button."""
+    at = open_page(PAGE)
+    assert_clean(at)
+    assert at.selectbox(key="noise").value == "constant"
+    assert at.selectbox(key="out").value == "mixture"
+    assert at.multiselect(key="flt").value == ["kf", "oracle-kf", "chi2-kf"]
+    at.button(key="noise_preset").click().run()
+    assert_clean(at)
+    assert at.selectbox(key="noise").value == "step"
+    assert at.selectbox(key="out").value == "isolated"
+    assert at.number_input(key="runs").value == 50
+    assert "sage-husa" in at.multiselect(key="flt").value or len(at.multiselect(key="flt").value) > 2
+
+
 def test_noise_page_small_run(open_page):
-    at = open_page(PAGE, runs="5", flt=["kf", "oracle-kf", "sage-husa"], **{"sc.cv2d.epochs": "80"})
+    at = open_page(
+        PAGE,
+        runs="5",
+        flt=["kf", "oracle-kf", "sage-husa"],
+        noise="step",
+        out="isolated",
+        **{"sc.cv2d.epochs": "80"},
+    )
     assert_clean(at)
     assert at.selectbox(key="noise").value == "step"
     at.button(key="run_noise").click().run()
@@ -29,7 +52,7 @@ def test_noise_page_small_run(open_page):
 
 
 def test_noise_page_internals_show_fading_with_threshold(open_page):
-    at = open_page(PAGE, runs="3", flt=["kf", "mfukf"], **{"sc.cv2d.epochs": "40"})
+    at = open_page(PAGE, runs="3", flt=["kf", "mfukf"], noise="step", **{"sc.cv2d.epochs": "40"})
     at.button(key="run_noise").click().run()
     assert_clean(at)
     at.selectbox(key="noise_v_stat").set_value("gamma").run()

@@ -20,6 +20,7 @@ from navlab.experiment import ExperimentSpec
 
 T = 90_000  # ms; the machine is shared and runs may queue
 CHART = '[data-testid="stPlotlyChart"]'
+COMPARE_CHARTS = 4  # the three result charts and the single-run view below them (#16 item 1)
 DRAWN = f"{CHART} .legendtext"  # Plotly has drawn a results figure (the preview has no legend)
 COMPLETE = re.compile(r"\d+/\d+ runs \(complete\)")
 SMALL = "runs=8&sc.cv2d.epochs=40"
@@ -94,7 +95,7 @@ def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_di
     expect(ms).to_contain_text("chi2-kf")
     expect(ms).not_to_contain_text("oracle-kf")
     first = run_and_wait(page)
-    expect(page.locator(CHART)).to_have_count(3, timeout=T)
+    expect(page.locator(CHART)).to_have_count(COMPARE_CHARTS, timeout=T)
     expect(page.get_by_text("12/12 runs (complete)")).to_be_visible()
     log_timing(
         artifacts_dir,
@@ -109,7 +110,7 @@ def test_default_compare_run_and_timing(page: Page, artifacts_dir: Path):
     page.goto("/Compare")
     settle(page)
     first = run_and_wait(page)
-    expect(page.locator(CHART)).to_have_count(3, timeout=T)
+    expect(page.locator(CHART)).to_have_count(COMPARE_CHARTS, timeout=T)
     expect(page.get_by_text("100/100 runs (complete)")).to_be_visible()
     cap = page.get_by_text(re.compile(r"done: 100 runs, [\d.]+ s compute")).inner_text()
     compute = float(re.search(r"([\d.]+) s compute", cap).group(1))
@@ -202,7 +203,7 @@ def test_five_sessions_run_at_once(browser: Browser, base_url: str, artifacts_di
             button(p, "Run").click()
         for i, p in enumerate(pages):
             expect(p.get_by_text("30/30 runs (complete)")).to_be_visible(timeout=3 * T)
-            expect(p.locator(CHART)).to_have_count(3, timeout=T)
+            expect(p.locator(CHART)).to_have_count(COMPARE_CHARTS, timeout=T)
             assert_no_exception(p)
             assert "seed=" + str(100 + i) in p.url
         log_timing(artifacts_dir, test="five_sessions", all_done_s=round(time.monotonic() - t0, 2))
@@ -244,14 +245,23 @@ def test_stop_keeps_partial_results_and_run_resumes(page: Page):
     settle(page)
     button(page, "Run").click()
     expect(page.get_by_text(re.compile(r"\d+/3000 runs \(partial\)"))).to_be_visible(timeout=T)
-    button(page, "Stop").click()
+    # Stop beside Run (#16 item 5), pressed while a batch is in flight (the progress text
+    # "N/3000 runs…" is shown only while one computes): that batch is kept, not thrown away
+    inflight = page.get_by_text(re.compile(r"^\d+/3000 runs…$"))
+    expect(inflight).to_be_visible(timeout=T)
+    at_click = int(inflight.inner_text().split("/")[0])
+    stop = button(page, "Stop")
+    run_box = button(page, "Run").bounding_box()
+    stop_box = stop.bounding_box()
+    assert abs(stop_box["y"] - run_box["y"]) < 20  # on the Run button's line
+    stop.click()
     stopped = page.get_by_text(re.compile(r"Stopped after \d+ of 3000 runs"))
     expect(stopped).to_be_visible(timeout=T)
     settle(page)
     assert_no_exception(page)
     expect(page.locator(DRAWN).first).to_be_visible()  # the partial curves stay on the page
     done = int(re.search(r"after (\d+) of", stopped.inner_text()).group(1))
-    assert 0 < done < 3000
+    assert at_click <= done < 3000  # the batch in flight at the click is among the runs kept
     button(page, "Run").click()  # resumes, does not restart
     expect(page.get_by_text("3000/3000 runs (complete)")).to_be_visible(timeout=3 * T)
     settle(page)
@@ -265,7 +275,7 @@ def test_stop_keeps_partial_results_and_run_resumes(page: Page):
 WIDTHS = (1440, 390)
 CHART_PAGES = [
     # (name, path?query, button to press or None, charts expected once drawn)
-    ("compare", f"Compare?{SMALL}", "Run", 3),
+    ("compare", f"Compare?{SMALL}", "Run", COMPARE_CHARTS),
     ("noise", "Noise?runs=6&flt=kf&flt=oracle-kf&flt=sage-husa&sc.cv2d.epochs=60", "Run", 2),
     ("sweep", "Sweep?runs=4&flt=kf&flt=chi2-kf&swn=3&sc.cv2d.epochs=40", "Run sweep", 2),
     ("reproduce", "Reproduce?rep=vbekf&rep_seeds=1&rep_runs_vbekf=3", "Run", 3),  # claims, 2 curve tabs
@@ -358,7 +368,7 @@ def _rhat_axis(page: Page, title_part: str) -> str:
 @pytest.mark.parametrize(
     ("path", "button_label", "toggle", "n"),
     [
-        (f"Compare?{SMALL}&noise=step", "Run", "log R", 3),
+        (f"Compare?{SMALL}&noise=step", "Run", "log R", COMPARE_CHARTS),
         ("Noise?runs=6&flt=kf&flt=oracle-kf&flt=sage-husa&sc.cv2d.epochs=60", "Run", "log scale", 2),
     ],
     ids=["compare", "noise"],

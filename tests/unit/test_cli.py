@@ -4,6 +4,7 @@ import io
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -160,6 +161,21 @@ def test_module_entry_point():
     assert p.stdout.startswith("filter,label,metric,value,unit")
 
 
+def test_app_runs_in_the_apps_folder_so_streamlit_reads_navlabs_config(tmp_path, monkeypatch):
+    import os
+
+    from navlab import cli
+
+    seen = {}
+    monkeypatch.setattr(cli.os, "execv", lambda exe, cmd: seen.update(cwd=os.getcwd(), cmd=cmd))
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("NAVLAB_DATA", "data")
+    cli._app([])
+    root = Path(cli.__file__).resolve().parent.parent
+    assert Path(seen["cwd"]) == root and (root / ".streamlit" / "config.toml").is_file()
+    assert os.environ["NAVLAB_DATA"] == str(tmp_path / "data")  # still the folder the user meant
+
+
 def test_app_passes_streamlit_flags_and_stopping_it_stops_the_server(tmp_path):
     import os
     import signal
@@ -178,6 +194,7 @@ def test_app_passes_streamlit_flags_and_stopping_it_stops_the_server(tmp_path):
     args = ["--server.port", str(port), "--server.address", "127.0.0.1", "--server.headless", "true"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "navlab", "app", *args, "--browser.gatherUsageStats", "false"],
+        cwd=tmp_path,  # started from elsewhere
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         env={**os.environ, "PYTHONPATH": str(__import__("pathlib").Path(__file__).resolve().parents[2])},

@@ -1,0 +1,207 @@
+"""#16 in a real browser: the single-run view and its player, Learn side by side, presentation
+mode on every page, settings carried from Compare to Noise, a rejected link value's notice, the
+SVG download, and the downloaded notebook executed (nbclient) reproducing the run's RMSE.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from playwright.sync_api import Page, expect
+from test_browser import CHART, COMPLETE, SMALL, T, assert_no_exception, button, expect_value, settle
+
+ROOT = Path(__file__).resolve().parents[2]
+ONE_RUN = f"{CHART}:has(.updatemenu-button)"  # the single-run chart (it has the play button)
+
+
+@pytest.fixture
+def browser_context_args(browser_context_args: dict) -> dict:
+    return {**browser_context_args, "viewport": {"width": 1400, "height": 1000}, "accept_downloads": True}
+
+
+def wait_complete(page: Page) -> None:
+    expect(page.get_by_text(COMPLETE)).to_be_visible(timeout=T)
+    settle(page)
+    assert_no_exception(page)
+
+
+def test_single_run_view_plays_one_run(page: Page):
+    page.goto(f"/Compare?{SMALL}&seed=41&go=1")  # go=1: runs on open (the Learn and Home links)
+    wait_complete(page)
+    chart = page.locator(ONE_RUN)
+    expect(chart).to_have_count(1, timeout=T)
+    chart.scroll_into_view_if_needed()
+    expect(chart.locator(".gtitle")).to_contain_text("Monte Carlo run", timeout=T)
+    active = (
+        "() => { const gd = Array.from(document.querySelectorAll('.js-plotly-plot'))"
+        ".find(g => g.querySelector('.updatemenu-button')); return gd.layout.sliders[0].active; }"
+    )
+    n = page.evaluate(
+        "() => Array.from(document.querySelectorAll('.js-plotly-plot'))"
+        ".find(g => g.querySelector('.updatemenu-button')).layout.sliders[0].steps.length"
+    )
+    assert n == 40 and page.evaluate(active) == n - 1  # the whole run revealed
+    chart.locator(".updatemenu-button").filter(has_text="play").click()
+    page.wait_for_function(f"({active})() < {n - 5}", timeout=T)  # it restarted from the first epoch
+    page.wait_for_function(f"({active})() === {n - 1}", timeout=T)  # and plays to the end
+    # a run the user picks
+    page.get_by_text("run number", exact=True).click()
+    runs = page.get_by_label("Monte Carlo run (0 … B−1)", exact=True)
+    runs.fill("3")
+    runs.press("Enter")
+    expect(page.locator(".gtitle").filter(has_text="Monte Carlo run 3,")).to_have_count(1, timeout=T)
+    assert_no_exception(page)
+
+
+def test_learn_side_by_side_with_play(page: Page):
+    page.goto("/Learn?lmode=Side+by+side&cmp=kf&cmp=huber-kf&step=1&ex_epochs=6")
+    settle(page)
+    assert_no_exception(page)
+    expect(page.locator(CHART)).to_have_count(1, timeout=T)
+    expect(page.locator(f"{CHART} .legendtext").filter(has_text="HKF (Huber)")).to_have_count(1, timeout=T)
+    expect(page.get_by_text("Epoch 1, every filter after its update")).to_be_visible(timeout=T)
+    button(page, "▶ play").click()
+    expect(page.get_by_text("Epoch 3, every filter after its update")).to_be_visible(timeout=T)
+    expect(page.get_by_text("Epoch 6, every filter after its update")).to_be_visible(timeout=T)
+    page.wait_for_url(re.compile(r"step=6"), timeout=T)
+    expect(button(page, "▶ play")).to_be_visible(timeout=T)  # stopped at the last step
+    assert_no_exception(page)
+
+
+PRESENT_PAGES = ["", "Compare", "Noise", "Sweep", "Tune", "Reproduce", "Learn", "Real_data"]
+
+
+@pytest.mark.parametrize("path", PRESENT_PAGES, ids=[p or "home" for p in PRESENT_PAGES])
+def test_every_page_works_in_presentation_mode(page: Page, path: str, artifacts_dir: Path):
+    page.goto(f"/{path}?present=1")
+    settle(page)
+    assert_no_exception(page)
+    expect(page.locator('[data-testid="stSidebar"]')).to_be_hidden(timeout=T)
+    size = page.evaluate("getComputedStyle(document.documentElement).fontSize")
+    assert size == "22px"
+    page.screenshot(path=str(artifacts_dir / f"present-{path.lower() or 'home'}.png"))
+
+
+def test_presentation_mode_moves_chart_by_chart(page: Page):
+    page.goto(f"/Compare?present=1&{SMALL}&seed=42&go=1")
+    wait_complete(page)
+    charts = page.locator(CHART)
+    expect(charts).to_have_count(4, timeout=T)
+    assert page.get_by_role("button", name="SVG").count() == 0  # no export chrome
+    tops = lambda: page.evaluate(  # noqa: E731
+        "Array.from(document.querySelectorAll('[data-testid=\"stPlotlyChart\"]'))"
+        ".map(e => Math.round(e.getBoundingClientRect().top))"
+    )
+    page.wait_for_function(
+        "document.querySelectorAll('[data-testid=\"stPlotlyChart\"] .main-svg').length >= 4", timeout=T
+    )
+    settle(page)
+    page.locator("h1").first.click()  # focus the page, not a widget
+    for i in (0, 1, 2, 3):
+        page.keyboard.press("n")
+        page.wait_for_function(
+            f"Math.abs(document.querySelectorAll('[data-testid=\"stPlotlyChart\"]')[{i}]"
+            ".getBoundingClientRect().top) < 20",
+            timeout=T,
+        )
+    page.keyboard.press("p")
+    page.wait_for_function(
+        "Math.abs(document.querySelectorAll('[data-testid=\"stPlotlyChart\"]')[2]"
+        ".getBoundingClientRect().top) < 20",
+        timeout=T,
+    )
+    heights = page.evaluate(
+        "Array.from(document.querySelectorAll('[data-testid=\"stPlotlyChart\"]'))"
+        ".map(e => e.getBoundingClientRect().height)"
+    )
+    assert min(heights) >= 650, (heights, tops())
+    # the page links keep presentation mode
+    page.goto("/?present=1")
+    settle(page)
+    href = (
+        page.locator('[data-testid="stPageLink"] a').filter(has_text="Compare filters").get_attribute("href")
+    )
+    assert "present=1" in href
+
+
+def test_settings_carry_from_compare_to_noise(page: Page):
+    page.goto("/Compare?seed=42&runs=33&out=isolated&flt=kf&flt=sage-husa")
+    settle(page)
+    expect_value(page, "Seed", "42")
+    seed = page.get_by_label("Seed", exact=True)
+    seed.fill("43")  # a change made on the page, not only the link
+    seed.press("Enter")
+    page.wait_for_url(re.compile(r"seed=43"), timeout=T)
+    settle(page)
+    page.locator('[data-testid="stSidebar"] [data-testid="stPageLink"]').filter(has_text="Noise").click()
+    expect(page.locator("h1").first).to_have_text("Noise: R̂ inspection", timeout=T)
+    settle(page)
+    assert_no_exception(page)
+    expect_value(page, "Seed", "43")
+    expect_value(page, "Monte Carlo runs", "33")
+    assert "out=isolated" in page.url and "seed=43" in page.url
+    ms = page.locator('[data-testid="stMultiSelect"]').first
+    expect(ms).to_contain_text("sage-husa")
+    expect(ms).not_to_contain_text("oracle-kf")
+    expect(page.get_by_text("Outlier model")).to_be_visible()
+    # the Compare link opened on /Noise is the same experiment (the pages share their defaults)
+    page.goto("/Noise?seed=42")
+    settle(page)
+    expect(page.get_by_role("combobox", name="Outlier model")).to_have_value("mixture", timeout=T)
+
+
+def test_rejected_link_value_shows_a_notice(page: Page):
+    page.goto("/Compare?runs=-1&flt=kf&flt=unknown&ol.mixture.contamination=5")
+    settle(page)
+    assert_no_exception(page)
+    note = page.get_by_text("Some settings of this link were not used")
+    expect(note).to_be_visible(timeout=T)
+    for part in ("runs=-1", "flt=unknown", "ol.mixture.contamination=5", "must be from 0 to 0.5"):
+        expect(page.locator('[data-testid="stAlert"]').filter(has_text=part)).to_have_count(1, timeout=T)
+    expect_value(page, "Monte Carlo runs", "100")
+
+
+def _download(page: Page, label: str, nth: int = 0) -> Path:
+    with page.expect_download(timeout=T) as d:
+        page.get_by_role("button", name=label, exact=True).nth(nth).click()
+    return Path(d.value.path())
+
+
+def test_svg_download_is_a_publication_figure(page: Page):
+    page.goto(f"/Compare?{SMALL}&seed=43&go=1")
+    wait_complete(page)
+    svg = _download(page, "SVG").read_text()
+    root = ET.fromstring(svg)
+    assert root.tag.endswith("svg")
+    assert "Position error over time" in svg and "KF" in svg  # text kept as text
+    png = _download(page, "PNG").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path: Path, monkeypatch):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    page.goto(f"/Compare?{SMALL}&seed=44&go=1")
+    wait_complete(page)
+    metrics = pd.read_csv(_download(page, "Metrics (CSV)"))
+    nb_path = _download(page, "Notebook (.ipynb)")
+    script = _download(page, "Script (.py)").read_text()
+    assert "run_experiment(SPEC)" in script
+    nb = nbformat.read(nb_path, as_version=4)
+    # the kernel runs in a temp folder (the notebook writes its figures there) and imports this
+    # checkout's navlab, installed or not
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+    nbclient.NotebookClient(nb, timeout=600, resources={"metadata": {"path": str(tmp_path)}}).execute()
+    out = "".join(o.get("text", "") for o in nb.cells[-1].outputs)
+    got = json.loads(out.strip().splitlines()[-1])
+    want = metrics[metrics.metric == "rmse_pos"].set_index("filter")["value"]
+    assert set(want.index) == {"kf", "oracle-kf", "chi2-kf"}
+    for key, v in want.items():
+        assert got[f"{key}|rmse_pos"] == pytest.approx(v, rel=1e-9), key
+    assert any(o.get("data", {}).get("image/svg+xml") for c in nb.cells for o in c.get("outputs", []))
