@@ -143,3 +143,29 @@ def test_huber_card_code_and_paper_agree_on_the_normalisation():
     said = [int(v) for v in re.findall(r"(\d+) %", card)]
     assert round(100 * share["R"]) in said and round(100 * share["S"]) in said
     assert share["R"] > share["S"]
+
+
+def _compare_link(at):
+    from streamlit.proto.PageLink_pb2 import PageLink
+
+    links = []
+    for el in at.get("page_link"):
+        pl = PageLink()
+        pl.CopyFrom(el.proto)
+        if "Compare" in pl.label and "2-D tracking" in pl.label:
+            links.append(pl)
+    (link,) = links
+    return link.query_string
+
+
+def test_compare_link_carries_the_learn_example_not_the_session_experiment(open_page):
+    from urllib.parse import parse_qs
+
+    from navlab.ui.widgets import CARRY_KEY
+
+    at = open_page(PAGE, present="1")
+    at.session_state[CARRY_KEY] = {"scn": "sins_gps", "fp.kf.q": "3", "runs": "7"}
+    at.run()
+    assert_clean(at)
+    q = parse_qs(_compare_link(at))
+    assert q == {"flt": ["kf"], "runs": ["50"], "go": ["1"], "present": ["1"]}
