@@ -239,3 +239,17 @@ def test_a_long_single_run_figure_is_decimated_but_keeps_every_mark():
     assert sum(len(t.x) for t in fig.data) <= 13 * single.MAX_POINTS + 3 * out + flagged.sum()
     assert single.shown_epochs(9000)[[0, -1]].tolist() == [0, 8999]
     assert single.shown_epochs(50).tolist() == list(range(50))
+
+
+def test_a_rejected_noise_or_outlier_model_falls_back_like_the_page():
+    from navlab.ui.widgets import PageDefaults, url_problems
+
+    d = PageDefaults()
+    msgs = url_problems({"out": ["bogus"], f"ol.{d.outliers}.contamination": ["0.2"]})
+    assert len(msgs) == 1 and msgs[0].startswith("`out=bogus`: no such outlier model")
+    msgs = url_problems({"noise": ["bogus"], "ns.step.factor": ["3"]})
+    assert (
+        msgs[1]
+        == f"`ns.step.factor=3`: not used: this link's noise schedule is '{d.noise_schedule}', not 'step'"
+    )
+    assert url_problems({"noise": ["bogus"], f"ns.{d.noise_schedule}.factor": ["3"]})[1:] == []
