@@ -167,9 +167,11 @@ def headline(
     a link to the Learn page instead).
 
     ``best``: find, per metric that has a direction (errors, detection rates), the filter that
-    the paired test says is better than EVERY other filter (:func:`navlab.metrics.best_filter`,
-    Holm-corrected): ``Table.best`` maps the column to that row; a column where no filter is
-    better than all others (a point-estimate winner the test does not back) has no entry.
+    the paired test says is better than EVERY other candidate (:func:`navlab.metrics.best_filter`,
+    Holm-corrected; the candidates are the non-oracle filters, and on the outlier-flag rates only
+    those that flag outliers): ``Table.best`` maps the column to that row; a column where no
+    filter is better than all others (a point-estimate winner the test does not back) has no
+    entry.
     """
     sm = M.summary(res)
     data = res.data

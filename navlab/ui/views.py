@@ -247,7 +247,8 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
     with notes.container():
         if res.complete and len(res.runs) > 1:
             st.caption(
-                "**Bold on green**: the filter better than every other filter on that column "
+                "**Bold on green**: among the non-oracle filters (on the outlier-flag columns: "
+                "those that flag outliers), the one better than every other on that column "
                 "(paired test over the same runs, Holm-corrected, 95 %)"
                 + ("" if t.best else " — no column has one at this run count")
                 + "; no highlight where the best point estimate is not backed by the test."
