@@ -47,7 +47,7 @@ HELP = {
     "h_err_p90": "90th percentile of the horizontal position error over all epochs and runs",
 }
 COLUMN_HELP = {
-    "diverged runs": "runs lost to divergence (rule in the footnotes)",
+    NAMES["diverged"]: HELP["diverged"],
     "µs per run·step": "filter CPU time per run and epoch (batched over the runs)",
 }
 

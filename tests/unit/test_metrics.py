@@ -205,3 +205,8 @@ def test_too_few_runs_no_interval_and_no_nan_strings():
     assert np.isnan(r.ci_lo) and r.ci_method == "" and "too few runs" in r.note
     csv = df.to_csv(index=False)
     assert "nan" not in csv.lower() and "None" not in csv
+
+
+def test_the_diverged_column_help_is_the_metric_help(flagging):
+    t = tables.headline(flagging)
+    assert t.help[tables.NAMES["diverged"]] == tables.HELP["diverged"]
