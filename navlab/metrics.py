@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -585,8 +585,11 @@ def summarize(res: Results, compare_to: str | None = None, metrics: list[str] | 
 # --------------------------------------------------------------------------- paired comparison
 
 
-def compare(res: Results, ref: str, metrics: list[str] | None = None) -> pd.DataFrame:
-    """Paired differences of every other filter against ``ref`` (rows ``<metric>_diff``).
+def compare(
+    res: Results, ref: str, metrics: list[str] | None = None, among: Sequence[str] | None = None
+) -> pd.DataFrame:
+    """Paired differences of every other filter (of ``among``, default all) against ``ref``
+    (rows ``<metric>_diff``; Holm's correction is across those filters).
 
     For each filter A ≠ ref and headline metric: Δ = metric(A) − metric(ref) over the runs both
     are judged on (the common runs when both are reliable, so Δ is the difference of the table's
@@ -608,7 +611,7 @@ def compare(res: Results, ref: str, metrics: list[str] | None = None) -> pd.Data
         part: list[dict] = []
         pvals: dict[str, float] = {}
         for key in res.runs:
-            if key == ref:
+            if key == ref or (among is not None and key not in among):
                 continue
             got = sm.comparison(key, ref, metric)
             if got is None:
@@ -668,26 +671,50 @@ def headline_metrics(res: Results) -> list[str]:
     return [m for m in wanted if m in present]
 
 
+FLAG_METRICS = ("detected_pct", "false_alarm_pct")  # rates of the filters' outlier decisions
+
+
+def best_candidates(res: Results, metric: str) -> list[str]:
+    """The filters "best" on ``metric`` is chosen among: never the oracle (it is told which
+    measurements are outliers and the true R: the accuracy floor, not a contender), and for the
+    outlier-flag rates (:data:`FLAG_METRICS`) only the filters that flagged a measurement as an
+    outlier (codes 1–5) in the analysis window (one that never flags "wins" false alarms by
+    doing nothing).
+    """
+    from navlab.filters import registry
+
+    reg = registry()
+    sm = summary(res)
+    keys = [k for k in res.runs if not (k in reg and reg[k].family == "oracle")]
+    if metric in FLAG_METRICS:
+        flagged = lambda k: float(np.sum(sm.stats[k].sums["detected"] + sm.stats[k].sums["false_alarm"]))  # noqa: E731
+        keys = [k for k in keys if flagged(k) > 0]
+    return keys
+
+
 def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
-    """The filter better than every other on ``metric`` after Holm's correction, or None.
+    """The filter better than every other candidate (:func:`best_candidates`: the non-oracle
+    filters; for the flag rates those that flag outliers) on ``metric`` after Holm's correction,
+    or None.
 
     The candidate is the reliable filter with the best point estimate; it is "best" only if the
-    paired test (:func:`compare`) says it is better than each other filter. Returns (key or None,
-    the comparison rows against the candidate).
+    paired test (:func:`compare`, Holm across the other candidates) says it is better than each
+    other candidate. Returns (key or None, the comparison rows against the candidate).
     """
     sm = summary(res)
     d = direction(metric) or 1
+    among = best_candidates(res, metric)
     values = {
         k: sm.metrics_of(k)[metric][0].point()
-        for k in res.runs
+        for k in among
         if sm.judgement.reliable[k] and metric in sm.metrics_of(k)
     }
     values = {k: v for k, v in values.items() if np.isfinite(v)}
-    if not values:
+    if len(among) < 2 or not values:
         return None, pd.DataFrame(columns=COLUMNS + DIFF_COLUMNS)
     cand = min(values, key=lambda k: d * values[k])
-    rows = compare(res, cand, [metric])
-    ok = len(rows) == len(res.runs) - 1 and (rows["verdict"] == "worse").all()
+    rows = compare(res, cand, [metric], among)
+    ok = len(rows) == len(among) - 1 and (rows["verdict"] == "worse").all()
     return (cand if ok else None), rows
 
 

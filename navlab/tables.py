@@ -47,7 +47,7 @@ HELP = {
     "h_err_p90": "90th percentile of the horizontal position error over all epochs and runs",
 }
 COLUMN_HELP = {
-    "diverged runs": "runs lost to divergence (rule in the footnotes)",
+    NAMES["diverged"]: HELP["diverged"],
     "µs per run·step": "filter CPU time per run and epoch (batched over the runs)",
 }
 
@@ -167,9 +167,11 @@ def headline(
     a link to the Learn page instead).
 
     ``best``: find, per metric that has a direction (errors, detection rates), the filter that
-    the paired test says is better than EVERY other filter (:func:`navlab.metrics.best_filter`,
-    Holm-corrected): ``Table.best`` maps the column to that row; a column where no filter is
-    better than all others (a point-estimate winner the test does not back) has no entry.
+    the paired test says is better than EVERY other candidate (:func:`navlab.metrics.best_filter`,
+    Holm-corrected; the candidates are the non-oracle filters, and on the outlier-flag rates only
+    those that flag outliers): ``Table.best`` maps the column to that row; a column where no
+    filter is better than all others (a point-estimate winner the test does not back) has no
+    entry.
     """
     sm = M.summary(res)
     data = res.data

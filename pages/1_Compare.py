@@ -2,14 +2,11 @@
 
 import streamlit as st
 
-from navlab.metrics import summarize
-from navlab.notebook import default_figures, notebook, script
-from navlab.ui import figures as F
 from navlab.ui import single
 from navlab.ui.frame import frame
 from navlab.ui.runner import request_run, run_live, run_requested
-from navlab.ui.share import config_download, csv_download, run_on_open, text_download
-from navlab.ui.views import CompareView, headline_groups, show_stored
+from navlab.ui.share import config_download, run_on_open
+from navlab.ui.views import CompareView, headline_groups, run_downloads, show_stored
 from navlab.ui.widgets import PageDefaults, sidebar_experiment
 
 PAGE = "compare"
@@ -65,37 +62,4 @@ if res is not None and res.complete:
     group = view.group if view.group in res.data.groups else headline_groups(res)[0]
     single.render(res, PAGE, group)
     st.markdown("##### Downloads")
-    figs = default_figures(group, view.channel or 0)
-    d1, d2, d3, d4, _ = st.columns([1, 1, 1, 1, 2])
-    csv_download(
-        lambda: summarize(res, compare_to=view.ref),
-        "Metrics (CSV)",
-        "navlab-metrics.csv",
-        "dl_metrics_compare",
-        container=d1,
-    )
-    csv_download(
-        lambda: F.rmse_curves(res),
-        "RMSE per epoch (CSV)",
-        "navlab-rmse-per-epoch.csv",
-        "dl_curves_compare",
-        container=d2,
-    )
-    text_download(
-        lambda: notebook(spec, figs),
-        "Notebook (.ipynb)",
-        "navlab-run.ipynb",
-        "dl_nb_compare",
-        "application/x-ipynb+json",
-        "a Jupyter notebook that re-runs this experiment with navlab and redraws these figures",
-        container=d3,
-    )
-    text_download(
-        lambda: script(spec, figs),
-        "Script (.py)",
-        "navlab-run.py",
-        "dl_py_compare",
-        "text/x-python",
-        "a Python script that re-runs this experiment and writes the figures as SVG and PNG",
-        container=d4,
-    )
+    run_downloads(res, view, group, PAGE)

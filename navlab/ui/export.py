@@ -15,7 +15,8 @@ deterministically, everywhere navlab runs (app, container, notebook, script): me
 
 Traces understood: scatter / scattergl (lines, markers, ``fill="tonexty"`` bands), bar, heatmap;
 layout: titles and subtitles, subplot domains (``make_subplots``), log axes and explicit ticks,
-axis ranges, subplot titles (annotations), vertical lines (shapes). Anything else is skipped.
+axis ranges, subplot titles (annotations), vertical lines and x bands (shapes; not a player's
+animated ones), error bars of type "data". Anything else is skipped.
 """
 
 from __future__ import annotations
@@ -173,6 +174,39 @@ def _draw_scatter(ax: Any, tr: Any, prev: dict[Any, np.ndarray]) -> None:
             markeredgecolor=mcol,
             label=label,
         )
+    _draw_errors(ax, tr, x, y, color)
+
+
+def _error(e: Any, n: int) -> np.ndarray | None:
+    """A Plotly ``error_x`` / ``error_y`` of type "data" as matplotlib's (2, n) minus/plus array
+    (None for another type, invisible bars or a length that does not match the points).
+    """
+    if e is None or e.type != "data" or e.visible is False or e.array is None:
+        return None
+    plus = _arr(e.array)
+    minus = plus if e.symmetric is not False or e.arrayminus is None else _arr(e.arrayminus)
+    if plus.shape != (n,) or minus.shape != (n,) or plus.dtype.kind != "f" or minus.dtype.kind != "f":
+        return None
+    return np.vstack([np.nan_to_num(minus), np.nan_to_num(plus)])
+
+
+def _draw_errors(ax: Any, tr: Any, x: np.ndarray, y: np.ndarray, color: Any) -> None:
+    """The trace's error bars of type "data" (Sweep's 95 % intervals, the claims' ranges)."""
+    for e, which in ((tr.error_y, "y"), (tr.error_x, "x")):
+        err = _error(e, x.size)
+        if err is None:
+            continue
+        thick = float(e.thickness) if e.thickness is not None else 2.0
+        ax.errorbar(
+            x,
+            y,
+            **{f"{which}err": err},
+            fmt="none",
+            ecolor=_color(e.color, color if isinstance(color, str) else "#333333"),
+            elinewidth=thick * 0.55,
+            capsize=float(e.width) * 0.5 if e.width is not None else 1.5,
+            label="_nolegend_",
+        )
 
 
 def _draw_bar(ax: Any, tr: Any) -> None:
@@ -264,12 +298,20 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
         if lowest[xr] != (xr, yr):
             ax.set_xlabel("")
             ax.tick_params(labelbottom=False)
-    for sh in layout.shapes or ():
+    # vertical lines and x bands across the plot; a player's shapes (the frames move them: its
+    # cursor and veil) are not part of a still figure
+    for sh in () if fig.frames else layout.shapes or ():
+        xr = (sh.xref or "x").split(" ")[0]
+        across = (sh.yref or "y").split(" ")[-1] in ("paper", "domain")
+        targets = [ax for (axr, _), ax in axes.items() if axr == xr]
         if sh.type == "line" and sh.x0 is not None and sh.x0 == sh.x1:
-            xr = (sh.xref or "x").split(" ")[0]
-            for (axr, _), ax in axes.items():
-                if axr == xr:
-                    ax.axvline(float(sh.x0), color=_color(sh.line.color, "#f0a500"), linewidth=1, alpha=0.6)
+            for ax in targets:
+                ax.axvline(float(sh.x0), color=_color(sh.line.color, "#f0a500"), linewidth=1, alpha=0.6)
+        elif sh.type == "rect" and across and sh.x0 is not None and sh.x1 is not None:
+            c = _color(sh.fillcolor, "#cccccc")
+            alpha = float(sh.opacity) if sh.opacity is not None else None
+            for ax in targets:
+                ax.axvspan(float(sh.x0), float(sh.x1), color=c, alpha=alpha, linewidth=0, zorder=0)
     # subplot titles (annotations at the top of a domain) go on their axes; the main title above
     for an in layout.annotations or ():
         if an.xref == "paper" and an.yref == "paper" and an.text:

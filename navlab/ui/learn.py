@@ -680,13 +680,17 @@ def compare_link(keys: list[str], spec: TinySpec) -> None:
     """A link to Compare running these filters on the 2-D tracking scenario with outliers, its
     single-run view below the averages.
     """
-    from navlab.ui.frame import carried_query
+    from navlab.ui.frame import PRESENT, presenting
 
     reg = registry()
     flt = [k for k in keys if k in reg and reg[k].family != "nonlinear"] or ["kf"]
     if "kf" not in flt:
         flt = ["kf", *flt]
-    q = {**carried_query("pages/1_Compare.py"), "flt": flt, "runs": "50", "go": "1"}
+    # the Learn example only, not the session's carried experiment (a sins_gps run before would
+    # open sins_gps with its filter parameters under a label that says 2-D tracking)
+    q = {"flt": flt, "runs": "50", "go": "1"}
+    if presenting():
+        q[PRESENT] = "1"
     st.page_link(
         "pages/1_Compare.py",
         label="These filters on one Monte Carlo run of the 2-D tracking scenario (Compare, single-run view)",

@@ -302,6 +302,13 @@ def run_live(
             render(res)
         return res
     start = partial_results(page, spec)
+    if start is not None and start.complete:  # a click during the last batch kept all of it
+        store.put(key, start)
+        _partials().pop(page, None)
+        cancel_run(page)
+        if render is not None:
+            render(start)
+        return start
     # the session's dict, fetched once: reading st.session_state is one of Streamlit's yield
     # points, where a rerun asked for mid-chunk is raised; storing a finished chunk through it
     # could lose that chunk (measured: Stop at 630 of 3000 runs kept 25)
@@ -367,6 +374,9 @@ def run_live(
         show_error(exc)
         return None
     if pending:  # the finished chunks (the one in flight included) are kept: now rerun
+        if res is not None and res.complete:  # the last batch: finished, so stored now
+            store.put(key, res)
+            partials.pop(page, None)
         raise pending[0]
     assert res is not None
     stop_ph.empty()

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 F32 = np.float32
 MAX_FRAMES = 60  # play-button steps (each frame is a few shapes: cheap)
+MAX_POINTS = 3000  # epochs drawn per line (a run of 10⁵ epochs was a figure of megabytes)
 OUTLIER_COLOR = "#d62728"
 
 
@@ -78,6 +79,16 @@ def measured_channel(res: Results, state: int) -> int | None:
     return None
 
 
+def shown_epochs(n: int, max_points: int = MAX_POINTS) -> np.ndarray:
+    """The epochs a line of an ``n``-epoch run is drawn at: all of them up to ``max_points``, else
+    about ``max_points`` evenly spaced ones (first and last included). Marker traces (outliers,
+    flagged epochs) keep every epoch they mark.
+    """
+    if n <= max_points:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(int))
+
+
 def _a(v: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(v, dtype=F32)
 
@@ -104,10 +115,15 @@ def single_run_figure(
     Outlier epochs of the channel are marked by red ticks on the time axis of every panel. With
     ``frames`` a play button and a time slider reveal the run epoch by epoch. ``relative``: panel 1
     shows everything minus the truth (the truth is the zero line), so an estimate's error and its
-    bounds are readable whatever the size of the state (a position of 10⁵ m).
+    bounds are readable whatever the size of the state (a position of 10⁵ m). Lines are drawn at
+    :func:`shown_epochs` (at most ``MAX_POINTS``); every outlier and flagged epoch keeps its mark.
     """
     d = res.data
     t = np.asarray(d.t, dtype=float)
+    ix = shown_epochs(t.size)
+    ix1 = ix[ix > 0]  # weights and R from the first update on
+    drawn = np.zeros(t.size, bool)
+    drawn[ix] = True
     colors = filter_colors(list(res.runs))
     sname = d.state_names[state] if state < len(d.state_names) else str(state)
     cname = d.channel_names[channel] if channel < len(d.channel_names) else str(channel)
@@ -139,8 +155,8 @@ def single_run_figure(
         traces.append(
             (
                 go.Scatter(
-                    x=_a(t),
-                    y=_a(x + s2),
+                    x=_a(t[ix]),
+                    y=_a((x + s2)[ix]),
                     mode="lines",
                     line={"width": 0, "color": c},
                     showlegend=False,
@@ -153,8 +169,8 @@ def single_run_figure(
         traces.append(
             (
                 go.Scatter(
-                    x=_a(t),
-                    y=_a(x - s2),
+                    x=_a(t[ix]),
+                    y=_a((x - s2)[ix]),
                     mode="lines",
                     line={"width": 0, "color": c},
                     fill="tonexty",
@@ -169,7 +185,12 @@ def single_run_figure(
         traces.append(
             (
                 go.Scatter(
-                    x=_a(t), y=_a(x), mode="lines", name=name, line={"color": c, "width": 2}, legendgroup=key
+                    x=_a(t[ix]),
+                    y=_a(x[ix]),
+                    mode="lines",
+                    name=name,
+                    line={"color": c, "width": 2},
+                    legendgroup=key,
                 ),
                 1,
             )
@@ -179,8 +200,8 @@ def single_run_figure(
         traces.append(
             (
                 go.Scatter(
-                    x=_a(t[1:]),
-                    y=_a(w[1:]),
+                    x=_a(t[ix1]),
+                    y=_a(w[ix1]),
                     mode="lines",
                     name=name,
                     line={"color": c, "width": 1.5, "shape": "hv"},
@@ -208,11 +229,11 @@ def single_run_figure(
                 )
             )
         est = fr.R_hat is not None
-        rv = (fr.R_hat if est else fr.R_used)[run, 1:, channel]
+        rv = (fr.R_hat if est else fr.R_used)[run, ix1, channel]
         traces.append(
             (
                 go.Scatter(
-                    x=_a(t[1:]),
+                    x=_a(t[ix1]),
                     y=_a(rv),
                     mode="lines",
                     name=f"{fr.label} {'R̂' if est else 'R used'}",
@@ -226,38 +247,21 @@ def single_run_figure(
     out = d.outlier_mask[run, :, channel]
     if mch is not None:
         z = d.z[run, :, mch] - ref
-        clean = ~d.outlier_mask[run, :, mch] & np.isfinite(z)
-        dirty = d.outlier_mask[run, :, mch] & np.isfinite(z)
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[clean]),
-                    y=_a(z[clean]),
-                    mode="markers",
-                    name="measurement",
-                    marker={"color": "#6e7781", "symbol": "circle-open", "size": 6},
-                ),
-                1,
-            )
-        )
-        if dirty.any():
-            traces.append(
-                (
-                    go.Scatter(
-                        x=_a(t[dirty]),
-                        y=_a(z[dirty]),
-                        mode="markers",
-                        name="outlier (measurement)",
-                        marker={"color": OUTLIER_COLOR, "symbol": "x", "size": 10},
-                    ),
-                    1,
+        bad = d.outlier_mask[run, :, mch] & np.isfinite(z)
+        clean = ~d.outlier_mask[run, :, mch] & np.isfinite(z) & drawn
+        for sel, name, marker, always in (
+            (clean, "measurement", {"color": "#6e7781", "symbol": "circle-open", "size": 6}, True),
+            (bad, "outlier (measurement)", {"color": OUTLIER_COLOR, "symbol": "x", "size": 10}, False),
+        ):
+            if always or sel.any():
+                traces.append(
+                    (go.Scatter(x=_a(t[sel]), y=_a(z[sel]), mode="markers", name=name, marker=marker), 1)
                 )
-            )
     traces.append(
         (
             go.Scatter(
-                x=_a(t),
-                y=_a(truth - ref),
+                x=_a(t[ix]),
+                y=_a((truth - ref)[ix]),
                 mode="lines",
                 name="truth" + (" (the zero line)" if relative else ""),
                 line={"color": TRUTH_COLOR, "width": 2.5},
@@ -268,8 +272,8 @@ def single_run_figure(
     traces.append(
         (
             go.Scatter(
-                x=_a(t),
-                y=_a(d.R_schedule[:, channel]),
+                x=_a(t[ix]),
+                y=_a(d.R_schedule[ix, channel]),
                 mode="lines",
                 name="true R(t)",
                 line={"color": TRUTH_COLOR, "width": 2.5},

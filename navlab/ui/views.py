@@ -247,7 +247,8 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
     with notes.container():
         if res.complete and len(res.runs) > 1:
             st.caption(
-                "**Bold on green**: the filter better than every other filter on that column "
+                "**Bold on green**: among the non-oracle filters (on the outlier-flag columns: "
+                "those that flag outliers), the one better than every other on that column "
                 "(paired test over the same runs, Holm-corrected, 95 %)"
                 + ("" if t.best else " — no column has one at this run count")
                 + "; no highlight where the best point estimate is not backed by the test."
@@ -445,3 +446,53 @@ def noise_preset_button(spec: Any, container: Any) -> None:
         help="a step in the true σ and isolated outliers, with the KF, the oracle and filters that "
         "estimate R (" + ", ".join(pre["flt"]) + "), 50 runs",
     )
+
+
+def run_downloads(res: Results, view: CompareView, group: str, page: str) -> None:
+    """A finished run's downloads on one line: the metric table and the RMSE per epoch (CSV), and
+    a notebook and a script that re-run the experiment and redraw the page's figures.
+    """
+    from navlab.metrics import summarize
+    from navlab.notebook import default_figures, notebook, script
+    from navlab.ui.share import csv_download, text_download
+
+    spec = res.spec
+    figs = default_figures(group, view.channel or 0)
+    cols = st.columns([1, 1, 1, 1, 2])
+    csv_download(
+        lambda: summarize(res, compare_to=view.ref),
+        "Metrics (CSV)",
+        "navlab-metrics.csv",
+        f"dl_metrics_{page}",
+        container=cols[0],
+    )
+    csv_download(
+        lambda: F.rmse_curves(res),
+        "RMSE per epoch (CSV)",
+        "navlab-rmse-per-epoch.csv",
+        f"dl_curves_{page}",
+        container=cols[1],
+    )
+    for col, make, label, name, key, mime, what in (
+        (
+            cols[2],
+            notebook,
+            "Notebook (.ipynb)",
+            "navlab-run.ipynb",
+            "nb",
+            "application/x-ipynb+json",
+            "a Jupyter notebook that re-runs this experiment with navlab and redraws these figures",
+        ),
+        (
+            cols[3],
+            script,
+            "Script (.py)",
+            "navlab-run.py",
+            "py",
+            "text/x-python",
+            "a Python script that re-runs this experiment and writes the figures as SVG and PNG",
+        ),
+    ):
+        text_download(
+            lambda make=make: make(spec, figs), label, name, f"dl_{key}_{page}", mime, what, container=col
+        )

@@ -598,21 +598,25 @@ def url_problems(query: Mapping[str, Sequence[str]], runs_max: int = UI_MAX_RUNS
     message per value naming the parameter; [] when the link is fine. Other pages' own keys are
     not judged here.
     """
-    reg, sreg = registry(), scenario_registry()
-    get = lambda k, d: (list(query.get(k) or []) or [d])[-1]  # noqa: E731
-    scn, noise, out = get(SCN, "cv2d"), get(NOISE, "constant"), get(OUT, "mixture")
-    scn = scn if scn in sreg else "cv2d"
+    reg, dflt = registry(), PageDefaults()
+    options = {
+        SCN: (scenario_keys(), "no such scenario"),
+        NOISE: (list(SCHEDULES), "no such noise schedule"),
+        OUT: (list(OUTLIERS), "no such outlier model"),
+    }
+
+    def active(key: str, default: str) -> str:  # the link's value, or the page's fallback for it
+        v = (list(query.get(key) or []) or [default])[-1]
+        return v if v in options[key][0] else default
+
+    scn = active(SCN, dflt.scenario)
+    noise, out = active(NOISE, dflt.noise_schedule), active(OUT, dflt.outliers)
     chosen = list(query.get(FLT) or [])
     msgs: list[str] = []
 
     def say(key: str, raw: str, why: str) -> None:
         msgs.append(f"`{key}={raw}`: {why}")
 
-    options = {
-        SCN: (scenario_keys(), "no such scenario"),
-        NOISE: (list(SCHEDULES), "no such noise schedule"),
-        OUT: (list(OUTLIERS), "no such outlier model"),
-    }
     for key, raws in query.items():
         if not is_experiment_key(key):
             continue
@@ -645,11 +649,11 @@ def url_problems(query: Mapping[str, Sequence[str]], runs_max: int = UI_MAX_RUNS
                 if why:
                     say(key, raw, f"{name.replace('_', ' ')} {why}")
                     continue
-                active = {"sc": scn, "ns": noise, "ol": out}.get(kind)
-                if kind == "fp" and owner not in (chosen or default_filters(scn, PageDefaults())):
+                used = {"sc": scn, "ns": noise, "ol": out}.get(kind)
+                if kind == "fp" and owner not in (chosen or default_filters(scn, dflt)):
                     say(key, raw, f"not used: the filter '{owner}' is not among the chosen filters")
-                elif active is not None and owner != active:
-                    say(key, raw, f"not used: this link's {noun} is '{active}', not '{owner}'")
+                elif used is not None and owner != used:
+                    say(key, raw, f"not used: this link's {noun} is '{used}', not '{owner}'")
     return msgs
 
 

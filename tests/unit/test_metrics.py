@@ -9,6 +9,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from navlab import metrics as M
+from navlab import tables
 from navlab.experiment import ExperimentSpec, Results, plan, run_experiment, run_filters
 from navlab.filters.kalman import KF
 from navlab.metrics import best_filter, compare, summarize, summary
@@ -71,7 +73,7 @@ def test_constructed_divergence_is_caught_and_both_filters_lose_the_run():
 
 def test_a_filter_diverging_in_more_than_5_percent_ranks_below_whatever_its_rmse():
     # two runs (10 %) run away finitely, +1e4 m: the KF is then unreliable
-    res = experiment({3: [(40, 1e4)], 7: [(60, 1e4)]})
+    res = experiment({3: [(40, 1e4)], 7: [(60, 1e4)]}, extra=("oracle-kf", "chi2-kf"))
     fr = res.runs["kf"]
     assert fr.diverged.sum() == 2 and set(fr.diverged_why[[3, 7]]) == {2}
     sm = summary(res)
@@ -80,9 +82,10 @@ def test_a_filter_diverging_in_more_than_5_percent_ranks_below_whatever_its_rmse
     assert value(df, "oracle-kf", "runs_judged").value == 20  # the reliable filter keeps all
     assert value(df, "kf", "runs_judged").value == 18
     assert "diverges in 2 of 20 runs" in value(df, "kf", "diverged").note
-    c = compare(res, "oracle-kf", ["rmse_pos"])
+    c = compare(res, "oracle-kf", ["rmse_pos"], among=["kf"])
+    assert list(c["filter"]) == ["kf"]
     assert c.iloc[0].verdict == "worse" and "diverges in 2 of 20 runs" in c.iloc[0].note
-    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+    assert best_filter(res, "rmse_pos")[0] == "chi2-kf"  # the oracle is no candidate
 
 
 def test_nees_beyond_1e6_is_divergence():
@@ -148,13 +151,52 @@ def test_paired_comparison_and_best_are_made_by_the_test():
     assert r.value == pytest.approx(
         value(df, "oracle-kf", "rmse_pos").value - value(df, "kf", "rmse_pos").value
     )
-    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+    assert best_filter(res, "rmse_pos")[0] == "chi2-kf"  # the oracle (the floor) is no candidate
     # a filter against an identical copy of itself: indistinguishable, never "better"
     res.runs["kf2"] = dataclasses.replace(res.runs["kf"], key="kf2", label="KF copy")
     res.__dict__.pop("_summary", None)
     c = compare(res, "kf", ["rmse_pos"])
     assert c[c["filter"] == "kf2"].iloc[0].verdict == "indistinguishable"
-    assert best_filter(res, "rmse_pos")[0] == "oracle-kf"
+    assert best_filter(res, "rmse_pos")[0] == "chi2-kf"
+
+
+@pytest.fixture(scope="module")
+def flagging():
+    spec = ExperimentSpec(
+        runs=40,
+        epochs=100,
+        seed=2,
+        outliers="mixture",
+        contamination=0.1,
+        outlier_scale=10.0,
+        filters=("kf", "oracle-kf", "chi2-kf", "huber-kf"),
+    )
+    return run_experiment(spec)
+
+
+def test_the_oracle_is_never_the_best(flagging):
+    df = summarize(flagging)
+    rmse = {k: value(df, k, "rmse_pos").value for k in flagging.runs}
+    assert min(rmse, key=rmse.get) == "oracle-kf"  # the floor: told the outliers and R
+    assert "oracle-kf" not in M.best_candidates(flagging, "rmse_pos")
+    assert best_filter(flagging, "rmse_pos")[0] != "oracle-kf"
+
+
+def test_flag_rates_are_won_only_by_filters_that_flag(flagging):
+    df = summarize(flagging)
+    assert value(df, "kf", "false_alarm_pct").value == 0  # it never flags: no false alarm
+    assert M.best_candidates(flagging, "false_alarm_pct") == ["chi2-kf", "huber-kf"]
+    assert M.best_candidates(flagging, "detected_pct") == ["chi2-kf", "huber-kf"]
+    assert M.best_candidates(flagging, "rmse_pos") == ["kf", "chi2-kf", "huber-kf"]
+    fa = {k: value(df, k, "false_alarm_pct").value for k in ("chi2-kf", "huber-kf")}
+    assert fa["chi2-kf"] < fa["huber-kf"]
+    key, rows = best_filter(flagging, "false_alarm_pct")
+    assert key == "chi2-kf" and list(rows["filter"]) == ["huber-kf"]
+    assert best_filter(flagging, "detected_pct")[0] in ("huber-kf", None)
+    t = tables.headline(flagging, best=True)
+    assert t.best.get(tables.NAMES["false_alarm_pct"]) == flagging.runs["chi2-kf"].label
+    assert flagging.runs["oracle-kf"].label not in t.best.values()
+    assert flagging.runs["kf"].label not in t.best.values()
 
 
 def test_too_few_runs_no_interval_and_no_nan_strings():
@@ -163,3 +205,8 @@ def test_too_few_runs_no_interval_and_no_nan_strings():
     assert np.isnan(r.ci_lo) and r.ci_method == "" and "too few runs" in r.note
     csv = df.to_csv(index=False)
     assert "nan" not in csv.lower() and "None" not in csv
+
+
+def test_the_diverged_column_help_is_the_metric_help(flagging):
+    t = tables.headline(flagging)
+    assert t.help[tables.NAMES["diverged"]] == tables.HELP["diverged"]

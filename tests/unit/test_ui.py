@@ -220,3 +220,36 @@ def test_filter_problems_are_explained(monkeypatch):
     assert "linear model" in W.filter_problem("lin-only-test", "cv2d")
     monkeypatch.setattr(W, "scenario_is_linear", lambda scn: True)
     assert W.filter_problem("lin-only-test", "cv2d") is None
+
+
+def test_a_long_single_run_figure_is_decimated_but_keeps_every_mark():
+    from navlab.ui import single
+
+    spec = ExperimentSpec(runs=1, epochs=9000, seed=5, outliers="mixture", filters=("kf", "chi2-kf"))
+    r = run_experiment(spec)
+    fig = single.single_run_figure(r, 0, ["kf", "chi2-kf"], 0, 0, frames=False)
+    out = int(r.data.outlier_mask[0, :, 0].sum())
+    flagged = r.runs["chi2-kf"].flags[0, 1:, 0] > 0
+    assert out > single.MAX_POINTS // 10 and flagged.sum() > 0
+    marks = {t.name: len(t.x) for t in fig.data if t.mode == "markers"}
+    assert marks["outlier (measurement)"] == out
+    assert marks["χ²-gated KF: flagged"] == int(flagged.sum())
+    assert max(len(t.x) for t in fig.data if t.mode == "lines") <= single.MAX_POINTS
+    # 12 lines and the clean measurements at most MAX_POINTS each; the marks: outliers 3×, flags
+    assert sum(len(t.x) for t in fig.data) <= 13 * single.MAX_POINTS + 3 * out + flagged.sum()
+    assert single.shown_epochs(9000)[[0, -1]].tolist() == [0, 8999]
+    assert single.shown_epochs(50).tolist() == list(range(50))
+
+
+def test_a_rejected_noise_or_outlier_model_falls_back_like_the_page():
+    from navlab.ui.widgets import PageDefaults, url_problems
+
+    d = PageDefaults()
+    msgs = url_problems({"out": ["bogus"], f"ol.{d.outliers}.contamination": ["0.2"]})
+    assert len(msgs) == 1 and msgs[0].startswith("`out=bogus`: no such outlier model")
+    msgs = url_problems({"noise": ["bogus"], "ns.step.factor": ["3"]})
+    assert (
+        msgs[1]
+        == f"`ns.step.factor=3`: not used: this link's noise schedule is '{d.noise_schedule}', not 'step'"
+    )
+    assert url_problems({"noise": ["bogus"], f"ns.{d.noise_schedule}.factor": ["3"]})[1:] == []
