@@ -409,62 +409,23 @@ def side_by_side_figure(results: list[StepThrough], step: int) -> go.Figure:
         color = filter_color(res.key)
         g = res.steps[res.steps["channel"] == ch0]
         post = res.states[(res.states["state"] == res.data.state_names[0]) & (res.states["epoch"] > 0)]
-        fig.add_trace(
-            go.Scatter(
-                x=_a(post["epoch"]),
-                y=_a(post["posterior"]),
-                name=res.label,
-                mode="lines+markers",
-                line={"color": color, "width": 2.5},
-                legendgroup=res.key,
-            ),
-            row=1,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=_a(g["epoch"]),
-                y=_a(g["weight"]),
-                name=res.label,
-                mode="lines+markers",
-                line={"color": color},
-                text=g["flag_name"].astype(str).to_numpy(),
-                hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
-                legendgroup=res.key,
-                showlegend=False,
-            ),
-            row=2,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=_a(g["epoch"]),
-                y=_a(g["R_used"]),
-                name=res.label,
-                mode="lines+markers",
-                line={"color": color},
-                legendgroup=res.key,
-                showlegend=False,
-            ),
-            row=3,
-            col=1,
-        )
         err = res.states[res.states["epoch"] > 0].copy()
         err = err[err["state"].isin(res.data.state_names[:nmeas])]
         e = err.assign(sq=err["error"].to_numpy(dtype=float) ** 2).groupby("epoch")["sq"].sum() ** 0.5
-        fig.add_trace(
-            go.Scatter(
-                x=_a(pd.Series(e.index, dtype=float)),
-                y=_a(e),
-                name=res.label,
-                mode="lines+markers",
-                line={"color": color},
-                legendgroup=res.key,
-                showlegend=False,
-            ),
-            row=4,
-            col=1,
-        )
+        weight_hover = {
+            "text": g["flag_name"].astype(str).to_numpy(),
+            "hovertemplate": "epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
+        }
+        rows = [  # (x, y, extra trace settings) for the estimate, weight, R used, error panels
+            (post["epoch"], post["posterior"], {"line": {"color": color, "width": 2.5}}),
+            (g["epoch"], g["weight"], {**weight_hover, "showlegend": False}),
+            (g["epoch"], g["R_used"], {"showlegend": False}),
+            (pd.Series(e.index, dtype=float), e, {"showlegend": False}),
+        ]
+        for row, (xs, ys, extra) in enumerate(rows, 1):
+            trace = {"name": res.label, "mode": "lines+markers", "line": {"color": color}}
+            trace.update(legendgroup=res.key, **extra)
+            fig.add_trace(go.Scatter(x=_a(xs), y=_a(ys), **trace), row=row, col=1)
     fig.add_trace(
         go.Scatter(
             x=x,
