@@ -333,8 +333,26 @@ def open_charts(browser: Browser, base_url: str, width: int, path: str, button_l
         timeout=T,
     )
     settle(page)
+    page.wait_for_timeout(1000)  # a last batch's rerun may start just after the first settle
+    settle(page)
     assert_no_exception(page)
     return ctx, page
+
+
+def screenshot_charts(page: Page, path_of) -> None:
+    """Each visible chart to ``path_of(i)`` (artifacts for a human): a chart redrawn between the
+    locating and the shot (Streamlit replaces the element) is located again, up to three times."""
+    from playwright.sync_api import Error
+
+    for i in range(page.locator(f"{CHART}:visible").count()):
+        for attempt in range(3):
+            try:
+                page.locator(f"{CHART}:visible").nth(i).screenshot(path=str(path_of(i)), timeout=T)
+                break
+            except Error:
+                if attempt == 2:
+                    raise
+                settle(page)
 
 
 @pytest.mark.parametrize("width", WIDTHS)
@@ -352,8 +370,7 @@ def test_no_legend_covers_a_title_or_the_data(
     try:
         charts = [c for c in page.evaluate(GEOMETRY_JS) if c["visible"]]
         assert charts
-        for i, loc in enumerate(page.locator(f"{CHART}:visible").all()):
-            loc.screenshot(path=str(artifacts_dir / f"charts-{name}-{width}-{i}.png"), timeout=T)
+        screenshot_charts(page, lambda i: artifacts_dir / f"charts-{name}-{width}-{i}.png")
         assert legend_overlaps(charts) == []
     finally:
         ctx.close()
