@@ -488,3 +488,20 @@ def test_rakf_abnormality_test_ignores_a_missing_channel():
     assert np.all(outs[1].stats["lambda"] > 1.0)  # the inflation ran
     np.testing.assert_allclose(outs[0].stats["lambda"], outs[1].stats["lambda"], rtol=1e-12)
     np.testing.assert_allclose(outs[0].x, outs[1].x, rtol=1e-10, atol=1e-10)
+
+
+def test_rakf_inflation_beyond_the_float_range_is_a_nan_not_an_overflow():
+    """tr H P⁻ Hᵀ ≈ 1e-300 and a huge innovation: λ = (νᵀν − tr R)/tr HPHᵀ overflows; the run is
+    marked (NaN, flag 9) for the divergence rule, and no RuntimeWarning escapes (they are errors
+    in the tests)."""
+    from linmodels import side as one_side
+
+    from navlab.filters.base import LinearModel
+
+    model = LinearModel(np.eye(2), np.zeros((2, 2)), np.eye(2), np.eye(2))
+    f = make_filter("rakf")
+    st = f.init(model, np.zeros((2, 2)), 1e-300 * np.eye(2))
+    z = np.array([[1e10, 1e10], [0.1, -0.1]])  # run 0 overflows, run 1 is ordinary
+    _, out = f.update(model, st, 1, z, one_side(2, 2))
+    assert np.isnan(out.x[0]).all() and (out.flags[0] == 9).any()
+    assert np.isfinite(out.x[1]).all()

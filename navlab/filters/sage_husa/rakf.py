@@ -146,10 +146,12 @@ class RAKF(Filter):
         lam = np.ones(B)
         if abnormal.any():  # (λ = 1 elsewhere: the products below are exact there)
             a = np.flatnonzero(abnormal)
-            lam[a] = np.maximum(1.0, (nn[a] - trR[a]) / np.maximum(trHPH[a], 1e-300))
             # a diverged run (P⁻ indefinite, so tr H P⁻ Hᵀ ≈ 0 or < 0, and λ P⁻ beyond the float
             # range) has no usable inflation: it becomes NaN here, silently (flag 9), and the
-            # experiment records the divergence, instead of overflowing to ±inf
+            # experiment records the divergence, instead of overflowing to ±inf (the quotient
+            # itself may overflow there: that inf is caught by the test below)
+            with np.errstate(over="ignore"):
+                lam[a] = np.maximum(1.0, (nn[a] - trR[a]) / np.maximum(trHPH[a], 1e-300))
             maxP = np.maximum(np.abs(P_m[a]).max(axis=(-2, -1)), 1.0)
             broken = lam[a] > 1e300 / maxP
             lam[a[broken]] = np.nan
