@@ -54,7 +54,7 @@ def test_a_million_run_summary_fits_in_a_few_hundred_mb():
     from navlab.experiment import summary_chunk
 
     chunk = summary_chunk(size)
-    assert 1000 <= chunk <= 5000
+    assert 200 <= chunk <= 5000  # batched enough that the per-epoch overhead is paid rarely
     assert size.summary(chunk, keep_epochs=False) < 700 * 2**20
 
 
