@@ -175,3 +175,17 @@ def test_sig3_and_mean_ci():
     assert S.sig3(float("nan")) == ""
     e = S.mean_ci([1.0, 2.0, 3.0])
     assert e.value == 2.0 and e.lo < 2.0 < e.hi
+
+
+def test_influence_values_are_not_kept_for_very_many_runs(monkeypatch):
+    """Above PSI_CACHE_RUNS runs ψ is recomputed at each use (memory), with the same interval."""
+    rng = np.random.default_rng(3)
+    num, den = rng.gamma(2.0, size=3000), np.full(3000, 10.0)
+    kept = S.Ratio(num, den, sqrt=True)
+    ci_kept = S.Resampler(3000, seed=1).estimate(kept)
+    assert "_psi" in kept.__dict__
+    monkeypatch.setattr(S, "PSI_CACHE_RUNS", 1000)
+    fresh = S.Ratio(num, den, sqrt=True)
+    ci_fresh = S.Resampler(3000, seed=1).estimate(fresh)
+    assert "_psi" not in fresh.__dict__
+    assert (ci_fresh.value, ci_fresh.lo, ci_fresh.hi) == (ci_kept.value, ci_kept.lo, ci_kept.hi)
