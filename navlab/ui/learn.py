@@ -28,6 +28,18 @@ def _a(s: pd.Series) -> np.ndarray:
     return np.ascontiguousarray(s.to_numpy(dtype=float), dtype=F32)
 
 
+def add_measurements(fig: go.Figure, g: pd.DataFrame, suffix: str, size: int) -> None:
+    """One channel's measurements (open circles) and its outliers (red ×) into row 1 of ``fig``."""
+    z = {"color": "#555555", "symbol": "circle-open", "size": size}
+    trace = go.Scatter(x=_a(g["epoch"]), y=_a(g["z"]), name=f"measurement z{suffix}", marker=z)
+    fig.add_trace(trace.update(mode="markers", legendgroup="z"), row=1, col=1)
+    out = g[g["outlier"]]
+    if len(out):
+        mark = {"color": "#d62728", "symbol": "x", "size": size + 4}
+        trace = go.Scatter(x=_a(out["epoch"]), y=_a(out["z"]), name=f"outlier{suffix}", marker=mark)
+        fig.add_trace(trace.update(mode="markers", legendgroup="outlier"), row=1, col=1)
+
+
 def overview_figure(res: StepThrough, step: int) -> go.Figure:
     """Four stacked panels over the epochs, the current ``step`` highlighted.
 
@@ -80,32 +92,7 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
             row=1,
             col=1,
         )
-        fig.add_trace(
-            go.Scatter(
-                x=x,
-                y=_a(g["z"]),
-                name=f"measurement z {ch}",
-                mode="markers",
-                marker={"color": "#555555", "symbol": "circle-open", "size": 8},
-                legendgroup="z",
-            ),
-            row=1,
-            col=1,
-        )
-        out = g[g["outlier"]]
-        if len(out):
-            fig.add_trace(
-                go.Scatter(
-                    x=_a(out["epoch"]),
-                    y=_a(out["z"]),
-                    name=f"outlier {ch}",
-                    mode="markers",
-                    marker={"color": "#d62728", "symbol": "x", "size": 12},
-                    legendgroup="outlier",
-                ),
-                row=1,
-                col=1,
-            )
+        add_measurements(fig, g, f" {ch}", size=8)
         fig.add_trace(
             go.Scatter(
                 x=x,
@@ -426,30 +413,7 @@ def side_by_side_figure(results: list[StepThrough], step: int) -> go.Figure:
             trace = {"name": res.label, "mode": "lines+markers", "line": {"color": color}}
             trace.update(legendgroup=res.key, **extra)
             fig.add_trace(go.Scatter(x=_a(xs), y=_a(ys), **trace), row=row, col=1)
-    fig.add_trace(
-        go.Scatter(
-            x=x,
-            y=_a(st0["z"]),
-            name="measurement z",
-            mode="markers",
-            marker={"color": "#555555", "symbol": "circle-open", "size": 9},
-        ),
-        row=1,
-        col=1,
-    )
-    out = st0[st0["outlier"]]
-    if len(out):
-        fig.add_trace(
-            go.Scatter(
-                x=_a(out["epoch"]),
-                y=_a(out["z"]),
-                name="outlier",
-                mode="markers",
-                marker={"color": "#d62728", "symbol": "x", "size": 13},
-            ),
-            row=1,
-            col=1,
-        )
+    add_measurements(fig, st0, "", size=9)
     fig.add_trace(
         go.Scatter(
             x=x, y=_a(st0["truth"]), name="truth", mode="lines", line={"color": TRUTH_COLOR, "width": 2}
