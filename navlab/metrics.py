@@ -290,6 +290,11 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
             s[f"{name}_cnt"] = fin.sum(axis=1).astype(float)
             missing = ~fin if where is None else where & ~fin
             s[f"{name}_skip"] = missing.sum(axis=1).astype(float)
+        if "logpdf" in fr.stats:  # the filter's own predictive log density of each measurement
+            lp = fr.stats["logpdf"][:, W]
+            fin = np.isfinite(lp) & present
+            s["lpd_sum"] = np.where(fin, lp, 0.0).sum(axis=(1, 2))
+            s["lpd_cnt"] = fin.sum(axis=(1, 2)).astype(float)
         if fr.R_hat is not None:
             err = np.abs(np.sqrt(fr.R_hat[:, W] / data.R_true[:, W]) - 1.0)
             fin = np.isfinite(err)
@@ -364,6 +369,8 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
     if "nees_sum" in s:
         out["anees"] = (S.Ratio(s["nees_sum"], s["nees_cnt"]), "")
     out["anis"] = (S.Ratio(s["nis_sum"], s["nis_cnt"]), "")
+    if "lpd_sum" in s:
+        out["nlpd"] = (S.Ratio(s["lpd_sum"], s["lpd_cnt"], scale=-1.0), "nats")
     if st.estimates_R:
         out["rhat_err_pct"] = (S.Ratio(s["rhat_clean_sum"], s["rhat_clean_cnt"], scale=100.0), "%")
         if s["rhat_cont_cnt"].sum() > 0:
@@ -384,9 +391,13 @@ def any_outliers(data: Any) -> bool:
     return bool(data.outlier_mask.any()) if known is None else bool(known)
 
 
+# the metrics after the errors in every table: consistency, the truth-free score, R̂, flags
+QUALITY_METRICS = ("anees", "anis", "nlpd", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
+
+
 def direction(metric: str) -> int:
     """+1 where lower is better, −1 where higher is better, 0 where neither (consistency)."""
-    if metric.startswith(("rmse_", "mean_rmse_", "rhat_err", "h_err", "false_alarm", "numfix")):
+    if metric.startswith(("rmse_", "mean_rmse_", "rhat_err", "h_err", "false_alarm", "numfix", "nlpd")):
         return 1
     if metric.startswith("detected"):
         return -1
@@ -665,7 +676,7 @@ def headline_metrics(res: Results) -> list[str]:
     head = head or groups
     wanted = [f"rmse_{g}" for g in head] + [f"mean_rmse_{g}" for g in head]
     wanted += list(data.extras.get("metrics", {}))
-    wanted += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct"]
+    wanted += list(QUALITY_METRICS)
     sm = summary(res)
     present = {m for k in res.runs for m in sm.metrics_of(k)}
     return [m for m in wanted if m in present]
@@ -723,16 +734,7 @@ def headline_table(res: Results) -> pd.DataFrame:
     df = summary(res).rows(metrics=[])
     wanted = [f"rmse_{g}" for g in res.data.groups]
     wanted += list(res.data.extras.get("metrics", {}))
-    wanted += [
-        "anees",
-        "anis",
-        "rhat_err_pct",
-        "detected_pct",
-        "false_alarm_pct",
-        "numfix_pct",
-        "diverged",
-        "us_per_run_step",
-    ]
+    wanted += [*QUALITY_METRICS, "diverged", "us_per_run_step"]
     df = df[df.metric.isin(wanted)]
     wide = df.pivot_table(index="label", columns="metric", values="value", sort=False, dropna=False)
     return wide[[c for c in wanted if c in wide.columns]]
