@@ -337,10 +337,13 @@ def setup(
     objective: str | None = None,
     train_seeds: Sequence[int] | None = None,
     test_seeds: Sequence[int] | None = None,
-    train_runs: int = DEFAULT_TRAIN_RUNS,
+    train_runs: int | None = None,
     ranges: Sequence[str] | dict[str, tuple[float, float]] = (),
 ) -> Setup:
     """Validate a tuning of ``spec`` (its filters, ``spec.runs`` test runs per test seed).
+
+    ``train_runs`` defaults to :data:`DEFAULT_TRAIN_RUNS`, or to the scenario's ``default_runs``
+    when that is smaller (a recording whose runs are all alike: more runs add no information).
 
     Test seeds default to ``spec.seed`` (so a default variant's numbers are those of ``navlab
     run`` with the same options), training seeds to ``spec.seed + 1``; they must be disjoint.
@@ -365,7 +368,10 @@ def setup(
     if unknown:
         raise NavlabError(f"--range names filter(s) not being tuned: {', '.join(unknown)}")
     dims = {k: tuple(space(spec, k, rng)) for k in spec.filters}
-    real = not scenario_registry()[spec.scenario].simulated
+    scls = scenario_registry()[spec.scenario]
+    real = not scls.simulated
+    if train_runs is None:
+        train_runs = min(DEFAULT_TRAIN_RUNS, scls.default_runs)
     return Setup(
         spec=spec,
         dims=dims,
