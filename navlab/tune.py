@@ -237,6 +237,13 @@ class Objective:
         return float(max(1.0, eps / hi, lo / eps))
 
 
+def truth_free_objectives(spec: ExperimentSpec) -> list[str]:
+    """``["nlpd"]`` when a filter of ``spec`` states its predictive density (``nlpd`` needs no
+    truth: the way to tune on a recording of one's own), else ``[]``.
+    """
+    return ["nlpd"] if any(registry()[k].predictive_density for k in spec.filters) else []
+
+
 def parse_objective(text: str | None, spec: ExperimentSpec) -> Objective:
     """``rmse_pos`` (default: the scenario's headline RMSE) or ``consistent_rmse_pos``."""
     if not text:
@@ -330,6 +337,13 @@ class Setup:
         return out
 
 
+def default_train_runs(spec: ExperimentSpec) -> int:
+    """:data:`DEFAULT_TRAIN_RUNS`, or the scenario's ``default_runs`` when that is smaller (a
+    recording whose runs are all alike: more runs add no information).
+    """
+    return min(DEFAULT_TRAIN_RUNS, scenario_registry()[spec.scenario].default_runs)
+
+
 def setup(
     spec: ExperimentSpec,
     *,
@@ -342,8 +356,7 @@ def setup(
 ) -> Setup:
     """Validate a tuning of ``spec`` (its filters, ``spec.runs`` test runs per test seed).
 
-    ``train_runs`` defaults to :data:`DEFAULT_TRAIN_RUNS`, or to the scenario's ``default_runs``
-    when that is smaller (a recording whose runs are all alike: more runs add no information).
+    ``train_runs`` defaults to :func:`default_train_runs`.
 
     Test seeds default to ``spec.seed`` (so a default variant's numbers are those of ``navlab
     run`` with the same options), training seeds to ``spec.seed + 1``; they must be disjoint.
@@ -368,10 +381,9 @@ def setup(
     if unknown:
         raise NavlabError(f"--range names filter(s) not being tuned: {', '.join(unknown)}")
     dims = {k: tuple(space(spec, k, rng)) for k in spec.filters}
-    scls = scenario_registry()[spec.scenario]
-    real = not scls.simulated
+    real = not scenario_registry()[spec.scenario].simulated
     if train_runs is None:
-        train_runs = min(DEFAULT_TRAIN_RUNS, scls.default_runs)
+        train_runs = default_train_runs(spec)
     return Setup(
         spec=spec,
         dims=dims,

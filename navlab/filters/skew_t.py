@@ -279,6 +279,7 @@ class SkewTKF(Filter):
         "that are too long (non-line-of-sight) are explained as such instead of moving the fix."
     )
     reconstruction = True
+    predictive_density = True
     Params = SkewTParams
     kf_limit = KFLimit(
         {"delta": 0.0, "dof": 1e15, "r_scale": 1.0},

@@ -242,3 +242,11 @@ def test_tuning_a_recording_whose_runs_are_alike_uses_one_training_run():
     spec = ExperimentSpec(scenario="smartloc-berlin", filters=("skew-t-kf",), runs=1)
     assert TU.setup(spec).schedule.runs == (1,)
     assert TU.setup(spec.replace(scenario="cv2d", runs=100)).schedule.runs[-1] == TU.DEFAULT_TRAIN_RUNS
+
+
+def test_nlpd_is_offered_as_an_objective_only_where_a_filter_states_its_predictive_density():
+    from navlab import tune as TU
+    from navlab.experiment import ExperimentSpec
+
+    assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "huber-kf"))) == []
+    assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "skew-t-kf"))) == ["nlpd"]

@@ -186,7 +186,7 @@ def test_result_ttl_from_the_environment(monkeypatch, raw, ttl):
 
 @pytest.mark.parametrize("raw", ["0", "-5", "soon", "nan", "inf"])
 def test_a_bad_result_ttl_says_what_to_set(raw):
-    with pytest.raises(NavlabError, match="NAVLAB_RESULT_TTL=.*positive number of seconds"):
+    with pytest.raises(NavlabError, match=r"NAVLAB_RESULT_TTL=.*positive number of seconds"):
         runner.result_ttl_s(raw)
 
 
