@@ -154,7 +154,7 @@ def reap_closed_sessions() -> int:
     browser reconnects, in a TTL cache that removes expired entries only when it is next written
     to — by the next visitor's disconnect. Until then a closed session's state (its figures and
     the download buttons' callbacks, which hold its results) stays in memory: measured, 6 closed
-    Compare sessions kept 125 MB with no visitor. This calls that cache's ``expire()`` (internal to
+    Compare sessions kept ≈ 125 MB with no visitor. This calls that cache's ``expire()`` (internal to
     Streamlit 1.67: :func:`streamlit.runtime.Runtime.instance` → session manager → session
     storage); where Streamlit differs it does nothing.
     """
@@ -163,9 +163,12 @@ def reap_closed_sessions() -> int:
 
         if not Runtime.exists():
             return 0
-        storage = Runtime.instance()._session_mgr._session_storage
-        expire = getattr(getattr(storage, "_cache", None), "expire", None)
-        return len(expire()) if callable(expire) else 0
+        mgr = Runtime.instance()._session_mgr
+        expire = getattr(getattr(mgr._session_storage, "_cache", None), "expire", None)
+        if not callable(expire):
+            return 0
+        with getattr(mgr, "_storage_lock", contextlib.nullcontext()):  # the cache is not thread-safe
+            return len(expire())
     except Exception:  # a Streamlit internal changed: keep Streamlit's own (lazy) expiry
         log.debug("could not reap closed sessions", exc_info=True)
         return 0

@@ -294,3 +294,30 @@ def test_most_different_run_skips_runs_with_one_judged_filter_without_a_warning(
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # numpy's "All-NaN slice" warning reached the server log
         assert single.most_different_run(None, "pos", ["kf", "huber-kf"]) == 2
+
+
+def test_closed_sessions_past_their_reconnect_window_are_reaped(monkeypatch):
+    """The glue to Streamlit's internals, on the real session storage of the pinned Streamlit."""
+    import threading
+    import types
+
+    from streamlit.runtime import Runtime
+    from streamlit.runtime.memory_session_storage import MemorySessionStorage
+
+    storage = MemorySessionStorage(ttl_seconds=60)
+    now = [0.0]
+    storage._cache._timer = lambda: now[0]  # move time without waiting
+    session = types.SimpleNamespace(id="s1")
+    storage.save(types.SimpleNamespace(session=session, client=None, script_run_count=0))
+    mgr = types.SimpleNamespace(_session_storage=storage, _storage_lock=threading.Lock())
+    monkeypatch.setattr(Runtime, "exists", staticmethod(lambda: True))
+    monkeypatch.setattr(Runtime, "instance", staticmethod(lambda: types.SimpleNamespace(_session_mgr=mgr)))
+    assert runner.reap_closed_sessions() == 0  # inside its reconnect window
+    now[0] = 61.0
+    assert runner.reap_closed_sessions() == 1 and not storage._cache._data
+    from streamlit.runtime.websocket_session_manager import WebsocketSessionManager
+
+    import inspect
+
+    init = inspect.getsource(WebsocketSessionManager.__init__)
+    assert "self._session_storage" in init and "self._storage_lock" in init
