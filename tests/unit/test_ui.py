@@ -315,9 +315,9 @@ def test_closed_sessions_past_their_reconnect_window_are_reaped(monkeypatch):
     assert runner.reap_closed_sessions() == 0  # inside its reconnect window
     now[0] = 61.0
     assert runner.reap_closed_sessions() == 1 and not storage._cache._data
-    from streamlit.runtime.websocket_session_manager import WebsocketSessionManager
-
     import inspect
+
+    from streamlit.runtime.websocket_session_manager import WebsocketSessionManager
 
     init = inspect.getsource(WebsocketSessionManager.__init__)
     assert "self._session_storage" in init and "self._storage_lock" in init
