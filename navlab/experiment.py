@@ -688,34 +688,40 @@ def run_summary(
         sq_bytes = size.runs * (size.epochs + 1) * size.filters * 8 * 4
         keep_epochs = sq_bytes <= min(256 * 2**20, memory.budget_bytes(budget) / 8)
     memory.check(size, size.summary(chunk, keep_epochs), budget, summary=True)
-    parts: dict[str, list[RunStats]] = {f.key: [] for f in p.filters}
-    first: ScenarioData | None = None
+    stats: dict[str, RunStats] = {}  # every run's statistics, written in place chunk by chunk
+    info: DataInfo | None = None
     outliers = False
     elapsed = 0.0
+    at = 0
     for ch in iter_chunks(p, fixed_chunks(chunk)):
-        first = first or ch.data
+        if info is None:  # what the metrics need of the data: from the first chunk, then dropped
+            info = DataInfo(
+                scenario=ch.data.scenario,
+                t=ch.data.t,
+                model=ch.data.model,
+                groups=ch.data.groups,
+                window=ch.data.window,
+                has_truth=ch.data.has_truth,
+                extras={k: v for k, v in ch.data.extras.items() if k in ("metrics", "notes", "findings")},
+                divergence_bound=ch.data.divergence_bound,
+                B=spec.runs,
+                K=ch.data.K,
+                n=int(ch.data.x0.shape[1]),
+                m=int(ch.data.z.shape[2]),
+                any_outliers=False,
+            )
         outliers = outliers or bool(ch.data.outlier_mask.any())
         for key, fr in ch.runs.items():
-            parts[key].append(run_stats(ch.data, fr).compact(keep_epochs))
+            part = run_stats(ch.data, fr).compact(keep_epochs)
+            if key not in stats:
+                stats[key] = RunStats.allocate(part, spec.runs)
+            stats[key].put(at, part)
+        at += ch.data.B
         elapsed += ch.elapsed_s
         if on_progress is not None:
             on_progress(int(ch.data.runs[-1]) + 1, spec.runs)
-    assert first is not None
-    info = DataInfo(
-        scenario=first.scenario,
-        t=first.t,
-        model=first.model,
-        groups=first.groups,
-        window=first.window,
-        has_truth=first.has_truth,
-        extras={k: v for k, v in first.extras.items() if k in ("metrics", "notes", "findings")},
-        divergence_bound=first.divergence_bound,
-        B=spec.runs,
-        K=first.K,
-        n=int(first.x0.shape[1]),
-        m=int(first.z.shape[2]),
-        any_outliers=outliers,
-    )
-    stats = {k: RunStats.concat(v) for k, v in parts.items()}
+    assert info is not None
+    assert at == spec.runs
+    info = dataclasses.replace(info, any_outliers=outliers)
     labels = {f.key: FilterInfo(f.key, f.label) for f in p.filters}
     return SummaryResults(spec, info, stats, labels, elapsed)

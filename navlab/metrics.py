@@ -230,6 +230,32 @@ class RunStats:
             estimates_R=first.estimates_R,
         )
 
+    @staticmethod
+    def allocate(like: RunStats, runs: int) -> RunStats:
+        """Room for ``runs`` runs of statistics shaped like ``like`` (a chunk's), filled by
+        :meth:`put`: a summary run's chunks are written in place, never concatenated (which
+        would hold every chunk twice: 146 MB more at a million runs of two filters).
+        """
+        room = lambda d: {k: np.empty((runs, *v.shape[1:]), v.dtype) for k, v in getattr(like, d).items()}  # noqa: E731
+        return dataclasses.replace(
+            like,
+            diverged=np.zeros(runs, dtype=bool),
+            runtime_s=0.0,
+            sse=room("sse"),
+            sq=room("sq"),
+            sums=room("sums"),
+            samples=room("samples"),
+        )
+
+    def put(self, at: int, part: RunStats) -> None:
+        """Write the statistics of the chunk ``part`` at runs ``at …`` (see :meth:`allocate`)."""
+        end = at + part.diverged.shape[0]
+        self.diverged[at:end] = part.diverged
+        self.runtime_s += part.runtime_s
+        for d in ("sse", "sq", "sums", "samples"):
+            for k, v in getattr(part, d).items():
+                getattr(self, d)[k][at:end] = v
+
     def compact(self, keep_epochs: bool) -> RunStats:
         """For a summary run: float32 per-run numbers, and the per-epoch arrays only if kept."""
         f32 = lambda d: {k: v.astype(np.float32) for k, v in d.items()}  # noqa: E731
