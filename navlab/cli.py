@@ -128,6 +128,12 @@ def _spec_from_args(a: argparse.Namespace):
         from navlab.scenarios.base import get_scenario_class
 
         base["filters"] = list(get_scenario_class(base["scenario"]).default_filters)
+    if "runs" not in base:  # the scenario's own default (1 on a recording whose runs are all alike)
+        from navlab.scenarios import scenario_registry
+
+        scls = scenario_registry().get(base.get("scenario", "cv2d"))
+        if scls is not None:
+            base["runs"] = scls.default_runs
     return ExperimentSpec.from_dict(base)
 
 
@@ -515,8 +521,9 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument(
         "--train-runs",
         type=int,
-        default=32,
-        help="runs per training seed on the last successive-halving rung (default 32)",
+        default=None,
+        help="runs per training seed on the last successive-halving rung (default 32, or the "
+        "scenario's default runs when fewer: 1 on smartloc-berlin, whose runs are all alike)",
     )
     pt.add_argument(
         "--range",

@@ -198,8 +198,14 @@ class MeanSqrtRatio(Estimator):
             return np.full(K, float(self.n))
         return np.broadcast_to(W.sum(axis=1)[:, None], (W.shape[0], K))
 
+    def _totals(self) -> Array:
+        """Σ_r num_rk, (K,): computed once (the point value and the influence values use it)."""
+        if "_totals_k" not in self.__dict__:
+            self.__dict__["_totals_k"] = self.num.sum(axis=0, dtype=float)
+        return self.__dict__["_totals_k"]
+
     def point(self) -> float:
-        return float(self._f(self.num.sum(axis=0, dtype=float), self._den(None)))
+        return float(self._f(self._totals(), self._den(None)))
 
     def boot(self, W: Array) -> Array:
         return self._f(W @ self.num, self._den(W))
@@ -209,13 +215,16 @@ class MeanSqrtRatio(Estimator):
         keep = D > 0
         if not keep.any():
             return None
-        R = self.num.sum(axis=0, dtype=float)[keep] / D[keep]
+        R = self._totals()[keep] / D[keep]
         if not (R > 0).all():
             return None
         dbar = D[keep] / self.n
+        c = 1.0 / (2.0 * np.sqrt(R) * dbar)
         num = self.num if keep.all() else self.num[:, keep]
-        lin = num - R if self.den is None else num - R * self.den[:, keep]
-        return self.scale * (lin @ (1.0 / (2.0 * np.sqrt(R) * dbar))) / keep.sum()
+        # ψ_r ∝ Σ_k (num_rk − R_k den_rk) c_k, as num @ c − den @ (R c): one pass over the (N, K)
+        # per-epoch errors and no temporary of their size (equal to round-off)
+        den_rc = np.dot(R, c) if self.den is None else self.den[:, keep] @ (R * c)
+        return self.scale * (num @ c - den_rc) / keep.sum()
 
 
 class MaxSqrtRatio(MeanSqrtRatio):

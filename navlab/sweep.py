@@ -28,7 +28,7 @@ from navlab import tasks as T
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, plan
 from navlab.filters import registry
-from navlab.metrics import summarize
+from navlab.metrics import QUALITY_METRICS, summarize
 from navlab.noise import OUTLIERS, SCHEDULES
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
@@ -36,7 +36,7 @@ from navlab.scenarios import scenario_registry
 MAX_POINTS = 15  # per axis
 CLI_GROUP = {"ol": "outliers", "ns": "noise", "sc": "scenario"}  # --set group of each kind
 # the metrics a sweep reports with intervals (besides every error group's RMSE)
-SWEEP_METRICS = ("anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
+SWEEP_METRICS = QUALITY_METRICS
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 NAMES = {
     "anees": "ANEES",
     "anis": "ANIS",
+    "nlpd": "NLPD (nats)",
     "rhat_err_pct": "R̂ error, clean epochs (%)",
     "rhat_err_contaminated_pct": "R̂ error, outlier epochs (%)",
     "detected_pct": "outliers flagged (%)",
@@ -37,6 +38,9 @@ HELP = {
     "anees": "average NEES over runs and window epochs; a consistent filter reads the state "
     "dimension, inside the χ² band",
     "anis": "average NIS; a consistent filter reads the measurement dimension",
+    "nlpd": "negative log predictive density of each measurement under the filter's own model "
+    "before it is used, per measurement (lower is better; needs no truth: a score for choosing "
+    "hyper-parameters on a real recording; only filters that state their predictive density)",
     "rhat_err_pct": "mean |σ̂/σ − 1| of the filter's R̂ against the σ the noise was drawn with, "
     "on clean epochs",
     "detected_pct": "share of contaminated measurements the filter flagged as outliers (codes 1–5)",
@@ -148,7 +152,7 @@ def headline_metrics(res: Results) -> list[str]:
     groups = [g for g in head if g in data.groups] or list(data.groups)
     cols = [f"rmse_{g}" for g in groups] if data.has_truth else []
     cols += list(data.extras.get("metrics", {}))
-    cols += ["anees", "anis", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct"]
+    cols += list(M.QUALITY_METRICS)
     sm = M.summary(res)
     present = {m for k in res.runs for m in sm.metrics_of(k)} | set(data.extras.get("metrics", {}))
     return [c for c in cols if c in present]

@@ -237,6 +237,13 @@ class Objective:
         return float(max(1.0, eps / hi, lo / eps))
 
 
+def truth_free_objectives(spec: ExperimentSpec) -> list[str]:
+    """``["nlpd"]`` when a filter of ``spec`` states its predictive density (``nlpd`` needs no
+    truth: the way to tune on a recording of one's own), else ``[]``.
+    """
+    return ["nlpd"] if any(registry()[k].predictive_density for k in spec.filters) else []
+
+
 def parse_objective(text: str | None, spec: ExperimentSpec) -> Objective:
     """``rmse_pos`` (default: the scenario's headline RMSE) or ``consistent_rmse_pos``."""
     if not text:
@@ -330,6 +337,13 @@ class Setup:
         return out
 
 
+def default_train_runs(spec: ExperimentSpec) -> int:
+    """:data:`DEFAULT_TRAIN_RUNS`, or the scenario's ``default_runs`` when that is smaller (a
+    recording whose runs are all alike: more runs add no information).
+    """
+    return min(DEFAULT_TRAIN_RUNS, scenario_registry()[spec.scenario].default_runs)
+
+
 def setup(
     spec: ExperimentSpec,
     *,
@@ -337,10 +351,12 @@ def setup(
     objective: str | None = None,
     train_seeds: Sequence[int] | None = None,
     test_seeds: Sequence[int] | None = None,
-    train_runs: int = DEFAULT_TRAIN_RUNS,
+    train_runs: int | None = None,
     ranges: Sequence[str] | dict[str, tuple[float, float]] = (),
 ) -> Setup:
     """Validate a tuning of ``spec`` (its filters, ``spec.runs`` test runs per test seed).
+
+    ``train_runs`` defaults to :func:`default_train_runs`.
 
     Test seeds default to ``spec.seed`` (so a default variant's numbers are those of ``navlab
     run`` with the same options), training seeds to ``spec.seed + 1``; they must be disjoint.
@@ -366,6 +382,8 @@ def setup(
         raise NavlabError(f"--range names filter(s) not being tuned: {', '.join(unknown)}")
     dims = {k: tuple(space(spec, k, rng)) for k in spec.filters}
     real = not scenario_registry()[spec.scenario].simulated
+    if train_runs is None:
+        train_runs = default_train_runs(spec)
     return Setup(
         spec=spec,
         dims=dims,

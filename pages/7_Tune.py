@@ -49,9 +49,9 @@ budget = int(
 train_runs = int(
     c2.number_input(
         "Training runs",
-        min_value=2,
+        min_value=1,
         max_value=1000,
-        value=16,
+        value=min(16, TU.default_train_runs(spec)),
         step=2,
         key="tn_train_runs",
         bind=BIND,
@@ -59,13 +59,14 @@ train_runs = int(
     )
 )
 head = TU.parse_objective(None, spec).metric
-objectives = [head, f"consistent_{head}"]
+objectives = [head, f"consistent_{head}", *TU.truth_free_objectives(spec)]
 objective = c3.selectbox(
     "Objective",
     objectives,
     key="tn_obj",
     bind=BIND,
-    help="minimised on the training seeds; consistent_…: × a penalty when the ANEES leaves its χ² band",
+    help="minimised on the training seeds; consistent_…: × a penalty when the ANEES leaves its χ² "
+    "band; nlpd (filters that state their predictive density): needs no truth",
 )
 train_seed = int(
     c4.number_input(

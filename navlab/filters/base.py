@@ -208,6 +208,8 @@ class Filter:
     spec_section : the section of ALGORITHMS.md it follows.
     reconstruction : True where the original could not be retrieved (shown in the app).
     estimates_R : True if it reports an R̂.
+    predictive_density : True if its ``StepOut.stats["logpdf"]`` (B, m) holds the log predictive
+        density of each measurement before the update (NaN where missing): the metric ``nlpd``.
     teaching : :class:`Teaching` — idea, key equations, caveat (the Learn page).
     kf_limit : :class:`KFLimit` — parameters under which it is the KF (None: it never is).
     linear_only : True if it needs a linear model (uses F, H; ignores f, h).
@@ -222,6 +224,7 @@ class Filter:
     summary: ClassVar[str] = ""
     reconstruction: ClassVar[bool] = False
     estimates_R: ClassVar[bool] = False
+    predictive_density: ClassVar[bool] = False
     linear_only: ClassVar[bool] = False
     Params: ClassVar[type] = P_.NoParams
     teaching: ClassVar[Teaching] = Teaching()

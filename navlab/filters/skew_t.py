@@ -74,7 +74,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaln, log_ndtr, stdtr
+from scipy.special import betaln, log_ndtr, stdtr
 
 from navlab.errors import NavlabError
 from navlab.filters.base import (
@@ -141,9 +141,8 @@ def skew_t_logpdf(e: Array, R: Array, delta: Array, dof: float) -> Array:
     W = R + delta * delta
     q = e * e / W
     log_t = (
-        gammaln(0.5 * (dof + 1.0))
-        - gammaln(0.5 * dof)
-        - 0.5 * np.log(dof * np.pi * W)
+        -betaln(0.5 * dof, 0.5)  # log Γ((ν+1)/2) − log Γ(ν/2) − ½ log π, without cancellation
+        - 0.5 * np.log(dof * W)
         - 0.5 * (dof + 1.0) * np.log1p(q / dof)
     )
     arg = delta * e / np.sqrt(R * W) * np.sqrt((dof + 1.0) / (dof + q))
@@ -280,6 +279,7 @@ class SkewTKF(Filter):
         "that are too long (non-line-of-sight) are explained as such instead of moving the fix."
     )
     reconstruction = True
+    predictive_density = True
     Params = SkewTParams
     kf_limit = KFLimit(
         {"delta": 0.0, "dof": 1e15, "r_scale": 1.0},
@@ -341,6 +341,10 @@ class SkewTKF(Filter):
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu_p, R_used)  # KF update with ν′, R′
         w = np.where(ok, r / R_p, 1.0)
         flags = np.where(ok & (w < p.flag_below), DOWNWEIGHTED, 0).astype(np.int8)
+        # the predictive density of each measurement before it is used (the state's uncertainty
+        # joins the core: W = H P⁻ Hᵀ_jj + R_j), for the truth-free score nlpd (navlab.metrics)
+        core = np.diagonal(batched(mk.M, B), axis1=-2, axis2=-1) + r
+        logpdf = np.where(ok, skew_t_logpdf(mk.nu, core, Delta, p.dof), np.nan)
         out = StepOut(
             x=x,
             P=P,
@@ -349,6 +353,6 @@ class SkewTKF(Filter):
             R_used=R_used,
             weights=w,
             flags=flag_fix(flags, fixed | fix),
-            stats={"excess": Delta * Eu, "lambda": lam},
+            stats={"excess": Delta * Eu, "lambda": lam, "logpdf": logpdf},
         )
         return KFState(x, P), out

@@ -98,8 +98,19 @@ class ScenarioData:
         if len(parts) == 1:
             return parts[0]
         return dataclasses.replace(
-            parts[0], **{f: np.concatenate([getattr(p, f) for p in parts]) for f in parts[0].PER_RUN}
+            parts[0], **{f: concat_runs([getattr(p, f) for p in parts]) for f in parts[0].PER_RUN}
         )
+
+
+def concat_runs(arrays: Sequence[Array]) -> Array:
+    """Arrays (B_i, …) joined along the runs, in the memory layout of the first: epoch-major
+    ((B, K+1, …) views of (K+1, B, …) arrays: the truth of :func:`propagate`, the recorded
+    estimates) stays epoch-major, anything else is concatenated as usual.
+    """
+    a0 = arrays[0]
+    if a0.ndim >= 2 and a0.shape[0] > 1 and a0.swapaxes(0, 1).flags.c_contiguous:
+        return np.concatenate([a.swapaxes(0, 1) for a in arrays], axis=1).swapaxes(0, 1)
+    return np.concatenate(arrays)
 
 
 BLOCK_RUNS = 64
@@ -291,7 +302,7 @@ def _propagate_numpy(x0: Array, Phi: Array, e: Array, L: Array, u: Array | None)
         if ut is not None:
             y += ut[k - 1]
         xt[k] = y
-    return np.ascontiguousarray(xt.transpose(2, 0, 1))
+    return np.ascontiguousarray(xt.transpose(0, 2, 1)).swapaxes(0, 1)  # epoch-major (see propagate)
 
 
 def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array | None = None) -> Array:
@@ -313,7 +324,9 @@ def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array 
 
     Returns
     -------
-    x : (B, K+1, n), x[:, 0] = x0.
+    x : (B, K+1, n), x[:, 0] = x0: a view of an epoch-major (K+1, B, n) array, the layout in which
+        the experiment records the filters' estimates (navlab.experiment._Recorder), so the
+        estimation errors are computed without a transposing copy.
     """
     e = np.asarray(e, dtype=float)
     B, K, ne = e.shape
@@ -330,7 +343,7 @@ def propagate(x0: Array, Phi: Array, e: Array, L: Array | None = None, u: Array 
     xt = np.empty((K + 1, B, n))  # epoch-major: Φ_k, L_k and x_{k−1} of every run in cache
     ut = np.zeros((1, B, n)) if u is None else carray(u.transpose(1, 0, 2))
     kernel(x0, Phi3, carray(e.transpose(1, 0, 2)), L3, ut, u is not None, xt)
-    return np.ascontiguousarray(xt.transpose(1, 0, 2))
+    return xt.swapaxes(0, 1)
 
 
 def draw_measurement_noise(

@@ -642,6 +642,7 @@ def metric_label(metric: str, res: Results) -> str:
     return {
         "anees": "ANEES",
         "anis": "ANIS",
+        "nlpd": "NLPD (nats)",
         "rhat_err_pct": "R̂ error (%)",
         "detected_pct": "outliers flagged (%)",
         "false_alarm_pct": "false alarms (%)",
@@ -655,6 +656,7 @@ def metric_title(metric: str, unit: str = "") -> str:
     names = {
         "anees": "ANEES",
         "anis": "ANIS",
+        "nlpd": "NLPD",
         "rhat_err_pct": "R̂ error",
         "detected_pct": "outliers flagged",
         "false_alarm_pct": "false alarms",

@@ -57,8 +57,8 @@ def most_different_run(res: Results, group: str, filters: list[str] | None = Non
     ok = np.isfinite(a).sum(axis=0) >= 2
     if not ok.any():
         return 0
-    with np.errstate(all="ignore"):
-        gap = np.where(ok, np.nanmax(a, axis=0) - np.nanmin(a, axis=0), -np.inf)
+    gap = np.full(a.shape[1], -np.inf)  # runs judged for fewer than two filters never win
+    gap[ok] = np.nanmax(a[:, ok], axis=0) - np.nanmin(a[:, ok], axis=0)
     return int(np.argmax(gap))
 
 

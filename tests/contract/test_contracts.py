@@ -58,6 +58,10 @@ def test_stepout_shapes_and_dtypes(fkey, scenario):
             assert set(np.unique(f).tolist()) <= set(FLAG_NAMES)
         for name, v in o.stats.items():
             assert np.shape(v)[:1] == (B,), f"stats[{name!r}] has shape {np.shape(v)}, not (B, …)"
+        assert ("logpdf" in o.stats) == cls.predictive_density  # the metric nlpd reads it
+        if cls.predictive_density:  # finite where a measurement is, NaN where none is
+            lp, ok = np.asarray(o.stats["logpdf"]), np.isfinite(o.innov) & (o.innov != 0)
+            assert lp.shape == (B, m) and np.isfinite(lp[ok]).all()
 
 
 @pytest.mark.parametrize(("fkey", "scenario"), CASES)

@@ -217,3 +217,36 @@ def test_app_passes_streamlit_flags_and_stopping_it_stops_the_server(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+@pytest.mark.parametrize(
+    ("argv", "runs"),
+    [
+        (["run", "--scenario", "smartloc-berlin"], 1),  # its runs are all alike: one is enough
+        (["run", "--scenario", "cv2d"], 100),
+        (["run"], 100),
+        (["run", "--scenario", "smartloc-berlin", "--runs", "3"], 3),
+        (["tune", "--scenario", "smartloc-berlin", "--filters", "skew-t-kf"], 1),
+    ],
+)
+def test_runs_default_to_the_scenarios_own(argv, runs):
+    from navlab.cli import _spec_from_args, build_parser
+
+    assert _spec_from_args(build_parser().parse_args(argv)).runs == runs
+
+
+def test_tuning_a_recording_whose_runs_are_alike_uses_one_training_run():
+    from navlab import tune as TU
+    from navlab.experiment import ExperimentSpec
+
+    spec = ExperimentSpec(scenario="smartloc-berlin", filters=("skew-t-kf",), runs=1)
+    assert TU.setup(spec).schedule.runs == (1,)
+    assert TU.setup(spec.replace(scenario="cv2d", runs=100)).schedule.runs[-1] == TU.DEFAULT_TRAIN_RUNS
+
+
+def test_nlpd_is_offered_as_an_objective_only_where_a_filter_states_its_predictive_density():
+    from navlab import tune as TU
+    from navlab.experiment import ExperimentSpec
+
+    assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "huber-kf"))) == []
+    assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "skew-t-kf"))) == ["nlpd"]

@@ -210,3 +210,30 @@ def test_too_few_runs_no_interval_and_no_nan_strings():
 def test_the_diverged_column_help_is_the_metric_help(flagging):
     t = tables.headline(flagging)
     assert t.help[tables.NAMES["diverged"]] == tables.HELP["diverged"]
+
+
+def _run_major(a):
+    return None if a is None else np.ascontiguousarray(a)
+
+
+def test_per_run_statistics_do_not_depend_on_the_memory_layout_of_the_records():
+    """The recorder keeps epoch-major arrays; a chunked run concatenates them, a user may hand in
+    C-ordered (B, K+1, …) copies: the per-run statistics are the same bits whatever the layout
+    (each run's sums add its epochs in one order), and concatenating chunks keeps the layout."""
+    spec = ExperimentSpec(filters=("kf", "sage-husa"), runs=30, epochs=40, outliers="mixture")
+    res = run_experiment(spec)
+    fr = res.runs["sage-husa"]
+    assert fr.x.shape == (30, 41, 4) and fr.x.swapaxes(0, 1).flags.c_contiguous  # epoch-major
+    names = ("x", "P_diag", "innov", "S_diag", "nis", "nees", "R_used", "R_hat", "weights", "flags")
+    copied = dataclasses.replace(fr, **{n: _run_major(getattr(fr, n)) for n in names})
+    assert copied.x.flags.c_contiguous
+    data_copy = dataclasses.replace(res.data, x_true=_run_major(res.data.x_true))
+    a, b = M.run_stats(res.data, fr), M.run_stats(data_copy, copied)
+    for field in ("sse", "sq", "sums"):
+        da, db = getattr(a, field), getattr(b, field)
+        assert da.keys() == db.keys()
+        for k in da:
+            np.testing.assert_array_equal(da[k], db[k], err_msg=f"{field}[{k}]")
+    chunked = run_experiment(spec, chunk_runs=7).runs["sage-husa"]
+    assert chunked.x.swapaxes(0, 1).flags.c_contiguous
+    np.testing.assert_array_equal(chunked.R_hat, fr.R_hat)

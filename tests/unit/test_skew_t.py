@@ -148,6 +148,8 @@ def test_logpdf_limits():
     R, Delta = 0.7, 1.3
     sn = stats.skewnorm(Delta / np.sqrt(R), scale=np.sqrt(R + Delta**2))
     np.testing.assert_allclose(skew_t_logpdf(e, R, Delta, 1e8), sn.logpdf(e), rtol=0, atol=1e-5)
+    # ν as the KF limit sets it (1e15): no cancellation in the Gamma-function ratio
+    np.testing.assert_allclose(skew_t_logpdf(e, R, Delta, 1e15), sn.logpdf(e), rtol=0, atol=1e-9)
     np.testing.assert_allclose(
         skew_t_logpdf(e, R, 0.0, 3.0), stats.t(3.0, scale=np.sqrt(R)).logpdf(e), rtol=1e-10
     )
@@ -166,3 +168,32 @@ def test_correlated_R_and_bad_mask_are_refused():
         f.init(model, x0, P0)
     with pytest.raises(NavlabError):
         make_filter("skew-t-kf", {"delta": -1.0})
+
+
+def test_predictive_logpdf_in_the_kf_limit_is_the_gaussian_innovation_density():
+    """δ = 0, ν → ∞: each measurement's predictive density is N(ν_j; 0, S_jj), S = H P⁻ Hᵀ + R."""
+    model, x0, P0, z = _linear_data(2, B=3)
+    z[1, 4, 0] = np.nan
+    f = make_filter("skew-t-kf", {"delta": 0.0, "dof": 1e15, "iters": 2})
+    st = f.init(model, x0, P0)
+    for k in range(1, z.shape[1]):
+        st = f.predict(model, st, k)
+        st, out = f.update(model, st, k, z[:, k], side(*z[:, k].shape))
+        S = np.diagonal(np.broadcast_to(out.S, (3, model.m, model.m)), axis1=-2, axis2=-1)
+        want = stats.norm.logpdf(out.innov, scale=np.sqrt(S))
+        ok = np.isfinite(z[:, k])
+        np.testing.assert_allclose(out.stats["logpdf"][ok], want[ok], rtol=1e-9)
+        assert np.isnan(out.stats["logpdf"][~ok]).all()
+
+
+def test_nlpd_is_the_mean_negative_logpdf_over_the_window_and_needs_no_truth():
+    from navlab.experiment import ExperimentSpec, run_experiment
+    from navlab.metrics import summarize
+
+    res = run_experiment(ExperimentSpec(runs=12, epochs=30, filters=("kf", "skew-t-kf"), seed=3))
+    df = summarize(res, metrics=["nlpd"])
+    lp = res.runs["skew-t-kf"].stats["logpdf"][:, res.data.window]
+    got = df[(df["filter"] == "skew-t-kf") & (df.metric == "nlpd")]
+    assert got.value.iloc[0] == pytest.approx(-np.nanmean(lp), rel=1e-12)
+    assert np.isfinite(got.ci_lo.iloc[0]) and got.ci_lo.iloc[0] < got.value.iloc[0] < got.ci_hi.iloc[0]
+    assert df[(df["filter"] == "kf") & (df.metric == "nlpd")].empty  # no stated predictive density

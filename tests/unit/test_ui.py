@@ -161,6 +161,35 @@ def test_result_store_is_bounded():
     assert len(store) == 2 and store.get("0") is None and store.get("2") is not None
 
 
+def test_result_store_drops_what_nobody_used_for_its_ttl():
+    now = [0.0]
+    store = ResultStore(ttl_s=100.0, clock=lambda: now[0])
+    res = run_experiment(ExperimentSpec(runs=1, epochs=3, filters=("kf",)))
+    store.put("a", res)
+    store.put("b", res)
+    now[0] = 60.0
+    assert store.get("a") is res  # a use renews the entry
+    now[0] = 100.0
+    assert store.expire() == 1 and store.get("b") is None and store.get("a") is res
+    now[0] = 250.0
+    assert store.expire() == 1 and len(store) == 0 and store.nbytes == 0
+    assert ResultStore(ttl_s=None, clock=lambda: now[0]).expire() == 0
+
+
+@pytest.mark.parametrize(("raw", "ttl"), [(None, 900.0), ("", 900.0), ("30", 30.0), ("off", None)])
+def test_result_ttl_from_the_environment(monkeypatch, raw, ttl):
+    monkeypatch.delenv(runner.RESULT_TTL_ENV, raising=False)
+    if raw is not None:
+        monkeypatch.setenv(runner.RESULT_TTL_ENV, raw)
+    assert runner.result_ttl_s() == ttl
+
+
+@pytest.mark.parametrize("raw", ["0", "-5", "soon", "nan", "inf"])
+def test_a_bad_result_ttl_says_what_to_set(raw):
+    with pytest.raises(NavlabError, match=r"NAVLAB_RESULT_TTL=.*positive number of seconds"):
+        runner.result_ttl_s(raw)
+
+
 @pytest.mark.parametrize(
     ("raw", "msg"),
     [
@@ -253,3 +282,42 @@ def test_a_rejected_noise_or_outlier_model_falls_back_like_the_page():
         == f"`ns.step.factor=3`: not used: this link's noise schedule is '{d.noise_schedule}', not 'step'"
     )
     assert url_problems({"noise": ["bogus"], f"ns.{d.noise_schedule}.factor": ["3"]})[1:] == []
+
+
+def test_most_different_run_skips_runs_with_one_judged_filter_without_a_warning(monkeypatch):
+    import warnings
+
+    from navlab.ui import single
+
+    rm = {"kf": np.array([1.0, np.nan, 2.0]), "huber-kf": np.array([1.5, np.nan, 5.0])}
+    monkeypatch.setattr(single, "per_run_rmse", lambda res, group: rm)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "All-NaN slice" warning reached the server log
+        assert single.most_different_run(None, "pos", ["kf", "huber-kf"]) == 2
+
+
+def test_closed_sessions_past_their_reconnect_window_are_reaped(monkeypatch):
+    """The glue to Streamlit's internals, on the real session storage of the pinned Streamlit."""
+    import threading
+    import types
+
+    from streamlit.runtime import Runtime
+    from streamlit.runtime.memory_session_storage import MemorySessionStorage
+
+    storage = MemorySessionStorage(ttl_seconds=60)
+    now = [0.0]
+    storage._cache._timer = lambda: now[0]  # move time without waiting
+    session = types.SimpleNamespace(id="s1")
+    storage.save(types.SimpleNamespace(session=session, client=None, script_run_count=0))
+    mgr = types.SimpleNamespace(_session_storage=storage, _storage_lock=threading.Lock())
+    monkeypatch.setattr(Runtime, "exists", staticmethod(lambda: True))
+    monkeypatch.setattr(Runtime, "instance", staticmethod(lambda: types.SimpleNamespace(_session_mgr=mgr)))
+    assert runner.reap_closed_sessions() == 0  # inside its reconnect window
+    now[0] = 61.0
+    assert runner.reap_closed_sessions() == 1 and not storage._cache._data
+    import inspect
+
+    from streamlit.runtime.websocket_session_manager import WebsocketSessionManager
+
+    init = inspect.getsource(WebsocketSessionManager.__init__)
+    assert "self._session_storage" in init and "self._storage_lock" in init
