@@ -21,6 +21,12 @@ base seed, so set 0 is the old single-seed result), reduced chunk by chunk to pe
   difference (A − B)/B over all runs pooled; verdict as for a number (±20 % of the paper's margin).
 
 Every filter is judged on the same runs (navlab.metrics' divergence rule, per experiment).
+
+The runs of every experiment are computed in fixed blocks (one chunk each, up to
+:data:`BLOCK_BYTES` of per-epoch arrays), in ``jobs`` worker processes (``--jobs``,
+``NAVLAB_JOBS``; default the cores available; one BLAS thread each) when there is enough work, and
+joined in run order, so the numbers are the same for any ``jobs``. Each block is reduced to the
+per-run features in its worker; only those (and the float32 curves) travel back.
 """
 
 from __future__ import annotations
