@@ -199,7 +199,7 @@ def _reproduce(a: argparse.Namespace) -> int:
             f"unknown reproduction '{a.name}'; known: {', '.join(REPRODUCTIONS) or '(none yet)'}"
         )
     rep = REPRODUCTIONS[a.name]
-    o = rep.evaluate(runs=a.runs, seeds=a.seeds, seed=a.seed, on_progress=_progress(a.quiet))
+    o = rep.evaluate(runs=a.runs, seeds=a.seeds, seed=a.seed, on_progress=_progress(a.quiet), jobs=a.jobs)
     table = o.readings if a.details else o.verdicts
     if a.format == "table":
         _write(table.to_string(index=False) + "\n" if a.details else R.text(o), a.out)
@@ -486,6 +486,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pp.add_argument("--out", help="write the output to this file")
     pp.add_argument("--outdir", help="directory for the verdicts, readings and RMSE curves (CSV)")
+    pp.add_argument(
+        "--jobs",
+        default=None,
+        help="worker processes (default: NAVLAB_JOBS or the cores available; the numbers are the "
+        "same for any value)",
+    )
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
     ps = sub.add_parser("sweep", help="sweep one or two parameters: every point's metrics with intervals")

@@ -141,3 +141,52 @@ def test_cli_reproduce_json_and_details(capsys):
     assert rc == 0 and out.startswith("experiment,filter,label,quantity,value,ci_lo,ci_hi")
     rc = main(["reproduce", "vbekf", "--seeds", "0"])
     assert rc == 2 and "--seeds" in capsys.readouterr().err
+
+
+def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
+    """Run r draws the same numbers in any block and any process: the verdicts and readings of
+    2 worker processes over blocks of a few runs equal those of one process over one block.
+    """
+    from navlab.reproduce import engine
+
+    rep = REPRODUCTIONS["irakf"]
+    one = rep.evaluate(runs=5, seeds=2, jobs=1)  # 10 runs per experiment: one block each
+    size = engine.run_size(engine.plan(rep.experiments[0].spec))
+    per_run = engine.memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
+    monkeypatch.setattr(engine, "BLOCK_BYTES", 4 * per_run)  # blocks of 4 runs
+    monkeypatch.setattr(engine, "POOL_MIN_STEPS", 0)
+    _, blocks, _ = engine._blocks(rep.experiments[0], 5, 2, 1)
+    assert blocks == [(0, 4), (4, 8), (8, 10)]
+    seen = []
+    two = rep.evaluate(runs=5, seeds=2, jobs=2, on_progress=lambda d, t: seen.append((d, t)))
+    assert seen[-1] == (20, 20) and len(seen) == 2 * len(blocks)
+    serial = rep.evaluate(runs=5, seeds=2, jobs=1)
+    for o in (two, serial):
+        for name in ("verdicts", "readings"):
+            a, b = getattr(one, name), getattr(o, name)
+            assert list(a["note"]) == list(b["note"])  # the printed numbers
+            num = a.select_dtypes("number").columns
+            np.testing.assert_allclose(b[num].to_numpy(float), a[num].to_numpy(float), rtol=1e-12)
+        for k, df in one.curves.items():
+            np.testing.assert_allclose(o.curves[k].to_numpy(), df.to_numpy(), rtol=1e-6)
+    for name in ("verdicts", "readings"):  # processes or not, the same blocks: bit for bit
+        assert getattr(two, name).equals(getattr(serial, name))
+
+
+def test_jobs_must_be_a_whole_number(monkeypatch, capsys):
+    from navlab.errors import NavlabError
+    from navlab.reproduce.engine import default_jobs
+
+    rep = replace_spec(REPRODUCTIONS["vbekf"], epochs=20)
+    for bad in (0, -1, 1.5, "two", True):
+        with pytest.raises(NavlabError, match="whole number"):
+            rep.evaluate(runs=2, seeds=1, jobs=bad)
+    monkeypatch.setenv("NAVLAB_JOBS", "3")
+    assert default_jobs() == 3
+    monkeypatch.setenv("NAVLAB_JOBS", "many")
+    with pytest.raises(NavlabError, match="NAVLAB_JOBS"):
+        default_jobs()
+    monkeypatch.delenv("NAVLAB_JOBS")
+    assert default_jobs() >= 1
+    rc = main(["reproduce", "vbekf", "--seeds", "1", "--runs", "2", "--jobs", "0"])
+    assert rc == 2 and "--jobs" in capsys.readouterr().err
