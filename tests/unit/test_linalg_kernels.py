@@ -45,6 +45,25 @@ def test_predict_cov_is_F_P_Ft_plus_Q():
     np.testing.assert_allclose(predict_cov(F, P[0], Q), F @ P[0] @ F.T + Q, rtol=1e-12)
 
 
+@pytest.mark.parametrize("Q_batched", [False, True])
+def test_predict_cov_shared_F_path_equals_the_plain_products(Q_batched):
+    """A shared F and stacked P (the one-GEMM path, here in several row pieces: 100 × 15 rows)
+    give sym(F P Fᵀ + Q) to round-off, exactly symmetric, and leave the inputs alone.
+    """
+    rng = np.random.default_rng(3)
+    B, n = 100, 15
+    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    A = rng.standard_normal((B, n, n))
+    P = A @ np.swapaxes(A, -1, -2)
+    Q = np.diag(rng.random(n)) if not Q_batched else np.eye(n) * rng.random((B, 1, 1))
+    P0, Q0 = P.copy(), Q.copy()
+    out = predict_cov(F, P, Q)
+    ref = F @ P @ F.T + Q
+    np.testing.assert_allclose(out, 0.5 * (ref + np.swapaxes(ref, -1, -2)), rtol=1e-12, atol=1e-12)
+    assert np.array_equal(out, np.swapaxes(out, -1, -2))
+    assert np.array_equal(P, P0) and np.array_equal(Q, Q0)
+
+
 def test_small_matrix_kernels_equal_lapack():
     """The closed-form kernels the filters use for m ≤ 3 equal LAPACK's solutions."""
     rng = np.random.default_rng(2)
