@@ -41,6 +41,7 @@ import numpy as np  # noqa: E402
 CASES = {
     "cv2d": ("cv2d", 100, 100),
     "sins-gps": ("sins-gps", 50, 150),
+    "sins-gps-200": ("sins-gps", 200, 150),  # the runs of a block of `reproduce hakf --seeds 20`
     "gps-ins-rtk": ("gps-ins-rtk", 10, 300),
     "pseudorange": ("gps-ins-pseudorange", 50, 100),
     "smartloc": ("smartloc-berlin", 5, 150),
@@ -149,6 +150,12 @@ def _plain_quad():
 
 def _plain_shared_left():
     return swap("navlab.linalg", "shared_left", lambda M, A: M @ A)
+
+
+def _plain_predict_cov():
+    from navlab.linalg import mT, sym
+
+    return swap("navlab.linalg", "predict_cov", lambda F, P, Q: sym(F @ P @ mT(F) + Q))
 
 
 def _plain_eig_inside():
@@ -335,6 +342,12 @@ TRICKS: list[Trick] = [
         "linalg.shared_left (one GEMM on the stacked rows)",
         {"gps-ins-rtk": ("svd-ukf", "mfukf"), "cv2d": ("svd-ukf",)},
         _plain_shared_left,
+    ),
+    Trick(
+        "predict-cov-gemm",
+        "linalg.predict_cov (P Fᵀ as one GEMM on the stacked rows for a shared F, sym in place)",
+        {k: ("huber-kf", "vb-akf", "hakf", "oracle-kf") for k in ("sins-gps", "sins-gps-200")},
+        _plain_predict_cov,
     ),
     Trick(
         "clamp-eig-inside",

@@ -32,8 +32,10 @@ tests/unit/test_jit_kernels.py): :func:`solve_sym` and :func:`quad` (d ≥ 4) by
 S is not exactly symmetric and positive definite; :func:`joseph_from_gain` in one pass.
 
 * :func:`predict_cov` — for a shared F, P Fᵀ as one GEMM on the stacked rows and the
-  symmetrisation in place (12–15 % of huber-kf, vb-akf, hakf and oracle-kf on sins-gps, 200 runs:
-  the 15×15 products are most of their time).
+  symmetrisation in place (sins-gps at 200 runs, the blocks of ``reproduce hakf``: 21 % of hakf,
+  15 % of oracle-kf, 8–10 % of huber-kf and vb-akf; ≈ 5 % at 50 runs, where Python overhead
+  rather than the 15×15 products is the cost). Its row pieces (:func:`_rows_times`) are written
+  into one array: concatenating them cost most of the gain.
 
 Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
 or H (7.5 %, −3 %), a hand-written forward substitution (4 %); F P Fᵀ + Q compiled for one run
