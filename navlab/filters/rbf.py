@@ -218,12 +218,14 @@ def ridge(Phi: Array, Y: Array, rows: Array, lam: float) -> Array:
 def _gather_rows(Us: Array, Ys: Array, rows: Array) -> tuple[Array, Array, Array]:
     """The rows marked True of each network, moved to the front in chronological order.
 
-    Returns U (B, R, d), Y (B, R, p) with R = the most rows of any network, and ok (B, R) (False:
-    padding, zero in U and Y).
+    Returns U (B, R, d), Y (B, R, p) and ok (B, R) (False: padding, zero in U and Y), with R every
+    sample row: the size of each run's systems must not depend on the other runs of its batch.
+    Sized to the most rows of any run of the batch, the sums of the ridge products ran in a
+    different order when the runs were chunked differently, and the width search's choice could
+    flip: a run's NNMFUKF estimate moved by up to 5e-2 relative between one chunk of 6 runs and
+    two of 3.
     """
     order = np.argsort(~rows, axis=1, kind="stable")
-    R = max(int(rows.sum(axis=1).max(initial=0)), 1)
-    order = order[:, :R]
     ok = np.take_along_axis(rows, order, axis=1)
     U = np.take_along_axis(Us, order[..., None], axis=1) * ok[..., None]
     Y = np.take_along_axis(Ys, order[..., None], axis=1) * ok[..., None]
@@ -301,16 +303,6 @@ def _masked_rmse(E: Array, rows: Array) -> Array:
     n = rows.sum(axis=1)[:, None]
     ss = np.sum(E**2 * rows[:, :, None], axis=1)
     return np.sqrt(np.divide(ss, n, out=np.full(ss.shape, np.nan), where=n > 0))
-
-
-def trim_centres(C: Array, cmask: Array) -> tuple[Array, Array]:
-    """Drop the padding columns no run uses (centres fill from index 0): J → max_b J_b.
-
-    A padded centre has a zero kernel column, a zero weight and no effect on the fit; dropping
-    it only shrinks the (J+1)×(J+1) ridge systems.
-    """
-    jt = max(int(cmask.sum(axis=1).max(initial=0)), 1)
-    return C[:, :jt], cmask[:, :jt]
 
 
 def _fit_outputs(
@@ -402,7 +394,6 @@ def train(
     lin_opts = (False, True) if linear == "auto" else (bool(linear),)
     if s_w is None:
         C, cm, r = cluster_adaptive(Us, fit, r_init, j_min, j_max)
-        C, cm = trim_centres(C, cm)
         scores, E_val = width_search(Us, Ys, fit, val, C, cm, r, width_grid, lin_opts, tail, lam)
         best = np.full((B, p), np.inf)
         s_best = np.repeat(r[:, None], p, axis=1)
@@ -427,7 +418,6 @@ def train(
         lin_on = np.full((B, p), tail) if lin_on is None else np.asarray(lin_on, dtype=bool)
         sigma_nn = np.full((B, p), np.nan)
     C, cm, _ = cluster_adaptive(Us, mask, r_init, j_min, j_max)
-    C, cm = trim_centres(C, cm)
     W, E = _fit_outputs(Us, Ys, C, cm, s_w, lin_on, mask, lam, tail)
     train_rmse = _masked_rmse(E, mask) * sd_y
     sigma_nn = np.where(np.isfinite(sigma_nn), sigma_nn, train_rmse)
