@@ -427,23 +427,6 @@ def _blocks(exp: Experiment, runs: int, seeds: int, seed: int) -> tuple[Experime
     return spec, list(itertools.pairwise(edges)), steps
 
 
-def _measure(
-    rep: Reproduction,
-    exp: Experiment,
-    runs: int,
-    seeds: int,
-    seed: int,
-    progress: Callable[[int], None],
-) -> Measured:
-    """Every block of one experiment in this process (see :func:`_measure_all`)."""
-    spec, blocks, _ = _blocks(exp, runs, seeds, seed)
-    parts = []
-    for a, b in blocks:
-        parts.append(_measure_block(rep, spec, a, b))
-        progress(b - a)
-    return _assemble(exp, parts)
-
-
 def _block_task(key: str, spec: ExperimentSpec, start: int, stop: int) -> _Block:
     """A worker process's task: a block of runs of the registered reproduction ``key``."""
     from navlab.reproduce import REPRODUCTIONS

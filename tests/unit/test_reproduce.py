@@ -72,10 +72,10 @@ def test_verdict_rules_on_claims_with_a_known_truth():
 
 def test_seed_sets_are_the_single_seed_runs():
     """Set s of the base seed is runs s·N … s·N + N − 1: set 0 is the old single-seed result."""
-    from navlab.reproduce.engine import _Evaluator, _measure
+    from navlab.reproduce.engine import _Evaluator, _measure_all
 
     rep = _rep([Number("n", "x", Ref("e", "kf"), "rmse_x", 1.0)])
-    measured = {"e": _measure(rep, rep.experiments[0], 12, 3, 1, lambda n: None)}
+    measured = _measure_all(rep, 12, 3, 1, lambda n: None, jobs=1)
     per_set = _Evaluator(rep, measured, 12, 3, 1).per_set(Ref("e", "kf"), "rmse_x")
     for s in range(3):
         spec = SPEC.replace(runs=12 * (s + 1))
