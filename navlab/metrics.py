@@ -215,20 +215,12 @@ class RunStats:
     @staticmethod
     def concat(parts: list[RunStats]) -> RunStats:
         """The statistics of consecutive chunks of runs as one (a summary run)."""
-        first = parts[0]
-        cat = lambda d: {k: np.concatenate([getattr(p, d)[k] for p in parts]) for k in getattr(first, d)}  # noqa: E731
-        return RunStats(
-            key=first.key,
-            label=first.label,
-            diverged=np.concatenate([p.diverged for p in parts]),
-            runtime_s=sum(p.runtime_s for p in parts),
-            epochs=first.epochs,
-            sse=cat("sse"),
-            sq=cat("sq"),
-            sums=cat("sums"),
-            samples=cat("samples"),
-            estimates_R=first.estimates_R,
-        )
+        out = RunStats.allocate(parts[0], sum(p.diverged.shape[0] for p in parts))
+        at = 0
+        for p in parts:
+            out.put(at, p)
+            at += p.diverged.shape[0]
+        return out
 
     @staticmethod
     def allocate(like: RunStats, runs: int) -> RunStats:
