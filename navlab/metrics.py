@@ -271,12 +271,14 @@ def epoch_major(a: Array) -> Array:
     return np.ascontiguousarray(a.swapaxes(0, 1)).swapaxes(0, 1)
 
 
-def per_run(a: Array) -> Array:
-    """Σ over the epochs, then the channels, of each run: (B, Kw[, m]) → (B,) floats.
+def per_run(a: Array, where: Array | None = None) -> Array:
+    """Σ over the epochs, then the channels, of each run: (B, Kw[, m]) → (B,) floats; with
+    ``where``, of the entries where it is True only (the sum of ``np.where(where, a, 0)``, the
+    same bits, without that temporary array).
 
     Two single-axis sums: on an epoch-major boolean array one sum over both axes is ≈ 20× slower.
     """
-    s = a.sum(axis=1)
+    s = a.sum(axis=1) if where is None else np.add.reduce(a, axis=1, where=where)
     return (s.sum(axis=1) if s.ndim > 1 else s).astype(float)
 
 
@@ -332,7 +334,7 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
             e2 *= e2
             for g, group in data.groups.items():
                 i0, *rest = group.idx
-                sq = e2[..., i0] + e2[..., rest[0]] if rest else e2[..., i0].copy()
+                sq = e2[..., i0] + e2[..., rest[0]] if rest else e2[..., i0].copy(order="K")  # epoch-major
                 for i in rest[1:]:
                     sq += e2[..., i]
                 if group.scale != 1.0:
@@ -344,13 +346,13 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
                 continue
             v = epoch_major(v[:, W])
             fin = np.isfinite(v)
-            s[f"{name}_sum"] = per_run(np.where(fin, v, 0.0))
+            s[f"{name}_sum"] = per_run(v, where=fin)
             s[f"{name}_cnt"] = per_run(fin)
             s[f"{name}_skip"] = per_run(~fin if where is None else where & ~fin)
         if "logpdf" in fr.stats:  # the filter's own predictive log density of each measurement
             lp = epoch_major(fr.stats["logpdf"][:, W])
             fin = np.isfinite(lp) & present
-            s["lpd_sum"] = per_run(np.where(fin, lp, 0.0))
+            s["lpd_sum"] = per_run(lp, where=fin)
             s["lpd_cnt"] = per_run(fin)
         if fr.R_hat is not None:
             if "R_true" not in dm:
@@ -358,7 +360,7 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
             err = np.abs(np.sqrt(epoch_major(fr.R_hat[:, W]) / dm["R_true"]) - 1.0)
             fin = np.isfinite(err)
             for part, sel in (("clean", clean), ("cont", mask)):
-                s[f"rhat_{part}_sum"] = per_run(np.where(sel & fin, err, 0.0))
+                s[f"rhat_{part}_sum"] = per_run(err, where=sel & fin)
                 s[f"rhat_{part}_cnt"] = per_run(sel & fin)
             s["rhat_skip"] = per_run(present & ~fin)
         flags = epoch_major(fr.flags[:, W])
