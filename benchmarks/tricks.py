@@ -148,16 +148,6 @@ def _plain_quad():
     return swap("navlab.linalg", "quad", quad)
 
 
-def _plain_shared_left():
-    return swap("navlab.linalg", "shared_left", lambda M, A: M @ A)
-
-
-def _plain_predict_cov():
-    from navlab.linalg import mT, sym
-
-    return swap("navlab.linalg", "predict_cov", lambda F, P, Q: sym(F @ P @ mT(F) + Q))
-
-
 def _plain_eig_inside():
     return swap(
         "navlab.filters.sage_husa.kernels", "eig_inside", lambda R, lo, hi: np.zeros(R.shape[0], dtype=bool)
@@ -336,18 +326,6 @@ TRICKS: list[Trick] = [
         "linalg.quad (closed form / LDLᵀ / Cholesky instead of LU)",
         {"cv2d": ("chi2-kf",), "sins-gps": ("chi2-kf",), "pseudorange": ("chi2-kf",)},
         _plain_quad,
-    ),
-    Trick(
-        "shared-left-gemm",
-        "linalg.shared_left (one GEMM on the stacked rows)",
-        {"gps-ins-rtk": ("svd-ukf", "mfukf"), "cv2d": ("svd-ukf",)},
-        _plain_shared_left,
-    ),
-    Trick(
-        "predict-cov-gemm",
-        "linalg.predict_cov (P Fᵀ as one GEMM on the stacked rows for a shared F, sym in place)",
-        {k: ("huber-kf", "vb-akf", "hakf", "oracle-kf") for k in ("sins-gps", "sins-gps-200")},
-        _plain_predict_cov,
     ),
     Trick(
         "clamp-eig-inside",

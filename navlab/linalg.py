@@ -18,8 +18,6 @@ is worth inside the filters; a shortcut stays only where it saves ≥ 10 % of so
 * :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3 (24 %,
   rakf on cv2d);
 * :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S (18 %, kf);
-* :func:`shared_left` — M L for a shared M and stacked L as one GEMM on the stacked rows (12 %,
-  mfukf on gps-ins-rtk: the UKF's closed-form transform of a linear model);
 * :func:`bcast` — a broadcast view built directly (11 %, svd-ukf on cv2d);
 * :func:`select` — no ``np.where`` while the mask is everywhere true (31 %, hakf on cv2d);
 * :func:`chi2_threshold` — χ² quantiles from a cached table (43 %, chi2-kf);
@@ -31,15 +29,13 @@ Compiled (navlab.jit, each kernel written for one run, its numpy path the refere
 tests/unit/test_jit_kernels.py): :func:`solve_sym` and :func:`quad` (d ≥ 4) by Cholesky, LU where
 S is not exactly symmetric and positive definite; :func:`joseph_from_gain` in one pass.
 
-* :func:`predict_cov` — for a shared F, P Fᵀ as one GEMM on the stacked rows and the
-  symmetrisation in place (sins-gps at 200 runs, the blocks of ``reproduce hakf``: 21 % of hakf,
-  15 % of oracle-kf, 8–10 % of huber-kf and vb-akf; ≈ 5 % at 50 runs, where Python overhead
-  rather than the 15×15 products is the cost). Its row pieces (:func:`_rows_times`) are written
-  into one array: concatenating them cost most of the gain.
-
 Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
 or H (7.5 %, −3 %), a hand-written forward substitution (4 %); F P Fᵀ + Q compiled for one run
-(slower than numpy's products at n = 15).
+(slower than numpy's products at n = 15); P Fᵀ as one GEMM on the stacked rows of P in
+:func:`predict_cov` and M L likewise for the UKF's linear transform (``shared_left``): worth 21 %
+and 12 % on an earlier machine, ≤ 5.7 % and ≤ 0.4 % re-measured with ``benchmarks/tricks.py`` on
+an AMD EPYC (2026-12-02), where a row of a GEMM over the run axis also rounds differently by the
+size of the batch; a stacked product multiplies each run's matrices by themselves.
 """
 
 from __future__ import annotations
@@ -57,8 +53,8 @@ from navlab.jit import Kernel, carray
 Array = NDArray[np.float64]
 
 # OpenBLAS runs a GEMM on one thread when M·N·K ≤ 65536·4 and on all CPUs above. On a small shared
-# machine a threaded GEMM can wait many times its own cost for a busy CPU, so the stacked products
-# here (and the RBF network's training, navlab.filters.rbf.mm) are split into pieces below that size.
+# machine a threaded GEMM can wait many times its own cost for a busy CPU, so the large products of
+# the RBF network's training (navlab.filters.rbf.mm) are split into pieces below that size.
 SERIAL_GEMM = 65536 * 4
 
 
@@ -124,31 +120,6 @@ def batched(A: Array, B: int) -> Array:
     return A if A.ndim > 2 else bcast(A, (B, *A.shape))
 
 
-def shared_left(M: Array, A: Array) -> Array:
-    """``M @ A`` for a shared M (p, n) and A (n, q) or (B, n, q).
-
-    A stack is multiplied as ONE matrix product on the stacked rows, (M A_b)ᵀ = A_bᵀ Mᵀ, instead
-    of numpy's loop of B small products (≈ 2× faster for n = 15), in pieces that keep BLAS on
-    one thread (:data:`SERIAL_GEMM`).
-    """
-    if M.ndim != 2 or A.ndim != 3:
-        return M @ A
-    B, n, q = A.shape
-    At = np.ascontiguousarray(mT(A)).reshape(B * q, n)
-    return mT(_rows_times(At, M.T).reshape(B, q, M.shape[0]))
-
-
-def _rows_times(X: Array, M: Array) -> Array:
-    """X (N, n) @ M (n, q) in row blocks of at most SERIAL_GEMM multiply-adds (same numbers)."""
-    rows = max(1, SERIAL_GEMM // max(1, M.shape[0] * M.shape[1]))
-    if X.shape[0] <= rows:
-        return X @ M
-    out = np.empty((X.shape[0], M.shape[1]), dtype=np.result_type(X, M))
-    for s in range(0, X.shape[0], rows):  # each piece written in place (no concatenating copy)
-        np.matmul(X[s : s + rows], M, out=out[s : s + rows])
-    return out
-
-
 # ------------------------------------------------------------------------------ products of the KF
 @functools.lru_cache(maxsize=128)
 def _selection(shape: tuple[int, ...], data: bytes) -> Array | None:
@@ -187,19 +158,7 @@ def PHt(P: Array, H: Array) -> tuple[Array, Array]:
 
 
 def predict_cov(F: Array, P: Array, Q: Array) -> Array:
-    """``F P Fᵀ + Q``, symmetrised (§1.1 step 2).
-
-    For a shared F (n, n) and stacked P (B, n, n): P Fᵀ as ONE matrix product on the stacked rows
-    of P (:func:`_rows_times`), then F (P Fᵀ) and the symmetrisation in place (no temporary stacks
-    beyond the two products); equal to the plain expression below, the reference, to round-off.
-    """
-    if F.ndim == 2 and P.ndim == 3:
-        B, n, _ = P.shape
-        A = F @ _rows_times(P.reshape(B * n, n), F.T).reshape(B, n, n)  # F (P Fᵀ)
-        A += Q
-        A += mT(A).copy()  # (A + Aᵀ)/2 (§0.2 rule 1)
-        A *= 0.5
-        return A
+    """``F P Fᵀ + Q``, symmetrised (§1.1 step 2)."""
     return sym(F @ P @ mT(F) + Q)
 
 

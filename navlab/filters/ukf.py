@@ -64,7 +64,6 @@ from navlab.linalg import (
     mask_missing,
     mT,
     mv,
-    shared_left,
     solve_sym,
     sym,
 )
@@ -239,7 +238,7 @@ def ukf_time_update(
     if not keep_sigma and getattr(model, "linear", False):
         F = model.F(k)
         L, neg = linear_sqrt(P, symmetric)  # any square root: L Lᵀ = |P_s| (SVD repair where P_s ≱ 0)
-        G = shared_left(F, L)  # F L
+        G = F @ L
         P_p = sym(w.c2 * (G @ mT(G)) + model.Q(k))  # 2  P⁻ = 2 Wc_1 c² (F L)(F L)ᵀ + Q
         return UKFState(mv(F, x), P_p, None, bcast(neg, (B,)).copy())  # 2  x⁻ = F x
     chi, neg = sigma_points(x, P, w.c, method)  # 1  χ from (x⁺, P⁺)
@@ -268,7 +267,7 @@ def ukf_measurement_prediction(
     if not reuse and getattr(model, "linear", False):
         H = model.H(state.x, k)
         L, neg = linear_sqrt(state.P, symmetric)  # 3  (redraw) χ = x⁻ ± c·L_j
-        HL = shared_left(H, L)
+        HL = H @ L
         A = w.c2 * (HL @ mT(HL))  # 5  A = Σ Wc (Y − ẑ⁻)(Y − ẑ⁻)ᵀ
         Pxy = w.c2 * (L @ mT(HL))  # 6  Pxy = Σ Wc (χ − x⁻)(Y − ẑ⁻)ᵀ
         neg = bcast(neg, (B,))
