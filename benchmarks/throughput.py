@@ -11,9 +11,11 @@ extra steps over the extra time between them (what one more run costs, start-up 
 Its split at the larger size: simulation (``Scenario.simulate``), the filter (``runtime_s``),
 metrics (``Results.metrics``) and the rest of ``run_experiment`` (driver + recorder), and the
 floor set by random-number generation (the same draws as the simulation, nothing else).
-Not a test: these machines are shared and noisy, so read the ratios, not the absolute figures.
+Not a test: these machines are shared and noisy, so read the ratios, not the absolute figures;
+every time is the best of ``--repeat`` (default 7: with 3 the marginal ratio ranged 46–65× over
+a dozen runs on one quiet 2-core machine, with 7 it ranged 63–69× over six).
 
-    python benchmarks/throughput.py [--repeat 3] [--runs 1,100,1000] [--pipeline-runs 1000,10000]
+    python benchmarks/throughput.py [--repeat 7] [--runs 1,100,1000] [--pipeline-runs 1000,10000]
 """
 
 from __future__ import annotations
@@ -135,7 +137,7 @@ def pipeline(sizes: list[int], repeat: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=7, help="best of this many (the uncontended time)")
     ap.add_argument("--runs", default="1,100,1000")
     ap.add_argument("--pipeline-runs", default="1000,10000", help="two sizes ('' to skip)")
     a = ap.parse_args()

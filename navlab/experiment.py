@@ -259,6 +259,15 @@ def _stack(arrays: Sequence[Any], shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(st, (len(arrays), *shape))
 
 
+def _all_finite(a: Array) -> Array:
+    """``np.isfinite(a).all(axis=-1)`` as one matrix-vector product: 0·a is 0 where a is finite
+    and NaN where it is not, and a sum of zeros is 0 (exact; the reduction over a short last axis
+    cost 4× more: 5.4 → 1.4 ms for 32 epochs × 10 000 runs × 4 states, equal at 15).
+    """
+    with np.errstate(invalid="ignore"):
+        return np.isfinite((a * 0.0) @ np.ones(a.shape[-1]))
+
+
 class _Recorder:
     """One filter's per-epoch outputs in preallocated arrays; fields appear on first use.
 
@@ -374,8 +383,8 @@ class _Recorder:
             self.nis[ks] = quad(innov, S)
         elif no_nis:
             self.nis[[items[j][0] for j in no_nis]] = quad(innov[no_nis], S[no_nis])
-        finite_P = np.isfinite(Pd[:, :1] if shared else Pd).all(axis=2)  # (L, 1 or B)
-        why = np.where(np.isfinite(x).all(axis=2) & finite_P, 0, 1)  # (L, B)
+        finite_P = _all_finite(Pd[:, :1] if shared else Pd)  # (L, 1 or B)
+        why = np.where(_all_finite(x) & finite_P, 0, 1)  # (L, B)
         if self.x_true is not None:
             dx = x - self.x_true[:, ks].swapaxes(0, 1)  # (L, B, n)
             nees = quad(dx, P)

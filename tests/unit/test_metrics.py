@@ -237,3 +237,17 @@ def test_per_run_statistics_do_not_depend_on_the_memory_layout_of_the_records():
     chunked = run_experiment(spec, chunk_runs=7).runs["sage-husa"]
     assert chunked.x.swapaxes(0, 1).flags.c_contiguous
     np.testing.assert_array_equal(chunked.R_hat, fr.R_hat)
+
+
+def test_the_recorders_finiteness_test_equals_isfinite_all():
+    """The divergence rule's "non-finite state" test (a matrix-vector product of 0·x) is exactly
+    ``np.isfinite(x).all(axis=-1)``: ±inf and NaN anywhere, finite values up to the largest double.
+    """
+    from navlab.experiment import _all_finite
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 4, 15):
+        x = rng.standard_normal((8, 50, n)) * np.array([1.0, 1e300])[rng.integers(0, 2, (8, 50, n))]
+        for bad in (np.inf, -np.inf, np.nan):
+            x[rng.random(x.shape) < 0.03] = bad
+        np.testing.assert_array_equal(_all_finite(x), np.isfinite(x).all(axis=-1))
