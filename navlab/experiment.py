@@ -547,8 +547,8 @@ def iter_chunks(
     runs of its batch. The last bits may still differ: BLAS picks its kernel by a product's size,
     so a matrix product over the run axis can round a run's row differently in a batch of another
     size (OpenBLAS 0.3.31 on an AMD EPYC: a few units in the last place), and a filter's discrete
-    decisions can amplify that (NNMFUKF: 2e-5 relative between 6 runs in one chunk and two chunks of 3). The
-    reproductions compute fixed blocks, whose numbers do not depend on the worker count.
+    decisions can amplify that (NNMFUKF: 2e-5 relative between 6 runs in one chunk and two of 3).
+    The reproductions compute fixed blocks, whose numbers do not depend on the worker count.
     """
     policy = policy or fixed_chunks(None)
     total, done = p.spec.runs, start
