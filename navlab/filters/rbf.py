@@ -113,7 +113,7 @@ def sq_dist(U: Array, C: Array) -> Array:
 def design(
     Us: Array,
     C: Array,
-    cmask: Array,
+    cmask: Array | None,
     s_w: Array,
     linear: bool = False,
     lin_on: Array | None = None,
@@ -121,10 +121,13 @@ def design(
 ) -> Array:
     """Φ (B, N, J+1[+d]): Gaussian kernels exp(−‖u − C_j‖²/(2 s_w²)) (S2 eq. 14), the inputs
     themselves if ``linear`` (a linear tail; zeroed for runs where ``lin_on`` (B,) is False) and a
-    column of ones (the bias, last). ``d2``: ``sq_dist(Us, C)`` if already computed.
+    column of ones (the bias, last). ``cmask`` (B, J): the centres that exist (None: all of them);
+    ``d2``: ``sq_dist(Us, C)`` if already computed.
     """
     d2 = sq_dist(Us, C) if d2 is None else d2
-    K = np.exp(-d2 / (2.0 * s_w[:, None, None] ** 2)) * cmask[:, None, :]
+    K = np.exp(-d2 / (2.0 * s_w[:, None, None] ** 2))
+    if cmask is not None:
+        K *= cmask[:, None, :]
     tail = Us if lin_on is None else Us * lin_on[:, None, None]
     parts = [K, tail] if linear else [K]
     return np.concatenate([*parts, np.ones((*K.shape[:2], 1))], axis=-1)
@@ -240,8 +243,13 @@ def split_sizes(N: int, holdout: float) -> tuple[int, int]:
     n ≤ N of them admissible, the first ⌊(1 − holdout)·n⌋ for the fit).
     """
     n = np.arange(N + 1)
-    n_fit = np.floor((1.0 - holdout) * n).astype(int)
+    n_fit = fit_rows(n, holdout)
     return int(n_fit.max()), int((n - n_fit).max())
+
+
+def fit_rows(n: Array, holdout: float) -> Array:
+    """How many of a network's n admissible samples (the first, chronologically) it fits on."""
+    return np.floor((1.0 - holdout) * n).astype(int)
 
 
 def by_centres(cm: Array) -> list[tuple[Array, int]]:
@@ -283,22 +291,24 @@ def width_search(
     """
     Uf, Yf, okf = _gather_rows(Us, Ys, fit, sizes[0])
     Uv, Yv, okv = _gather_rows(Us, Ys, val, sizes[1])
-    keys = [(lo, g) for lo in lin_opts for g in grid]
+    n_cand = len(lin_opts) * len(grid)
     B, p = Us.shape[0], Ys.shape[2]
-    scores = [np.empty((B, p)) for _ in keys]
-    resid = [np.empty((B, sizes[1], p)) for _ in keys]
+    scores = [np.empty((B, p)) for _ in range(n_cand)]
+    resid = [np.empty((B, sizes[1], p)) for _ in range(n_cand)]
     for i, J in by_centres(cm):
         group = _width_search_group(
-            Uf[i], Yf[i], okf[i], Uv[i], Yv[i], okv[i], C[i, :J], r[i], keys, tail, lam
+            Uf[i], Yf[i], okf[i], Uv[i], Yv[i], okv[i], C[i, :J], r[i], grid, lin_opts, tail, lam
         )
         for c, (score, E) in enumerate(group):
             scores[c][i], resid[c][i] = score, E
     return scores, resid
 
 
-def _width_search_group(Uf, Yf, okf, Uv, Yv, okv, C, r, keys, tail, lam) -> list[tuple[Array, Array]]:
+def _width_search_group(
+    Uf, Yf, okf, Uv, Yv, okv, C, r, grid, lin_opts, tail, lam
+) -> list[tuple[Array, Array]]:
     """:func:`width_search` for runs whose J centres C (b, J, d) all exist: [(RMSE, residuals)]
-    per candidate of ``keys``.
+    per candidate, in its order.
     """
     J = C.shape[1]
     d = Uf.shape[2]
@@ -317,14 +327,14 @@ def _width_search_group(Uf, Yf, okf, Uv, Yv, okv, C, r, keys, tail, lam) -> list
     Phv[..., -1] = 1.0
     nd2f, nd2v = -d2f, -d2v
     Kf, Kv = Phf[..., :J], Phv[..., :J]
-    for g in dict.fromkeys(g for _, g in keys):
+    for g in grid:
         h = 2.0 * (r * g)[:, None, None] ** 2
         np.exp(np.divide(nd2f, h, out=Kf), out=Kf)  # exp(−d²/(2 s_w²)) in place
         np.exp(np.divide(nd2v, h, out=Kv), out=Kv)
         PhfT = mT(Phf)
         G = mm(PhfT, Phf)
         rhs = mm(PhfT, Yf)
-        for lo in dict.fromkeys(lo for lo, g2 in keys if g2 == g):
+        for lo in lin_opts:
             if tail and not lo:
                 G0, rhs0 = G.copy(), rhs.copy()
                 G0[:, J : J + nt] = 0.0
@@ -335,7 +345,7 @@ def _width_search_group(Uf, Yf, okf, Uv, Yv, okv, C, r, keys, tail, lam) -> list
                 W = np.linalg.solve(G + eye, rhs)
             E = mm(Phv, W) - Yv
             res[(lo, g)] = (_masked_rmse(E, okv), E)
-    return [res[c] for c in keys]
+    return [res[(lo, g)] for lo in lin_opts for g in grid]
 
 
 def _masked_rmse(E: Array, rows: Array) -> Array:
@@ -374,15 +384,14 @@ def _fit_outputs(
 def _fit_group(Us, Ys, C, s_w, lin, rows, lam, linear) -> tuple[Array, Array]:
     """:func:`_fit_outputs` for runs whose centres C (b, J, d) all exist."""
     p = Ys.shape[2]
-    cm = np.ones(C.shape[:2], dtype=bool)
     d2 = sq_dist(Us, C)
     if np.all(s_w == s_w[:, :1]) and np.all(lin == lin[:, :1]):  # one design for every output
-        Phi = design(Us, C, cm, s_w[:, 0], linear, lin[:, 0], d2)
+        Phi = design(Us, C, None, s_w[:, 0], linear, lin[:, 0], d2)
         W = ridge(Phi, Ys, rows, lam)
         return W, mm(Phi, W) - Ys
     Ws, Es = [], []
     for j in range(p):
-        Phi = design(Us, C, cm, s_w[:, j], linear, lin[:, j], d2)
+        Phi = design(Us, C, None, s_w[:, j], linear, lin[:, j], d2)
         Wj = ridge(Phi, Ys[..., j : j + 1], rows, lam)
         Ws.append(Wj)
         Es.append(mm(Phi, Wj) - Ys[..., j : j + 1])
@@ -441,7 +450,7 @@ def train(
 
     # chronological split of each network's own admissible samples
     rank = np.cumsum(mask, axis=1) - 1
-    n_fit = np.floor((1.0 - holdout) * n).astype(int)
+    n_fit = fit_rows(n, holdout)
     fit = mask & (rank < n_fit[:, None])
     val = mask & ~fit
     tail = bool(linear)  # "auto" and True both carry tail rows
