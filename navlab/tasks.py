@@ -89,6 +89,10 @@ class Task:
     def key(self) -> str:
         return key_of(self.config())
 
+    def probe(self) -> Task:
+        """One run of this task: warms a new worker up (imports, the filter's compiled kernels)."""
+        return Task(self.spec.replace(runs=self.start + 1), self.start, self.window, self.keep_epochs)
+
 
 @dataclass(eq=False)
 class TaskResult:

@@ -1,5 +1,8 @@
 """A distributed.LocalCluster (2 workers) started here gives the serial path's numbers for a sweep
-and a tune, and a task whose worker is killed halfway is recomputed: nothing is lost.
+and a tune, and a task whose worker is killed halfway is recomputed: nothing is lost. A cluster
+whose workers all died ends the job with a message naming its scheduler (the library, and the
+CLI: exit 2, progress lines on a non-terminal), and the default executor hands a long job's
+remaining tasks to a warm embedded cluster with the serial path's numbers.
 
 Never timing-based: the kill waits for the task to say it has started (a marker file), and
 waits have only generous fail-safe limits.
@@ -10,6 +13,8 @@ from __future__ import annotations
 import functools
 import os
 import signal
+import socket
+import subprocess
 import sys
 import threading
 import time
@@ -21,6 +26,7 @@ import pytest
 distributed = pytest.importorskip("distributed")
 cloudpickle = pytest.importorskip("cloudpickle")
 
+from navlab import cluster as C  # noqa: E402
 from navlab import sweep as SW  # noqa: E402
 from navlab import tasks as T  # noqa: E402
 from navlab import tune as TU  # noqa: E402
@@ -32,6 +38,7 @@ pytestmark = pytest.mark.slow
 TIMING = ["us_per_run_step", "steps_per_s"]
 SPEC = ExperimentSpec(filters=("kf", "huber-kf"), runs=10, seed=4, epochs=30, contamination=0.1)
 SAFE_S = 300  # fail-safe limit of every wait (a loaded 2-core machine)
+ROOT = Path(__file__).resolve().parents[2]
 
 cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import tests/
 
@@ -116,3 +123,103 @@ def test_a_task_whose_worker_dies_is_recomputed(client, tmp_path):
         assert store.get(t.key) is not None  # every task stored
         a, b = got[t.key].stats, want[t.key].stats
         assert (a.sse["pos"] == b.sse["pos"]).all() and (a.diverged == b.diverged).all()
+
+
+def _in_thread(work) -> tuple[threading.Thread, list[BaseException]]:
+    err: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            work()
+        except BaseException as exc:
+            err.append(exc)
+
+    th = threading.Thread(target=run, daemon=True)  # daemon: a hang fails the test, not the run
+    th.start()
+    return th, err
+
+
+def test_a_cluster_without_workers_ends_the_job_naming_its_scheduler(monkeypatch):
+    monkeypatch.setenv(C.NO_WORKERS_ENV, "2")
+    cluster = distributed.LocalCluster(
+        n_workers=0, processes=False, dashboard_address=":0", host="127.0.0.1", protocol="tcp"
+    )
+    client = distributed.Client(cluster, set_as_default=False)
+    try:
+        tasks = [t for v in T.tasks_for(SPEC, block=5).values() for t in v]
+        ticks: list[int] = []
+        th, err = _in_thread(
+            lambda: T.compute(
+                tasks,
+                executor=DaskExecutor(client, "the test cluster"),
+                tick=lambda: ticks.append(1),
+            )
+        )
+        th.join(120)  # the limit is 2 s; before, the job waited forever
+        assert not th.is_alive(), "the job still waits on a cluster without workers"
+        (exc,) = err
+        assert isinstance(exc, C.ClusterError)
+        msg = str(exc)
+        assert cluster.scheduler_address in msg and "has had no workers for 2 s" in msg, msg
+        assert "0 of the 4 tasks" in msg and "dask worker" in msg and "--scheduler serial" in msg
+        assert "\n" not in msg and ticks  # one line; the caller's tick ran while it waited
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)  # its own session: the nanny and the worker too
+    proc.wait(SAFE_S)
+
+
+def test_cli_sweep_on_a_cluster_whose_workers_died_exits_2_with_one_line(tmp_path):
+    addr = f"tcp://127.0.0.1:{_free_port()}"
+    log = (tmp_path / "dask.log").open("w")
+    dask = [sys.executable, "-m"]
+    run = functools.partial(subprocess.Popen, stdout=log, stderr=log, start_new_session=True)
+    sched = run(
+        [
+            *dask,
+            "distributed.cli.dask_scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            addr.rsplit(":", 1)[1],
+            "--no-dashboard",
+        ]
+    )
+    worker = run([*dask, "distributed.cli.dask_worker", addr, "--nthreads", "1", "--no-dashboard"])
+    try:
+        with distributed.Client(addr, timeout=SAFE_S, set_as_default=False) as client:
+            client.wait_for_workers(1, timeout=SAFE_S)
+            _kill(worker)  # kill -9: every worker of the cluster is gone
+            deadline = time.monotonic() + SAFE_S
+            while C.n_workers(client) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert C.n_workers(client) == 0
+        cmd = [sys.executable, "-m", "navlab", "sweep", "--scheduler", addr, "--filters", "kf"]
+        cmd += ["--runs", "4", "--epochs", "20", "--param", "outliers.contamination", "--values", "0,0.1"]
+        cmd += ["--store", str(tmp_path / "store")]
+        env = {**os.environ, C.NO_WORKERS_ENV: "7", "PYTHONPATH": str(ROOT)}
+        try:  # stderr is a pipe, not a terminal
+            out = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180)
+        except subprocess.TimeoutExpired:
+            pytest.fail("navlab sweep still waits on a cluster without workers after 180 s")
+        err = out.stderr.strip().splitlines()
+        assert out.returncode == 2, out.stderr
+        assert err[-1].startswith("navlab: error: the Dask cluster at " + addr), err
+        assert "has had no workers for 7 s" in err[-1] and "dask worker" in err[-1]
+        assert any(line.startswith("navlab: 0/2 tasks after ") for line in err[:-1]), err
+        assert "internal error" not in out.stderr and "Traceback" not in out.stderr
+    finally:
+        _kill(worker)
+        _kill(sched)
+        log.close()
