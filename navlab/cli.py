@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -179,15 +180,45 @@ def _run(a: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(quiet: bool, what: str = "runs"):
-    """A one-line progress counter on stderr (a terminal only), or None."""
-    if quiet or not sys.stderr.isatty():
-        return None
+class _Progress:
+    """Progress on stderr: a counter rewritten in place on a terminal; elsewhere (a log file, a
+    pipe) a line every :attr:`EVERY_S` seconds, also while nothing finishes (``tick``), so a
+    stalled job shows. ``where()`` says where the work runs (an executor's ``now``).
+    """
 
-    def show(done: int, total: int) -> None:
-        print(f"\r{done}/{total} {what}", end="" if done < total else "\n", file=sys.stderr, flush=True)
+    EVERY_S = 5.0
 
-    return show
+    def __init__(self, what: str, where: Any = None) -> None:
+        self.what, self.where = what, where
+        self.tty = sys.stderr.isatty()
+        self.t0 = self.last = time.monotonic()
+        self.done = self.total = 0
+
+    def __call__(self, done: int, total: int) -> None:
+        self.done, self.total = done, total
+        if self.tty:
+            print(
+                f"\r{done}/{total} {self.what}", end="" if done < total else "\n", file=sys.stderr, flush=True
+            )
+        else:
+            self.tick()
+
+    def tick(self) -> None:
+        now = time.monotonic()
+        if self.tty or now - self.last < self.EVERY_S:
+            return
+        self.last = now
+        where = f" · {self.where()}" if self.where is not None else ""
+        print(
+            f"navlab: {self.done}/{self.total} {self.what} after {now - self.t0:.0f} s{where}",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _progress(quiet: bool, what: str = "runs", where: Any = None) -> _Progress | None:
+    """Progress on stderr (:class:`_Progress`), or None with ``--quiet``."""
+    return None if quiet else _Progress(what, where)
 
 
 def _reproduce(a: argparse.Namespace) -> int:
@@ -293,6 +324,12 @@ def _engine(a: argparse.Namespace):
     return Store.open(a.store), executor(a.scheduler)
 
 
+def _ran(ex: Any, quiet: bool) -> None:
+    """Where the tasks ran, and why (stderr)."""
+    if not quiet:
+        print(f"navlab: ran {ex.report}", file=sys.stderr)
+
+
 def _sweep(a: argparse.Namespace) -> int:
     from navlab import sweep as SW
     from navlab import tables
@@ -312,7 +349,9 @@ def _sweep(a: argparse.Namespace) -> int:
         raise NavlabError("--param GROUP.NAME is required (e.g. outliers.contamination)")
     store, ex = _engine(a)
     sw = SW.make_sweep(spec, axes)
-    out = SW.run_sweep(sw, store=store, executor=ex, on_progress=_progress(a.quiet, "tasks"))
+    prog = _progress(a.quiet, "tasks", lambda: ex.now)
+    out = SW.run_sweep(sw, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
+    _ran(ex, a.quiet)
     df = out.rows
     if a.format != "table":
         _emit(df, a.format, a.out)
@@ -368,7 +407,9 @@ def _tune(a: argparse.Namespace) -> int:
         ranges=a.range or (),
     )
     store, ex = _engine(a)
-    r = TU.tune(st, store=store, executor=ex, on_progress=_progress(a.quiet, "tasks"))
+    prog = _progress(a.quiet, "tasks", lambda: ex.now)
+    r = TU.tune(st, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
+    _ran(ex, a.quiet)
     if a.format == "table":
         _write(TU.report(r).text(), a.out)
     else:

@@ -3,9 +3,11 @@ running a job of tasks with a progress bar and a Stop button.
 
 The sweep and tuning logic itself is the library's (:mod:`navlab.sweep`, :mod:`navlab.tune`),
 shared with the CLI. Tasks run on the cluster named by ``NAVLAB_DASK_SCHEDULER``
-(``tcp://HOST:8786``), by default on an embedded local cluster the server starts on the first
-job of two or more tasks and shares between sessions (``serial``: in the server process). If
-the embedded cluster cannot start, the job runs in the server process and the page says so.
+(``tcp://HOST:8786``), by default on this machine (:class:`navlab.cluster.LocalExecutor`): in the
+server process while the work is short, on an embedded cluster — started in the background when
+a job's work is long, then kept warm and shared between sessions — when it pays (``serial``:
+always in the server process). The progress bar says where the tasks run, and at the end
+where they ran and why.
 
 Every finished task is in the results store (``NAVLAB_STORE``), so Stop keeps everything
 finished, Run resumes, and a page opened again (even after a server restart) shows the finished
@@ -45,7 +47,7 @@ def app_store() -> Store:
 
 
 def app_executor() -> Any:
-    """The executor of NAVLAB_DASK_SCHEDULER (default: the embedded local cluster)."""
+    """The executor of NAVLAB_DASK_SCHEDULER (default: this machine, :mod:`navlab.cluster`)."""
     return cluster.executor(os.environ.get(cluster.ENV) or "local")
 
 
@@ -55,7 +57,10 @@ def where_text() -> str:
     if addr == "serial":
         return "in the server process"
     if addr == "local":
-        return f"on an embedded Dask cluster ({cluster.cpu_count()} worker processes on this machine)"
+        return (
+            "in the server process, or on an embedded Dask cluster "
+            f"({cluster.cpu_count()} workers) when the work is long enough to pay for it"
+        )
     return f"on the Dask cluster at {addr}"
 
 
@@ -90,7 +95,8 @@ def run_job(
     :data:`navlab.cluster.POLL_S` while waiting on a cluster), the finished tasks are kept in
     the store and the tasks still running are cancelled.
     """
-    bar = st.progress(0.0, text=f"starting ({where_text()})…")
+    ex = app_executor()
+    bar = st.progress(0.0, text=f"starting ({ex.now})…")
     stop_container.button(
         "Stop",
         key=f"_stop_{page}",
@@ -102,20 +108,16 @@ def run_job(
 
     def progress(done: int, total: int) -> None:
         state.update(done=done, total=max(total, 1))
-        bar.progress(min(1.0, done / state["total"]), text=f"{done}/{total} {what} · {where_text()}")
+        tick()
 
     def tick() -> None:  # an element update: Streamlit handles a pending Stop here
-        bar.progress(
-            min(1.0, state["done"] / state["total"]), text=f"{state['done']}/{state['total']} {what}"
-        )
+        done, total = state["done"], state["total"]
+        bar.progress(min(1.0, done / total), text=f"{done}/{total} {what} · {ex.now}")
 
-    store = app_store()
     try:
-        try:
-            return work(store=store, executor=app_executor(), on_progress=progress, tick=tick)
-        except cluster.ClusterError as exc:
-            st.warning(f"{exc}. Running in the server process instead.")
-            return work(store=store, executor=cluster.SerialExecutor(), on_progress=progress, tick=tick)
+        out = work(store=app_store(), executor=ex, on_progress=progress, tick=tick)
+        bar.progress(1.0, text=f"Done: {ex.report}.")
+        return out
     except NavlabError as exc:
         bar.empty()
         st.error(str(exc))
