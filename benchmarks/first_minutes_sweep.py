@@ -17,67 +17,47 @@ times move with it.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
+from unittest import mock
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "e2e")]  # navlab; conftest's serve() and Chromium
 
 T_MS = 600_000  # fail-safe limit of every browser wait
 CHART = '[data-testid="stPlotlyChart"]'
 MODES = {"default": None, "serial": "serial"}  # NAVLAB_DASK_SCHEDULER of each measurement
 
 
-@contextlib.contextmanager
-def _env(**values: str | None) -> Iterator[None]:
-    """Set (or, with None, unset) environment variables for the servers started inside."""
-    old = {k: os.environ.get(k) for k in values}
-    try:
-        for k, v in values.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
 def _click_to_chart(browser, scheduler: str | None) -> tuple[float, str]:
     """(seconds from the click on Run sweep to the first chart, the page's 'Done: …' line) on a
-    fresh server with an empty store.
+    fresh server with an empty store and NAVLAB_DASK_SCHEDULER=``scheduler`` (None: empty, the
+    default).
     """
-    sys.path.insert(0, str(ROOT / "tests" / "e2e"))
     from conftest import serve
     from playwright.sync_api import expect
 
-    with tempfile.TemporaryDirectory(prefix="navlab-bench-") as tmp:
-        log = Path(tmp) / "server.log"
-        with _env(NAVLAB_DASK_SCHEDULER=scheduler, NAVLAB_STORE=str(Path(tmp) / "store")), serve(log) as url:
-            page = browser.new_page(viewport={"width": 1440, "height": 900})
-            try:
-                page.goto(f"{url}/Sweep", timeout=T_MS)
-                run = page.get_by_role("button", name="Run sweep", exact=True)
-                expect(run).to_be_enabled(timeout=T_MS)
-                expect(page.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T_MS)
-                t0 = time.monotonic()
-                run.click()
-                expect(page.locator(CHART).first).to_be_visible(timeout=T_MS)
-                seconds = time.monotonic() - t0
-                done = page.get_by_text("Done:", exact=False).first
-                report = done.inner_text(timeout=T_MS) if done.count() else "(no report on the page)"
-            finally:
-                page.close()
+    tmp = tempfile.TemporaryDirectory(prefix="navlab-bench-")
+    env = {"NAVLAB_STORE": str(Path(tmp.name) / "store"), "NAVLAB_DASK_SCHEDULER": scheduler or ""}
+    with tmp, mock.patch.dict(os.environ, env), serve(Path(tmp.name) / "server.log") as url:
+        page = browser.new_page(viewport={"width": 1440, "height": 900})
+        try:
+            page.goto(f"{url}/Sweep", timeout=T_MS)
+            run = page.get_by_role("button", name="Run sweep", exact=True)
+            expect(run).to_be_enabled(timeout=T_MS)
+            expect(page.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T_MS)
+            t0 = time.monotonic()
+            run.click()
+            expect(page.locator(CHART).first).to_be_visible(timeout=T_MS)
+            seconds = time.monotonic() - t0
+            done = page.get_by_text("Done:", exact=False)
+            report = done.first.inner_text() if done.count() else "(no report on the page)"
+        finally:
+            page.close()
     return seconds, " ".join(report.split())
 
 
@@ -87,7 +67,6 @@ def measure_sweep(repeat: int = 1) -> dict:
     "serial": [seconds…], "ratio": median default / median serial, "report": where the default
     executor ran the tasks and why (the page's words), "load": the load average before}``.
     """
-    sys.path.insert(0, str(ROOT / "tests" / "e2e"))
     from conftest import CHROMIUM, CHROMIUM_ARGS
     from playwright.sync_api import sync_playwright
 

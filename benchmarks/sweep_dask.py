@@ -1,13 +1,25 @@
-"""A 16-task sweep on 2 local Dask workers against the serial path, side by side.
+"""The figures behind the default executor's choice (navlab.cluster): what the embedded cluster's
+start costs, and when a warm one beats this process.
 
-    python benchmarks/sweep_dask.py [--workers 2] [--runs 100] [--epochs 300] [--repeat 2]
+    python benchmarks/sweep_dask.py [--workers 2] [--runs 100] [--epochs 300] [--repeat 3]
 
-Prints the time of the same 16 tasks (one filter × 16 values of its parameter, --runs runs each)
-computed in this process and on an embedded LocalCluster (started and warmed beforehand: its
-start-up is reported apart), their ratio (target ≥ 1.6× on 2 cores), the cluster's per-task
-overhead (100 empty tasks) and the overhead implied by the sweep (workers × cluster time −
-serial time, per task). Results are checked equal. No results store: every task is computed.
-The machine's load average is printed too: on a shared machine the ratio moves with it.
+Prints, on this machine now:
+
+* the embedded cluster's start-up as navlab does it (``navlab.cluster.Embedded``: LocalCluster up,
+  then every worker warmed on one run of the filter), against ``START_S``;
+* the cluster's per-task overhead (100 empty tasks);
+* a 16-task and a 4-task job (one filter × values of its parameter, --runs runs each) in this
+  process and on the warm cluster, interleaved so both see the same load (min of --repeat), the
+  speed-up, and from the two sizes the fixed cost of a job on the warm cluster and the work where
+  it breaks even, against ``PAYS_S``; results are checked equal;
+* where the default executor (``navlab.cluster.LocalExecutor``, with this warm cluster) runs the
+  16 tasks, and why;
+* with ``--long N`` (0: skip): a job of N tasks run serially and by the default executor with no
+  cluster up (it starts one in the background when the work is long enough and hands over), in
+  turn, each --repeat times: is a cold start worth it at that size (``START_FACTOR``)?
+
+No results store: every task is computed. The load average is printed: on a shared machine the
+figures move with it (a busy machine gives 2 workers less than 2 cores).
 """
 
 from __future__ import annotations
@@ -30,71 +42,83 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--runs", type=int, default=100)
     ap.add_argument("--epochs", type=int, default=300)
-    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--long", type=int, default=0, help="tasks of the cold-start comparison (e.g. 120)")
     a = ap.parse_args()
 
     import numpy as np
-    from distributed import Client, LocalCluster
 
+    from navlab import cluster as C
     from navlab import sweep as SW
     from navlab import tasks as T
-    from navlab.cluster import DaskExecutor, SerialExecutor
     from navlab.experiment import ExperimentSpec
 
+    print(f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     spec = ExperimentSpec(filters=("huber-kf",), runs=a.runs, epochs=a.epochs, contamination=0.1)
-    axis = SW.Axis(SW.resolve(spec, "huber-kf.gamma"), tuple(np.geomspace(0.3, 30, 16)))
-    tasks = SW.make_sweep(spec, [axis]).all_tasks()
-    assert len(tasks) == 16
 
+    def job(n: int, seed: int) -> list:
+        axis = SW.Axis(SW.resolve(spec, "huber-kf.gamma"), tuple(np.geomspace(0.3, 30, n)))
+        return SW.make_sweep(spec.replace(seed=seed), [axis]).all_tasks()
+
+    emb = C.Embedded()
     t0 = time.perf_counter()
-    cluster = LocalCluster(
-        n_workers=a.workers, threads_per_worker=1, processes=True, dashboard_address=":0", host="127.0.0.1"
+    client = emb.wait(a.workers, T.run_task, [job(1, 0)[0].probe()])
+    print(
+        f"embedded cluster start-up (up + {a.workers} workers warm) {time.perf_counter() - t0:6.2f} s"
+        f"   (navlab assumes START_S = {C.START_S:g} s; starts it above {C.START_FACTOR:g} × that)"
     )
-    client = Client(cluster, set_as_default=False)
-    client.wait_for_workers(a.workers)
-    start_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    # warm: every worker imports navlab and runs one small task
-    client.gather(
-        [
-            client.submit(T.run_task, T.Task(spec.replace(runs=1), 0), key=f"warm-{i}")
-            for i in range(a.workers)
-        ]
-    )
-    warm_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     client.gather([client.submit(noop, i, pure=False) for i in range(100)])
-    noop_ms = 1e3 * (time.perf_counter() - t0) / 100
+    print(f"per-task overhead {1e3 * (time.perf_counter() - t0) / 100:6.2f} ms (100 empty tasks)")
 
-    ser, par = [], []
-    for _ in range(a.repeat):  # interleaved, so both see the same machine load
-        t0 = time.perf_counter()
-        r_ser = T.compute(tasks, executor=SerialExecutor())
-        ser.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        r_par = T.compute(tasks, executor=DaskExecutor(client, "bench"))
-        par.append(time.perf_counter() - t0)
-    for t in tasks:
-        assert (r_ser[t.key].stats.sse["pos"] == r_par[t.key].stats.sse["pos"]).all()
-    s, p = min(ser), min(par)
-    per_task = sum(r.elapsed_s for r in r_ser.values()) / len(tasks)
-    implied = (a.workers * p - s) / len(tasks)
-    load = os.getloadavg()
+    T.compute(job(2, 1))  # this process's kernels loaded, as in a running app
+    cost: dict[int, tuple[float, float, float]] = {}
+    for n in (16, 4):
+        ser, par = [], []
+        for r in range(a.repeat):  # interleaved; a new seed each time: nothing is cached
+            tasks = job(n, 100 + r)
+            t0 = time.perf_counter()
+            want = T.compute(tasks, executor=C.SerialExecutor())
+            ser.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            got = T.compute(tasks, executor=C.DaskExecutor(client, "bench"))
+            par.append(time.perf_counter() - t0)
+            for t in tasks:
+                assert (want[t.key].stats.sse["pos"] == got[t.key].stats.sse["pos"]).all()
+        s, p = min(ser), min(par)
+        cost[n] = (s, p, s / p)
+        print(
+            f"{n:2d} tasks ({s / n:.3f} s each): this process {s:6.2f} s, warm cluster {p:6.2f} s, "
+            f"speed-up {s / p:4.2f}×   (runs: {', '.join(f'{x:.2f}' for x in ser)} | "
+            f"{', '.join(f'{x:.2f}' for x in par)})"
+        )
+    (s1, p1, _), (s2, p2, _) = cost[16], cost[4]
+    slope = (p1 - p2) / (s1 - s2)  # cluster seconds per second of serial work
+    fixed = p1 - slope * s1
+    even = fixed / (1 - slope) if slope < 1 else float("inf")
     print(
-        f"16 tasks: huber-kf on cv2d, {a.runs} runs × {a.epochs} epochs each "
-        f"({per_task:.3f} s of work per task)"
+        f"warm cluster: {fixed:.2f} s per job + {slope:.2f} s per second of work → breaks even at "
+        f"{even:.2f} s of work   (navlab's PAYS_S = {C.PAYS_S:g} s)"
     )
-    print(f"cluster start {start_s:.2f} s, warm-up (import navlab on {a.workers} workers) {warm_s:.2f} s")
-    print(f"serial                 {s:7.2f} s   (runs: {', '.join(f'{x:.2f}' for x in ser)})")
-    print(f"{a.workers} local workers        {p:7.2f} s   (runs: {', '.join(f'{x:.2f}' for x in par)})")
-    print(f"speed-up               {s / p:7.2f}×  (target ≥ 1.6× on 2 cores)")
-    print(
-        f"per-task overhead      {noop_ms:7.2f} ms (100 empty tasks); "
-        f"{1e3 * implied:.1f} ms implied by the sweep"
-    )
-    print(f"load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} on {os.cpu_count()} cores")
-    client.close()
-    cluster.close()
+    ex = C.LocalExecutor(a.workers, embedded=emb)
+    t0 = time.perf_counter()
+    T.compute(job(16, 999), executor=ex)
+    print(f"default executor, 16 tasks: {time.perf_counter() - t0:.2f} s, ran {ex.report}")
+    emb.close()
+    for r in range(a.repeat if a.long else 0):
+        tasks = job(a.long, 2000 + r)
+        t0 = time.perf_counter()
+        T.compute(tasks, executor=C.SerialExecutor())
+        ser = time.perf_counter() - t0
+        ex = C.LocalExecutor(a.workers, embedded=C.Embedded())
+        t0 = time.perf_counter()
+        T.compute(job(a.long, 3000 + r), executor=ex)
+        auto = time.perf_counter() - t0
+        ex.embedded.close()
+        print(
+            f"{a.long} tasks, no cluster up: serial {ser:6.1f} s, default executor {auto:6.1f} s "
+            f"(ratio {auto / ser:.2f}; load {os.getloadavg()[0]:.1f}): ran {ex.report}"
+        )
 
 
 if __name__ == "__main__":

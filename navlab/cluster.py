@@ -256,16 +256,8 @@ class LocalExecutor:
             f"{self.there} tasks on the embedded Dask cluster ({self.n_workers} workers) and {here}{self.why}"
         )
 
-    def run(
-        self,
-        fn: Callable[[Any], Any],
-        tasks: Sequence[Any],
-        done: Done,
-        keep: Done,
-        *,
-        should_stop: Callable[[], bool] | None = None,
-        tick: Callable[[], None] | None = None,
-    ) -> None:
+    def run(self, fn, tasks, done, keep, *, should_stop=None, tick=None) -> None:
+        """As :meth:`SerialExecutor.run`."""
         emb, todo = self.embedded, list(tasks)
         est, started = _Estimate(), False
         self.now = "in this process"

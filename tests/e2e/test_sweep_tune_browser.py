@@ -1,4 +1,5 @@
-"""Sweep and Tune in a real browser, on the server's embedded Dask cluster (the default).
+"""Sweep and Tune in a real browser, on the server's default executor (this machine: these small
+jobs run in the server process, and the page says so).
 
 A unique seed per test run makes every task new, so the cluster really computes (a repeated
 configuration would come from the results store).
@@ -11,7 +12,7 @@ import re
 
 from playwright.sync_api import Page, expect
 
-T = 180_000  # ms: the first job starts the embedded cluster on a shared 2-core machine
+T = 180_000  # ms: a shared 2-core machine
 CHART = '[data-testid="stPlotlyChart"]'
 SEED = random.SystemRandom().randrange(10**6, 2**31 - 1)
 
@@ -62,6 +63,8 @@ def test_two_d_sweep_in_the_browser(page: Page):
     expect(page.locator(f"{CHART} .heatmaplayer")).to_have_count(1, timeout=T)
     _settle(page)
     _clean(page)
+    # where the tasks ran, and why
+    expect(page.get_by_text(re.compile(r"Done: \d+ tasks in this process in .* s \(below"))).to_be_visible()
 
 
 def test_tune_then_open_compare_with_the_tuned_parameters(page: Page):
