@@ -52,7 +52,9 @@ HELP = {
 }
 COLUMN_HELP = {
     NAMES["diverged"]: HELP["diverged"],
-    "µs per run·step": "filter CPU time per run and epoch (batched over the runs)",
+    "µs per run·step": "filter wall time per run and epoch, batched over the runs, timed over "
+    "epochs 2 … K: the first epoch's one-off start-up (loading or compiling a kernel, imports) is "
+    "left out, so the first filter of a run is not charged for it",
 }
 
 
