@@ -35,10 +35,10 @@ Every setting lives in the URL: copy it to share the exact run.
     )
     st.subheader("Where to start")
     st.markdown(
-        "1. **Compare** — run the default experiment (2-D tracking, 10 % outliers) and watch the "
-        "curves fill in as batches of runs finish.\n"
-        "2. **Noise** — pick a step or burst schedule and see how each adaptive filter's R̂ "
-        "follows the true R(t).\n"
+        "1. **Compare** — run the default experiment (2-D tracking; the true noise σ steps up ×3 "
+        "half-way) and watch the errors and each filter's R̂ fill in as batches of runs finish.\n"
+        "2. **Noise** — follow each R̂ against the true R(t), channel by channel; one click adds "
+        "isolated outliers, and most R̂ inflate.\n"
         "3. **Sweep** — vary the contamination ratio (or any parameter) and see where each "
         "filter breaks down."
     )

@@ -37,6 +37,7 @@ Pure library code (no streamlit); the app shows :meth:`Explanation.markdown`, th
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 from urllib.parse import urlencode
@@ -316,3 +317,73 @@ def explain(res: Results, kinds: tuple[str, ...] = KINDS) -> list[Explanation]:
                 if e is not None:
                     out.append(e)
     return out
+
+
+# ------------------------------------------------------------------------ what an R̂ chart shows
+
+#: σ̂ "reaches" the true σ when the median over the runs is within this fraction of it
+REACH_TOL = 0.2
+#: a schedule whose σ stays within this factor of its first value is "constant"
+CONSTANT_WITHIN = 1.05
+
+
+def rhat_sentence(res: Results, channel: int) -> str:
+    """One sentence, computed from the run, saying what the R̂ chart of ``channel`` shows.
+
+    The filters read are those that estimate R (the oracle, which is handed the truth, is left
+    out), on the runs each is judged on, through the median σ̂(t) = √median R̂ over those runs.
+    A schedule that changes: after the epoch where the true σ has made half of its largest change
+    (a step: the step), the time until each filter's median σ̂ first comes within ``REACH_TOL`` of
+    the true σ, fastest first, and where it ends for those that never do. A constant schedule: the
+    median |σ̂/σ − 1| over the analysis window, closest first. '' when no filter estimates R.
+    """
+    from navlab.filters import registry
+    from navlab.metrics import summary
+
+    d = res.data
+    reg = registry()
+    judged = summary(res).judgement.judged
+    sigma = np.sqrt(d.R_schedule[:, channel])
+    name = d.channel_names[channel] if channel < len(d.channel_names) else str(channel)
+    curves = {}
+    for key, fr in res.runs.items():
+        cls = reg.get(key)
+        if fr.R_hat is None or (cls is not None and cls.family == "oracle") or not judged[key].any():
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an epoch with no finite R̂: NaN
+            curves[fr.label] = np.sqrt(np.nanmedian(fr.R_hat[judged[key], :, channel], axis=0))
+    if not curves:
+        return ""
+    dev = np.abs(np.log(sigma[1:] / sigma[1]))
+    if dev.max() <= np.log(CONSTANT_WITHIN):
+        W = np.asarray(d.window, bool)
+        W[0] = False
+        err = {lab: float(np.nanmedian(np.abs(c[W] / sigma[W] - 1))) for lab, c in curves.items()}
+        order = sorted(err, key=lambda lab: (np.isnan(err[lab]), err[lab]))
+        parts = [f"{lab} {_g(100 * err[lab])} %" for lab in order]
+        return (
+            f"The true σ of channel {name} is constant; the median σ̂ is off by (median over the "
+            "analysis window): " + ", ".join(parts) + "."
+        )
+    k_half = 1 + int(np.argmax(dev >= dev.max() / 2))
+    t_c = float(d.t[k_half])
+    ratio = sigma[k_half] / sigma[k_half - 1]
+    change = (
+        f"{_g(ratio)}× at t = {_g(t_c)} s" if abs(np.log(ratio)) >= dev.max() / 2 else f"by t = {_g(t_c)} s"
+    )
+    reached, never = [], []
+    for lab, c in curves.items():
+        with np.errstate(invalid="ignore"):
+            near = np.abs(c[k_half:] / sigma[k_half:] - 1) <= REACH_TOL
+        if near.any():
+            reached.append((float(d.t[k_half + int(np.argmax(near))]) - t_c, lab))
+        else:
+            last = c[-1] / sigma[-1]
+            never.append(f"{lab}, ending at {_g(last)}× the true σ" if np.isfinite(last) else lab)
+    parts = [f"{lab} {f'after {_g(lag)} s' if lag > 0 else 'at once'}" for lag, lab in sorted(reached)]
+    s = f"The true σ of channel {name} changes ({change}); each filter's median σ̂ comes within "
+    s += f"{int(100 * REACH_TOL)} % of it: " + ("; ".join(parts) if parts else "none does")
+    if never:
+        s += ("; never: " if parts else " — ") + "; ".join(never)
+    return s + "."

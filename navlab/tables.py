@@ -52,7 +52,9 @@ HELP = {
 }
 COLUMN_HELP = {
     NAMES["diverged"]: HELP["diverged"],
-    "µs per run·step": "filter CPU time per run and epoch (batched over the runs)",
+    "µs per run·step": "filter wall time per run and epoch, batched over the runs, timed over "
+    "epochs 2 … K: the first epoch's one-off start-up (loading or compiling a kernel, imports) is "
+    "left out, so the first filter of a run is not charged for it",
 }
 
 
@@ -90,19 +92,22 @@ def cell(value: float, lo: float = np.nan, hi: float = np.nan) -> str:
     return v
 
 
-def verdict_cell(row: pd.Series, ref_label: str) -> str:
-    """'better than KF (Δ −0.41 m [−0.52, −0.30])' etc. for one ``_diff`` row."""
+def verdict_cell(row: pd.Series, ref_label: str, short: bool = False) -> str:
+    """'better than KF (Δ −0.41 m [−0.52, −0.30])' etc. for one ``_diff`` row (``short``: the
+    reference is in the column's name: 'better (Δ −0.41 m [−0.52, −0.30])').
+    """
     unit = f" {row['unit']}" if row["unit"] and row["unit"] != "%" else (" %" if row["unit"] else "")
     d = f"Δ {S.sig3(row['value'])}{unit}"
     if np.isfinite(row["ci_lo"]):
         d += f" [{S.sig3(row['ci_lo'])}, {S.sig3(row['ci_hi'])}]"
     v = row["verdict"]
-    if v == "better":
-        return f"better than {ref_label} ({d})"
-    if v == "worse":
-        return f"worse than {ref_label} ({d})"
-    if v == "indistinguishable":
-        return f"indistinguishable from {ref_label} at this run count ({d})"
+    words = {
+        "better": f"better than {ref_label}",
+        "worse": f"worse than {ref_label}",
+        "indistinguishable": f"indistinguishable from {ref_label} at this run count",
+    }
+    if v in words:
+        return f"{v if short else words[v]} ({d})"
     return f"{d}" if row["ci_method"] else f"{d}; no test"
 
 
@@ -190,9 +195,9 @@ def headline(
             r = by.get((key, m))
             name = metric_name(m, data)
             if r is None:
-                row[name] = ""
+                row[name] = "—"
                 if m.startswith("rhat_err"):
-                    empty[name] = "R̂ error: empty for filters that do not estimate R"
+                    empty[name] = "R̂ error: — for filters that do not estimate R"
                 continue
             row[name] = cell(r["value"], r["ci_lo"], r["ci_hi"])
         lost = by[(key, "diverged")]
@@ -204,12 +209,14 @@ def headline(
         first = metrics[0]
         c = M.compare(res, compare_to, [first])
         ref_label = res.runs[compare_to].label
-        col = f"vs {ref_label}, {metric_name(first, data)}"
-        verdicts = {r["filter"]: verdict_cell(r, ref_label) for r in c.to_dict("records")}
-        cells[col] = ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs]
+        col = f"vs {ref_label}"
+        verdicts = {r["filter"]: verdict_cell(r, ref_label, short=True) for r in c.to_dict("records")}
+        # beside the metric it judges, so the verdict is on screen with it
+        cells.insert(1, col, ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs])
         notes.append(
-            f"{col}: paired over the same runs, Δ = filter − {ref_label} with its 95 % interval; "
-            f"better/worse when Holm-corrected p < 0.05 across the {len(res.runs) - 1} other filters"
+            f"{col}: {metric_name(first, data)} paired over the same runs, Δ = filter − {ref_label} "
+            f"with its 95 % interval; better/worse when Holm-corrected p < 0.05 across the "
+            f"{len(res.runs) - 1} other filters, else indistinguishable at this run count"
         )
     winners: dict[str, str] = {}
     if best and len(res.runs) > 1:
@@ -224,9 +231,9 @@ def headline(
     helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
     helps.update(COLUMN_HELP)
     if compare_to is not None and compare_to in res.runs and metrics:
-        helps[f"vs {res.runs[compare_to].label}, {metric_name(metrics[0], data)}"] = (
-            "paired difference from the reference over the same runs, with its 95 % interval and "
-            "the Holm-corrected verdict"
+        helps[f"vs {res.runs[compare_to].label}"] = (
+            f"{metric_name(metrics[0], data)}: paired difference from the reference over the same "
+            "runs, with its 95 % interval and the Holm-corrected verdict"
         )
     return Table(cells, notes, {c: h for c, h in helps.items() if h and c in cells.columns}, winners)
 

@@ -470,6 +470,11 @@ def truth_line(traces: list, x: np.ndarray, y: np.ndarray, name: str, width: flo
     add_line(traces, x, y, name, TRUTH_COLOR, "truth", width=width, **kw)
 
 
+SINGLE_PANEL_MAX = 3  # up to this many filters share one R̂ panel; beyond, one panel each
+BAND_MAX = 2  # a shared panel draws spread bands for at most this many R̂ estimates
+PANEL_HEIGHT = 230  # px per row of small multiples
+
+
 def r_vs_rhat(
     res: Results,
     channel: int,
@@ -483,32 +488,42 @@ def r_vs_rhat(
 ) -> go.Figure:
     """True R(t) of the noise schedule beside each filter's R̂ (median and spread over runs).
 
-    Log y axis by default (``log_y=False``: linear). The true R(t) is drawn last, in black on a
-    white halo. The y range is computed from clean entries only — per filter, the band's
-    quantiles over the runs whose measurement on this channel and epoch is not an outlier — so a
-    contaminated-epoch variance (the oracle's R̂ *is* the variance drawn, outliers included) never
-    sets the scale; what lies beyond is cut off and the subtitle says so. Filters without an R̂
-    show the R they used (dashed median) when ``show_used``. With ``outlier_strip`` a lower panel
-    shows, per epoch, the share of runs with an outlier on the channel.
+    Up to ``SINGLE_PANEL_MAX`` filters share one panel (spread bands only while at most
+    ``BAND_MAX`` of them estimate R: more bands overlap into one smear); beyond, small multiples:
+    one panel per filter, in the table's order, with shared axes and the true R(t) in every panel,
+    so no filter hides another. Log y axis by default (``log_y=False``: linear). The true R(t) is
+    drawn last, in black on a white halo. The y range is computed from clean entries only — per
+    filter, the band's quantiles over the runs whose measurement on this channel and epoch is not
+    an outlier — so a contaminated-epoch variance (the oracle's R̂ *is* the variance drawn,
+    outliers included) never sets the scale; what lies beyond is cut off and the subtitle says so.
+    Filters without an R̂ show the R they used (dashed median) when ``show_used``. With
+    ``outlier_strip`` a lower panel shows, per epoch, the share of runs with an outlier on the
+    channel.
     """
     data = res.data
     colors = filter_colors(list(res.runs))
     t = data.t
     tf = lambda v: np.sqrt(np.maximum(v, 0.0)) if as_std else v  # noqa: E731
-    traces: list = []
     sym = "σ" if as_std else "R"
     truth = tf(data.R_schedule[:, channel])
+    shown = [k for k, fr in res.runs.items() if fr.R_hat is not None or show_used]
+    multi = len(shown) > SINGLE_PANEL_MAX
+    n_est = sum(res.runs[k].R_hat is not None for k in shown)
+    cols = 1 if not multi else (2 if len(shown) == 4 else 3)
+    rows = 1 if not multi else -(-len(shown) // cols)
+    axis = lambda i: "" if i == 0 else str(i + 1)  # noqa: E731  plotly's axis suffixes
+    traces: list = []
     clean: list[np.ndarray] = [truth]  # what sets the axis range
     drawn: list[np.ndarray] = []  # what is drawn (to tell whether anything is cut off)
-    for key, fr in res.runs.items():
+    for i, key in enumerate(shown):
+        fr = res.runs[key]
+        ax = {"xaxis": f"x{axis(i if multi else 0)}", "yaxis": f"y{axis(i if multi else 0)}"}
         ok = judged(res, key)
         c = colors[key]
         if not ok.any():
-            _diverged_stub(traces, fr, c)
+            _diverged_stub(traces, fr, c, **ax)
             continue
         est = fr.R_hat is not None
-        if not est and not show_used:
-            continue
         v = tf((fr.R_hat if est else fr.R_used)[ok][:, 1:, channel])
         q = nan_quantiles(v, (band[0], 0.5, band[1]))
         dirty = data.outlier_mask[ok][:, 1:, channel]
@@ -516,33 +531,39 @@ def r_vs_rhat(
         if est:
             clean += [qc[0], qc[2]]
             drawn += [q[0], q[2]]
-            add_band(traces, t[1:], q[0], q[2], c, key)
-            add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym}̂", c, key)
+            if multi or n_est <= BAND_MAX:
+                add_band(traces, t[1:], q[0], q[2], c, key, **ax)
+            add_line(traces, t[1:], q[1], f"{_legend_name(fr)} {sym}̂", c, key, **ax)
         else:
             clean.append(qc[1])
             drawn.append(q[1])
             add_line(
-                traces,
-                t[1:],
-                q[1],
-                f"{_legend_name(fr)} {sym} used",
-                c,
-                key,
-                dash="dash",
-                width=1.5,
+                traces, t[1:], q[1], f"{_legend_name(fr)} {sym} used", c, key, dash="dash", width=1.5, **ax
             )
+        if multi:
+            truth_line(traces, t, truth, f"true {sym}(t) (schedule)", width=2.0, **ax)
+            if i > 0:
+                traces[-1].showlegend = False
     name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
     units = _r_units(data, channel, as_std)
     y_title = f"{sym} ({units})" if units else sym
     title = f"Channel {name}: true {sym}(t) vs each filter's {sym}̂"
     sub = f"median, {int(band[0] * 100)}–{int(band[1] * 100)} % band over {data.B} runs"
+    if not multi and n_est > BAND_MAX:
+        sub = f"median over {data.B} runs (bands left out: {n_est} estimates would overlap)"
+    if multi:
+        sub += "; one panel per filter, the true " + sym + "(t) in black in each"
     rng = value_range(clean, log_y)
-    yaxis: dict = {"title": {"text": y_title}, "automargin": True, "type": "log" if log_y else "linear"}
+    yaxis: dict = {"automargin": True, "type": "log" if log_y else "linear"}
     if rng is not None:
         yaxis.update(y_range_layout(*rng, log_y))
         top = 10 ** yaxis["range"][1] if log_y else yaxis["range"][1]
         if any((_positive(d) if log_y else np.asarray(d, float)).max(initial=-np.inf) > top for d in drawn):
             sub += "<br>outlier-epoch values above the top are cut off"
+    if not multi:
+        truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
+    n_panels = max(len(shown), 1) if multi else 1
+    strip_ax = str(n_panels + 1) if outlier_strip else ""
     if outlier_strip:
         frac = data.outlier_mask[:, :, channel].mean(axis=0)
         idx, fmax = bucket_max(frac)
@@ -554,29 +575,76 @@ def r_vs_rhat(
                 marker={"color": "#d62728", "line": {"width": 0}},
                 legendgroup="outliers",
                 hovertemplate="%{y:.0%} of runs<extra>outliers</extra>",
-                xaxis="x",
-                yaxis="y2",
+                xaxis=f"x{strip_ax}",
+                yaxis=f"y{strip_ax}",
             )
         )
-    truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
-    if not outlier_strip:
-        layout = _base_layout(title, height, sub)
-        layout["xaxis"] = {"title": {"text": "time (s)"}, "automargin": True}
-        layout["yaxis"] = yaxis
-        return go.Figure(data=traces, layout=layout)
-    layout = _base_layout(title, height + 90, sub)
-    layout.update(
-        bargap=0,
-        xaxis={"title": {"text": "time (s)"}, "anchor": "y2", "automargin": True},
-        yaxis={**yaxis, "domain": [0.3, 1.0]},
-        yaxis2={
-            "title": {"text": "share of runs"},
+    strip_h = 90 if outlier_strip else 0
+    plot_h = (rows * PANEL_HEIGHT if multi else height - 120) + strip_h
+    layout = _base_layout(title, plot_h + 120, sub)
+    if outlier_strip:
+        layout["bargap"] = 0
+    # the grid, top to bottom: panel rows, then the strip; fractions of the plot height
+    gap = 0.06 if multi else 0.1
+    strip_top = strip_h / plot_h if outlier_strip else 0.0
+    bottom = strip_top + (gap if outlier_strip else 0.0)
+    row_h = (1.0 - bottom - gap * (rows - 1)) / rows
+    hgap = 0.04
+    col_w = (1.0 - hgap * (cols - 1)) / cols
+    last_row = (n_panels - 1) // cols
+    for i in range(n_panels):
+        r, cidx = divmod(i, cols)
+        y1 = 1.0 - r * (row_h + gap)
+        x0 = cidx * (col_w + hgap)
+        # x labels under the bottom panel of each column (shared x axes, the strip shows its own)
+        below = r == last_row or (r == last_row - 1 and cidx > (n_panels - 1) % cols)
+        xa: dict = {"domain": [x0, x0 + col_w], "anchor": f"y{axis(i)}", "automargin": True}
+        if i:
+            xa["matches"] = "x"
+        xa["showticklabels"] = below and not outlier_strip
+        if xa["showticklabels"]:
+            xa["title"] = {"text": "time (s)"}
+        ya = {**yaxis, "domain": [y1 - row_h, y1], "anchor": f"x{axis(i)}"}
+        if i:
+            ya["matches"] = "y"
+        if cidx == 0:
+            ya["title"] = {"text": y_title}
+        else:
+            ya["showticklabels"] = False
+        layout[f"xaxis{axis(i)}"] = xa
+        layout[f"yaxis{axis(i)}"] = ya
+        if multi:
+            fr = res.runs[shown[i]]
+            layout.setdefault("annotations", []).append(
+                {
+                    "text": f"<b>{fr.label}</b>",
+                    "x": x0,
+                    "xref": "paper",
+                    "xanchor": "left",
+                    "y": y1,
+                    "yref": "paper",
+                    "yanchor": "bottom",
+                    "showarrow": False,
+                    "font": {"size": 13, "color": colors[shown[i]]},
+                }
+            )
+    if outlier_strip:
+        layout[f"xaxis{strip_ax}"] = {
+            "domain": [0.0, 1.0],
+            "anchor": f"y{strip_ax}",
+            "matches": "x",
+            "title": {"text": "time (s)"},
+            "automargin": True,
+        }
+        layout[f"yaxis{strip_ax}"] = {
+            "title": {"text": "outliers"},
             "range": [0, 1],
             "dtick": 0.5,
-            "domain": [0.0, 0.2],
+            "tickformat": ".0%",
+            "domain": [0.0, strip_top],
+            "anchor": f"x{strip_ax}",
             "automargin": True,
-        },
-    )
+        }
     return go.Figure(data=traces, layout=layout)
 
 

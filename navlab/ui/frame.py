@@ -28,6 +28,7 @@ PAGES = (  # (file, sidebar label, title on the home page, icon)
 )
 RUN_PAGES = ("pages/1_Compare.py", "pages/2_Noise.py", "pages/3_Sweep.py", "pages/7_Tune.py")
 PRESENT = "present"  # the URL flag of presentation mode
+PAGE_KEY = "_navlab_page"  # session: the title of the page the last script run drew
 _run = threading.local()  # this script run's page-menu container (script runs are per thread)
 
 
@@ -117,6 +118,8 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
         initial_sidebar_state="collapsed" if presenting() else "auto",
     )
     _warm_once()
+    _run.hop = st.session_state.get(PAGE_KEY) not in (None, title)
+    st.session_state[PAGE_KEY] = title
     if presenting():
         st.html(PRESENT_CSS + PRESENT_JS, unsafe_allow_javascript=True)
     # navlab's own page menu (config: client.showSidebarNavigation = false): Streamlit's legacy
@@ -133,6 +136,13 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
         "navlab — robust & adaptive Kalman filters, batched Monte Carlo. "
         "Every setting is in the URL: copy it to share the exact run."
     )
+
+
+def arrived_from_another_page() -> bool:
+    """Whether this script run is the first on this page after a run of another page (a hop by
+    the page menu or a page link in this session; a new tab or a reload is no hop).
+    """
+    return bool(getattr(_run, "hop", False))
 
 
 def next_chart_id() -> str:

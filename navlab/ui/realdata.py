@@ -354,11 +354,13 @@ def flag_table(res: Results) -> pd.DataFrame:
 
 def metrics_table(res: Results) -> pd.DataFrame:
     """One row per filter: the real-data headline metrics and the runtime."""
+    from navlab.metrics import timed_steps
+
     df = summarize(res)
     wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
     B, K = res.data.B, res.data.K
     if "us_per_run_step" in wide:
-        wide["runtime_s"] = wide["us_per_run_step"] * B * K / 1e6
+        wide["runtime_s"] = wide["us_per_run_step"] * timed_steps(B, K) / 1e6
     cols = [(m, lab) for m, lab in TABLE_METRICS if m in wide.columns]
     out = wide[[m for m, _ in cols]].rename(columns=dict(cols))
     out.index.name = "filter"

@@ -155,12 +155,9 @@ class CompareView:
         st.markdown("##### Summary over the analysis window")
         self.table = st.empty()
         self.notes = st.empty()
-        from navlab.ui.frame import presenting
-
-        # side by side; in presentation mode one below the other (one chart per screen)
-        left, right = (st.container(), st.container()) if presenting() else st.columns(2)
-        self.rhat = left.empty()
-        self.nis = right.empty()
+        # one below the other, full width: the R̂ chart has a panel per filter beyond three
+        self.rhat = st.empty()
+        self.nis = st.empty()
         self._made = False
         self.group = self.channel = self.ref = None
         self.log_err = False
@@ -228,12 +225,21 @@ class CompareView:
             self.nis.caption("NIS against its χ² band: drawn when the run completes")
             return
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
-        chart(
-            self.rhat,
-            F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std),
-            "true R(t) against each filter's R-hat",
-        )
+        rhat_chart(self.rhat, res, ch, F.r_vs_rhat(res, ch, log_y=self.log_r, as_std=self.as_std))
         chart(self.nis, F.nis_vs_chi2(res), "average NIS against its chi-square band")
+
+
+def rhat_chart(slot: Any, res: Results, channel: int, fig: Any, key: str | None = None) -> None:
+    """The R̂ chart in ``slot`` with the sentence that says what to look at under it
+    (:func:`navlab.diagnostics.rhat_sentence`, computed from this run).
+    """
+    from navlab.diagnostics import rhat_sentence
+
+    with slot.container():
+        chart(st, fig, "true R(t) against each filter's R-hat", key=key, name="rhat")
+        if res.complete:
+            what = rhat_sentence(res, channel)
+            st.markdown(f"**What to look at.** {what}" if what else no_rhat())
 
 
 def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> None:
@@ -242,8 +248,9 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
     t = tables.headline(
         res, compare_to=ref if len(res.runs) > 1 else None, explanations=False, best=res.complete
     )
-    config = {c: st.column_config.TextColumn(c, help=h) for c, h in t.help.items() if h}
-    table.dataframe(highlight_best(t), width="stretch", column_config=config)
+    # a static table: it wraps its cells to the page's width, so the verdict column is never
+    # scrolled out of sight (a data grid sized its columns to their text and scrolled sideways)
+    table.table(highlight_best(t))
     with notes.container():
         if res.complete and len(res.runs) > 1:
             st.caption(
@@ -257,6 +264,16 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
         for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
         st.caption("  \n".join(t.notes))
+        with st.expander("What each column means"):
+            st.caption("  \n".join(f"**{c}**: {h}" for c, h in t.help.items() if h))
+
+
+def no_rhat() -> str:
+    """What to do when no chosen filter estimates R."""
+    from navlab.filters import registry
+
+    est = [f"`{k}`" for k, c in registry().items() if c.estimates_R and c.family != "oracle"]
+    return f"None of the chosen filters estimates R: add one that does ({', '.join(est)}) to see R̂."
 
 
 BEST_STYLE = "font-weight: bold; background-color: #dcf2e1"
@@ -380,17 +397,11 @@ class NoiseView:
         fig = F.r_vs_rhat(
             res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=True
         )
-        self._chart(self.fig, fig, "rhat")
+        rhat_chart(self.fig, res, ch, fig, key=f"{self.page}_rhat_{self._drawn}")
         self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
         tab = rhat_error_table(res)
         if tab.empty:
-            from navlab.filters import registry
-
-            est = ", ".join(f"`{k}`" for k, c in registry().items() if c.estimates_R)
-            self.table.info(
-                "None of the chosen filters estimates R; add one that does "
-                f"({est or 'none registered yet'}) to see R̂ tracking."
-            )
+            self.table.info(no_rhat())
         else:
             with self.table.container():
                 st.dataframe(tab.drop(columns="key").round(3), width="stretch")

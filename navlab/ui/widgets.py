@@ -28,6 +28,7 @@ with the reason (:func:`url_problems`) instead of silently falling back to the d
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -48,6 +49,7 @@ SEED_MAX = 2**31 - 1
 BIND = "query-params"
 EXTRA_KEY = "_navlab_extra_params"  # uploaded settings that have no widget (kept per session)
 CARRY_KEY = "_navlab_carry"  # session: the URL parameters of the last experiment shown
+CARRY_SPEC_KEY = "_navlab_carry_spec"  # session: that experiment's spec (JSON), restored on a page change
 NOTICE_KEY = "_navlab_url_notice"  # session: {page: (messages, spec json)} — rejected link values
 CORE_KEYS = (SCN, FLT, RUNS, SEED, NOISE, OUT)
 
@@ -71,8 +73,23 @@ class PageDefaults:
     filters: tuple[str, ...] | None = None
     runs: int | None = None
     seed: int = 1
-    noise_schedule: str = "constant"
-    outliers: str = "mixture"
+    # a true R that steps up half-way, without outliers: what an R̂ does is seen at once (the
+    # Noise page's preset adds isolated outliers, under which the R̂ of most filters inflate)
+    noise_schedule: str = "step"
+    outliers: str = "none"
+
+
+def default_spec(runs: int | None = None) -> ExperimentSpec:
+    """The experiment every run page opens on (:class:`PageDefaults`, the scenario's defaults)."""
+    d = PageDefaults()
+    return ExperimentSpec(
+        scenario=d.scenario,
+        filters=tuple(default_filters(d.scenario, d)),
+        runs=default_runs(d.scenario, d) if runs is None else runs,
+        seed=d.seed,
+        noise_schedule=d.noise_schedule,
+        outliers=d.outliers,
+    )
 
 
 def scenario_keys() -> list[str]:
@@ -687,9 +704,20 @@ def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experim
     :func:`navlab.ui.frame.frame`) carry this experiment to the next page. Stops the page with the
     message when the configuration is invalid.
     """
-    from navlab.ui.frame import fill_nav
+    from navlab.ui.frame import arrived_from_another_page, fill_nav
     from navlab.ui.share import config_upload  # share imports this module
 
+    carried = st.session_state.get(CARRY_SPEC_KEY)
+    if carried and arrived_from_another_page():
+        # Streamlit drops a link's parameters that are bound to the previous page's widgets on a
+        # page change (1.67: populate_from_query_string keeps only the new page's bindings), so
+        # the experiment the link carried is written into the widgets from the session instead
+        with contextlib.suppress(NavlabError):  # a registry changed under the session: defaults
+            spec_to_state(ExperimentSpec.from_json(carried))
+            # ... and into the address bar (the old page's bindings are gone, so it may be set)
+            for key, value in (st.session_state.get(CARRY_KEY) or {}).items():
+                with contextlib.suppress(st.errors.StreamlitAPIException):
+                    st.query_params[key] = value
     problems = url_problems(_link_query())
     with st.sidebar:
         st.header(header)
@@ -698,6 +726,7 @@ def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experim
         config_upload(key=f"up_cfg_{page}")
     if cfg.spec is not None:
         st.session_state[CARRY_KEY] = spec_query(cfg.spec)
+        st.session_state[CARRY_SPEC_KEY] = cfg.spec.to_json()
     fill_nav()
     link_notice(page, cfg.spec, problems)
     for key, why in cfg.skipped.items():
