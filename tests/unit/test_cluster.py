@@ -223,3 +223,22 @@ def test_cli_sweep_on_a_cluster_whose_workers_died_exits_2_with_one_line(tmp_pat
         _kill(worker)
         _kill(sched)
         log.close()
+
+
+def test_the_default_executor_hands_a_job_to_its_warm_cluster_with_the_serial_numbers(monkeypatch):
+    monkeypatch.setattr(C, "PAYS_S", 0.0)  # any work pays: the job moves once a cost is known
+    monkeypatch.setattr(C.Embedded, "TIMEOUT_S", SAFE_S)
+    axes = [SW.Axis(SW.resolve(SPEC, "huber-kf.gamma"), (1.0, 2.0, 4.0))]
+    serial = SW.run_sweep(SW.make_sweep(SPEC, axes, block=4))
+    emb = C.Embedded()
+    try:
+        tasks = SW.make_sweep(SPEC, axes, block=4).all_tasks()
+        emb.wait(2, T.run_task, C._probes(tasks))
+        assert emb.start(2) is False  # one cluster: a running one is not started again
+        ex = C.LocalExecutor(2, embedded=emb)
+        par = SW.run_sweep(SW.make_sweep(SPEC, axes, block=4), executor=ex)
+        assert ex.there > 0 and ex.report.startswith(f"{ex.there} tasks on the embedded Dask cluster")
+        assert ex.here + ex.there == serial.tasks_total
+        pd.testing.assert_frame_equal(_numbers(par.rows), _numbers(serial.rows))
+    finally:
+        emb.close()
