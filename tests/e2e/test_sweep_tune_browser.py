@@ -32,7 +32,7 @@ def _clean(page: Page) -> None:
 
 
 def test_sweep_on_the_embedded_cluster_stop_and_resume(page: Page):
-    q = f"runs=100&sc.cv2d.epochs=300&flt=kf&flt=chi2-kf&flt=huber-kf&swn=6&seed={SEED}"
+    q = f"runs=100&sc.cv2d.epochs=300&flt=kf&flt=chi2-kf&flt=huber-kf&swn=6&out=mixture&seed={SEED}"
     page.goto(f"/Sweep?{q}")
     _settle(page)
     expect(page.get_by_text("embedded Dask cluster").first).to_be_visible(timeout=T)
