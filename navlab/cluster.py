@@ -153,11 +153,13 @@ class DaskExecutor:
                     self.client.cancel(left)
 
     def _lost(self, watch: _Watch, finished: int, total: int) -> str:
+        addr = _address(self.client)
+        who = self.name if addr in self.name else f"{self.name} at {addr}"
         what = "has had no workers" if watch.answered else "has not answered"
         return (
-            f"{self.name} (scheduler {_address(self.client)}) {what} for {watch.limit_s:g} s: its "
-            f"workers died or none were started; {finished} of the {total} tasks sent to it "
-            f"finished and are kept in the results store. {self.fix[0].upper()}{self.fix[1:]}"
+            f"{who} {what} for {watch.limit_s:g} s (its workers died, or none were started); "
+            f"{finished} of the {total} tasks sent to it finished (kept in the results store). "
+            f"{self.fix[0].upper()}{self.fix[1:]}"
         )
 
 
