@@ -6,7 +6,7 @@ from navlab.errors import NavlabError
 from navlab.filters.base import registry
 from navlab.scenarios.base import get_scenario_class
 from navlab.ui import realdata as R
-from navlab.ui.frame import frame
+from navlab.ui.frame import frame, plural
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.views import chart
@@ -153,7 +153,7 @@ if rec == "upload" and store.get(key) is None:  # plain-words checks before the 
 c1, c2 = st.columns([1, 5])
 run_clicked = c1.button("Run", type="primary", key="rd_run")
 c2.caption(
-    f"{len(filters)} filters × {runs} run(s) · scenario `{spec.scenario}` · "
+    f"{plural(len(filters), 'filter')} × {plural(runs, 'run')} · scenario `{spec.scenario}` · "
     f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`"
 )
 

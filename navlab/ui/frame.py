@@ -5,8 +5,8 @@
   (:func:`navlab.ui.widgets.spec_query`), so the experiment chosen on one page is the experiment
   on the next; on a run page they are drawn after its widgets (:func:`fill_nav`).
 * Presentation mode (``?present=1`` on any page, carried by every link): large type, no sidebar,
-  charts sized to fill a screen, and the keyboard moves between charts (→ / PageDown / n next,
-  ← / PageUp / p previous); a chart's export buttons are hidden.
+  charts sized to fill a screen with every text ≥ 20 px, no download buttons, and the keyboard
+  moves between charts (→ / PageDown / n next, ← / PageUp / p previous).
 """
 
 from __future__ import annotations
@@ -70,6 +70,7 @@ html { font-size: 22px; }
 [data-testid="stMainBlockContainer"] { max-width: 100% !important; padding: 1rem 3rem 40vh 3rem; }
 [data-testid="stPlotlyChart"] { scroll-margin-top: 0.5rem; }
 h1 { font-size: 2.4rem !important; }
+[data-testid="stDownloadButton"] { display: none !important; }
 </style>
 """
 # → / PageDown / n: the next chart to the top of the screen; ← / PageUp / p: the previous one
@@ -136,6 +137,11 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
         "navlab — robust & adaptive Kalman filters, batched Monte Carlo. "
         "Every setting is in the URL: copy it to share the exact run."
     )
+
+
+def plural(n: int, word: str) -> str:
+    """'1 filter', '5 filters'."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def arrived_from_another_page() -> bool:

@@ -4,7 +4,7 @@ PAGE = "pages/3_Sweep.py"
 
 
 def test_sweep_contamination_small(open_page):
-    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], swn="3", **{"sc.cv2d.epochs": "30"})
+    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], out="mixture", swn="3", **{"sc.cv2d.epochs": "30"})
     assert_clean(at)
     assert at.selectbox(key="swp").value == "ol.mixture.contamination"
     at.button(key="run_sweep").click().run()

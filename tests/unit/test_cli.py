@@ -71,7 +71,7 @@ def test_compare_to_adds_paired_rows_and_a_verdict_column(capsys):
     assert oracle["verdict"] == "better" and oracle["value"] < 0
     rc, out, _ = run_cli(capsys, *argv, "--compare-to", "kf")
     assert rc == 0
-    assert "better than KF (Δ -" in out and "reference" in out
+    assert "vs KF" in out and "better (Δ -" in out and "reference" in out
     assert "nan" not in out.lower() and "None" not in out  # empty cells, reasons in footnotes
     assert "Analysis window: epochs 1–40" in out and "Divergence:" in out
     rc, _, err = run_cli(capsys, *argv, "--compare-to", "hakf")
