@@ -5,6 +5,7 @@ import streamlit as st
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
 from navlab.scenarios.base import get_scenario_class
+from navlab.stats import MIN_RUNS
 from navlab.ui import realdata as R
 from navlab.ui.frame import frame, plural
 from navlab.ui.runner import result_store, show_error
@@ -182,10 +183,11 @@ else:
         run = st.number_input("Show run", 0, d.B - 1, 0, key="rd_show_run")
     st.subheader("Results")
     R.show_findings(st, R.run_findings(res))
-    st.dataframe(R.metrics_table(res).round(3), key="rd_table")
+    st.table(R.metrics_table(res))
     st.caption(
         f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
-        "Median/90 % horizontal errors pool every epoch and run."
+        "Median/90 % horizontal errors pool every epoch and run; [lo, hi]: the 95 % interval over "
+        f"the runs (from {MIN_RUNS} runs on; fewer give none)."
     )
     chart(st, R.track_figure(res, run), "track in local east/north metres", key="rd_track", name="track")
     log_y = st.toggle("log scale", False, key="rd_log")

@@ -353,15 +353,26 @@ def flag_table(res: Results) -> pd.DataFrame:
 
 
 def metrics_table(res: Results) -> pd.DataFrame:
-    """One row per filter: the real-data headline metrics and the runtime."""
+    """One row per filter: the real-data headline metrics, each with its 95 % interval over the
+    runs where there is one (three significant figures), and the filter's run time.
+    """
     from navlab.metrics import timed_steps
+    from navlab.tables import cell
 
-    df = summarize(res)
-    wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
+    df = summarize(res).set_index(["label", "metric"])
     B, K = res.data.B, res.data.K
-    if "us_per_run_step" in wide:
-        wide["runtime_s"] = wide["us_per_run_step"] * timed_steps(B, K) / 1e6
-    cols = [(m, lab) for m, lab in TABLE_METRICS if m in wide.columns]
-    out = wide[[m for m, _ in cols]].rename(columns=dict(cols))
-    out.index.name = "filter"
-    return out
+    rows = []
+    for fr in res.runs.values():
+        lab = fr.label
+        row = {"filter": lab}
+        for m, name in TABLE_METRICS:
+            if m == "runtime_s" and (lab, "us_per_run_step") in df.index:
+                row[name] = cell(df.loc[(lab, "us_per_run_step"), "value"] * timed_steps(B, K) / 1e6)
+            elif m == "diverged" and (lab, m) in df.index:
+                row[name] = f"{int(df.loc[(lab, m), 'value'])} of {B}"
+            elif (lab, m) in df.index:
+                r = df.loc[(lab, m)]
+                row[name] = cell(r["value"], r["ci_lo"], r["ci_hi"])
+        rows.append(row)
+    out = pd.DataFrame(rows).set_index("filter").fillna("—")
+    return out.loc[:, (out != "—").any(axis=0)]
