@@ -91,7 +91,13 @@ class Store:
         if str(where).strip().lower() in ("off", "none", ""):
             return cls(None)
         size = max_bytes if max_bytes is not None else os.environ.get(ENV_MAX) or DEFAULT_MAX
-        return cls(Path(where).expanduser(), parse_bytes(size) if isinstance(size, str) else int(size))
+        if isinstance(size, str):
+            size = parse_bytes(
+                size,
+                f"{ENV_MAX}, the results store's size limit,",
+                f"; give a size such as 2GB ({ENV_DIR}=off keeps no results)",
+            )
+        return cls(Path(where).expanduser(), int(size))
 
     def __repr__(self) -> str:
         return f"Store({self.root}, max {fmt_bytes(self.max_bytes)})"

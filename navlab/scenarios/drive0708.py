@@ -49,6 +49,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from navlab.errors import NavlabError
 from navlab.linalg import Array
 from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
@@ -263,6 +264,25 @@ class OwnDriveParams(Drive0708Params):
     )
 
 
+#: Smallest receiver σ taken as a real one [m]: below it a fix claims to be exact.
+MIN_RX_SIGMA_M = 1e-3
+
+
+def check_receiver_sigmas(gnss, sigma_m: float) -> None:
+    """Refuse receiver σ's of (almost) 0: the filters would trust those fixes blindly."""
+    for col in ("sigma_n_m", "sigma_e_m", "sigma_u_m"):
+        v = gnss[col].to_numpy()
+        bad = int(np.sum(v < MIN_RX_SIGMA_M))
+        if bad:
+            raise NavlabError(
+                f"gnss.csv: {col} is below {MIN_RX_SIGMA_M * 1000:g} mm on {bad} of {len(v)} fixes (smallest "
+                f"{np.min(v):g} m): a σ of 0 claims an exact fix, which the filters then trust blindly; give "
+                "each fix's 1-σ uncertainty in metres, or set use_receiver_sigmas = false (CLI: --set "
+                "scenario.use_receiver_sigmas=false; app: turn off 'R from the receiver's σ') to use "
+                f"sigma_m = {sigma_m:g} m for every fix"
+            )
+
+
 @register_scenario
 class Drive0708(Scenario):
     key = "drive0708"
@@ -317,6 +337,7 @@ class Drive0708(Scenario):
         )
         rx_sigma = None
         if self.own and p.use_receiver_sigmas and setup.gnss_sigma is not None:
+            check_receiver_sigmas(rec.gnss, p.sigma_m)
             rx_sigma = setup.gnss_sigma if not p.add_noise else np.hypot(setup.gnss_sigma, p.sigma_m)
         model = InsGnssModel(
             setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma
