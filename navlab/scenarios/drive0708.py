@@ -111,7 +111,6 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
     from pathlib import Path
 
     from navlab.data.loaders import load_generic, rtkx_drive_0708
-    from navlab.errors import NavlabError
     from navlab.ins.align import body_to_vehicle
     from navlab.ins.lc import prepare_drive, reference_solution
 
