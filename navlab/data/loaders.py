@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from navlab import memory
 from navlab.errors import NavlabError
 from navlab.ins.align import RTKX_NOMINAL_C_BV, body_to_vehicle
 from navlab.ins.earth import G0_MPS2
@@ -532,15 +533,20 @@ def _plain(text: str) -> bool:
     return text.count("\r") == text.count("\r\n") and not any(c in text for c in _ODD_BREAKS)
 
 
+#: pandas' float parsing as exact as Python's float(): "round_trip" before pandas 3 (whose default
+#: is exact and which deprecates the option).
+_EXACT = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
+
 def _fast_rows(body: str, names: tuple[str, ...], ranges: dict[str, Range]) -> np.ndarray | None:
     """The data rows of a plain comma-separated ``body`` at C speed (pandas' parser), or None.
 
     None (read it line by line instead: :func:`_parse_rows` names the line at fault) when the text
     holds a comment or anything :func:`_parse_rows` would refuse or read otherwise: a row with
     more or fewer columns than ``names``, a value that is not a plain number (quotes, blanks,
-    "NA"), NaN/inf, or a value outside ``ranges``. Values are parsed by Python's own conversion
-    (``float_precision="round_trip"``), so an accepted file gives exactly the numbers of the line
-    by line parse (tests/unit/test_data_loaders.py checks it on random files).
+    "NA"), NaN/inf, or a value outside ``ranges``. Values are parsed exactly (:data:`_EXACT`), so
+    an accepted file gives the numbers of the line by line parse (tests/unit/test_csv_fuzz.py
+    checks it on random files).
     """
     if "#" in body or not _plain(body):
         return None
@@ -549,7 +555,7 @@ def _fast_rows(body: str, names: tuple[str, ...], ranges: dict[str, Range]) -> n
             io.BytesIO(body.encode("utf-8")),
             header=None,
             dtype=np.float64,
-            float_precision="round_trip",
+            **_EXACT,
             quoting=csv.QUOTE_NONE,
             na_filter=False,
             skip_blank_lines=True,
@@ -596,8 +602,6 @@ def check_read_size(path: Path, ncol: int) -> None:
     The rows are estimated from the file's size and the length of its first lines; the message
     gives the estimate, the budget and what to change.
     """
-    from navlab import memory
-
     try:
         size = path.stat().st_size
         with open(path, "rb") as f:
@@ -609,7 +613,9 @@ def check_read_size(path: Path, ncol: int) -> None:
     limit = memory.budget_bytes()
     if need > limit:
         raise NavlabError(
-            f"{path}: {memory.fmt_bytes(size)}, about {rows / 1e6:.3g} million rows: reading it would hold "
+            f"{path}: {memory.fmt_bytes(size)}, about "
+            + (f"{rows / 1e6:.3g} million" if rows >= 1e6 else f"{rows:,.0f}")
+            + " rows: reading it would hold "
             f"about {memory.fmt_bytes(need)}, more than the memory budget of {memory.fmt_bytes(limit)} "
             f"({memory.budget_source()}); cut the recording into shorter parts, or raise the budget "
             f"({memory.ENV})"
