@@ -53,7 +53,7 @@ from navlab.errors import NavlabError
 from navlab.linalg import Array
 from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -164,7 +164,7 @@ _START_HELP = (
 @dataclass(frozen=True)
 class Drive0708Params:
     epochs: int = param(
-        0, lo=0, hi=100000, help="1 Hz epochs after the static start (0: the whole drive, ≈513)"
+        0, lo=0, hi=MAX_EPOCHS, help="1 Hz epochs after the static start (0: the whole drive, ≈513)"
     )
     sigma_m: float = param(
         3.0, lo=0.01, hi=1000.0, help="nominal GNSS position σ per axis (m): R0 and the noise schedule's base"
@@ -221,7 +221,7 @@ class Drive0708Params:
 
 @dataclass(frozen=True)
 class OwnDriveParams(Drive0708Params):
-    epochs: int = param(0, lo=0, hi=1000000, help="GNSS epochs to use (0: all)")
+    epochs: int = param(0, lo=0, hi=MAX_EPOCHS, help="GNSS epochs to use (0: all)")
     sigma_m: float = param(
         3.0,
         lo=0.01,
