@@ -692,6 +692,10 @@ def load_generic(
             _POS_RANGES,
             strict=True,
         )
+        if len(truth) < 2:
+            raise NavlabError(
+                f"{truth_csv}: only {len(truth)} truth row(s); give at least 2, or leave the file out"
+            )
         tt, tg = truth.t_s.to_numpy(), gnss.t_s.to_numpy()
         if tt[0] > tg[-1] or tt[-1] < tg[0]:
             unit = next(
