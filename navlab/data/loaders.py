@@ -19,7 +19,8 @@ sigma_u_m`` (1-σ position uncertainty) and ``vn_mps, ve_mps, vu_mps`` (velocity
 
 ``truth.csv`` (optional): ``t_s, lat_deg, lon_deg, h_m`` — reference positions for the errors.
 
-Lines starting with ``#`` are comments. Times must increase.
+Lines starting with ``#`` are comments. Times are seconds and increase strictly (a repeated time
+stamp is refused, and so are times in ms/µs/ns: :func:`check_time_unit` names the unit).
 """
 
 from __future__ import annotations
