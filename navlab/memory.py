@@ -40,7 +40,7 @@ def parse_bytes(text: str, what: str = "a memory budget", hint: str = "") -> int
     """
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kmg]?b?)\s*", str(text).lower())
     if not m:
-        raise NavlabError(f"{what} must look like 8GB, 500MB or 1048576, got {text!r}{hint}")
+        raise NavlabError(f"{what} must be a memory size such as 8GB, 500MB or 1048576, got {text!r}{hint}")
     value = float(m.group(1)) * _UNITS[m.group(2)]
     if not value >= 1:
         raise NavlabError(f"{what} must be positive, got {text!r}{hint}")
