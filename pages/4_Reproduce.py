@@ -5,6 +5,7 @@ import time
 import streamlit as st
 
 from navlab.errors import NavlabError
+from navlab.params import SEED_MAX
 from navlab.reproduce import REPRODUCTIONS
 from navlab.reproduce.report import RULES, header
 from navlab.ui import reproduce as ui
@@ -56,7 +57,7 @@ runs = int(
         help=f"the paper's count: {rep.default_runs}",
     )
 )
-seed = int(c3.number_input("Base seed", 0, 2**31 - 1, step=1, key="rep_seed", bind="query-params"))
+seed = int(c3.number_input("Base seed", 0, SEED_MAX, step=1, key="rep_seed", bind="query-params"))
 st.markdown(f"**{rep.title}**  \n{rep.paper}")
 if seeds < 20:
     st.caption(

@@ -4,6 +4,7 @@ import streamlit as st
 
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
+from navlab.params import MAX_EPOCHS, SEED_MAX
 from navlab.scenarios.base import get_scenario_class
 from navlab.stats import MIN_RUNS
 from navlab.ui import realdata as R
@@ -11,7 +12,7 @@ from navlab.ui.frame import frame, plural
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND
+from navlab.ui.widgets import BIND, link_notice
 
 frame(
     "Real data",
@@ -21,6 +22,7 @@ frame(
 )
 
 sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
+problems = R.link_problems({k: st.query_params.get_all(k) for k in st.query_params})
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
@@ -36,7 +38,7 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     epochs = st.number_input(
         "Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
         0,
-        100000,
+        MAX_EPOCHS,
         120 if is_drive else 300,
         step=10,
         key=f"rd_ep_{scen}",
@@ -45,13 +47,13 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     runs = st.number_input(
         "Noise/outlier injections (runs)",
         1,
-        50,
+        R.MAX_INJECTIONS,
         1,
         key=f"rd_runs_{scen}",
         bind=BIND,
         help="each run adds an independent draw of noise and outliers to the same real measurements",
     )
-    seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed", bind=BIND)
+    seed = st.number_input("Seed", 0, SEED_MAX, 1, key="rd_seed", bind=BIND)
     sp = {}
     if rec == "upload":  # your own drive: the data as recorded; synthetic noise/outliers are options
         sp["use_receiver_sigmas"] = st.toggle(
@@ -142,6 +144,7 @@ spec = R.build_spec(
     outlier_scale=float(scale),
     scenario_params=sp,
 )
+link_notice("real_data", spec, problems)  # link values not used, named as on the other pages
 key = spec.to_json()
 store = result_store()
 if rec == "upload" and store.get(key) is None:  # plain-words checks before the run

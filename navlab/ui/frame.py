@@ -12,6 +12,8 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.machinery
+import sys
 import threading
 
 import streamlit as st
@@ -104,6 +106,20 @@ PRESENT_JS = """
 """
 
 
+def spawn_safe_main() -> None:
+    """Name the running page's module ``__main__`` for multiprocessing.
+
+    Streamlit runs each page as a fresh ``__main__`` module with the page's ``__file__`` and no
+    ``__spec__``; a worker process started by "spawn" (the embedded Dask cluster's, a
+    reproduction's) then ran that page again in bare mode, which filled the server log with
+    "missing ScriptRunContext" warnings. A main module whose spec is named ``__main__`` is not run
+    again in the worker (multiprocessing.spawn).
+    """
+    main = sys.modules.get("__main__")
+    if main is not None and getattr(main, "__spec__", None) is None:
+        main.__spec__ = importlib.machinery.ModuleSpec("__main__", None)
+
+
 def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experiment: bool = False) -> None:
     """Page config + title (+ an intro line) + page menu + sidebar footer. Call first on every page.
 
@@ -112,6 +128,7 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
     process also warms the plotting and filtering code in a background thread, so the first Run
     does not pay for cold imports.
     """
+    spawn_safe_main()
     st.set_page_config(
         page_title=f"{title} · navlab",
         page_icon=icon,

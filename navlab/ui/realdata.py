@@ -48,6 +48,37 @@ TABLE_METRICS = (
     ("runtime_s", "runtime (s)"),
 )
 MAX_POINTS = 4000
+#: Most noise/outlier injections (runs) the page offers.
+MAX_INJECTIONS = 50
+
+
+def link_problems(query: Mapping[str, Sequence[str]]) -> list[str]:
+    """Why each of this page's link values (``rd_*``) is not used, one line each, worded like the
+    other pages' notice (:func:`navlab.ui.widgets.url_problems`).
+    """
+    from navlab.params import MAX_EPOCHS, SEED_MAX
+    from navlab.ui.widgets import _check_value
+
+    numbers = {
+        "rd_seed": ("the seed", 0, SEED_MAX),
+        "rd_ep_": ("epochs", 0, MAX_EPOCHS),
+        "rd_runs_": ("runs", 1, MAX_INJECTIONS),
+    }
+    out = []
+    for key, raws in query.items():
+        for raw in raws:
+            why = None
+            if key == "rd_rec" and raw not in RECORDINGS:
+                why = f"no such recording (one of: {', '.join(RECORDINGS)})"
+            elif key.startswith("rd_flt_") and raw not in usable_filters(key.removeprefix("rd_flt_")):
+                why = "no filter that runs on this recording is registered under this key"
+            for prefix, (name, lo, hi) in numbers.items():
+                if key.startswith(prefix):
+                    bad = _check_value({"lo": lo, "hi": hi}, 1, raw)
+                    why = f"{name} {bad}" if bad else why
+            if why:
+                out.append(f"`{key}={raw}`: {why}")
+    return out
 
 
 def scenario_of(recording: str) -> str:

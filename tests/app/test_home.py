@@ -34,3 +34,17 @@ def test_home_lists_the_filters_by_family_with_one_line_each(open_page):
         assert head in text
     for key, cls in registry().items():
         assert f"**{cls.label}** (`{key}`) — {cls.summary}" in text
+
+
+def test_worker_processes_do_not_run_the_page_again(open_page):
+    """Issue 22 item 11: 966 'missing ScriptRunContext' warnings in one short session came from
+    worker processes (the embedded Dask cluster's, started by "spawn"), each of which ran the
+    current page again in bare mode."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from apphelpers import main_rerun_in_child
+
+    open_page("pages/2_Noise.py")  # Streamlit leaves the page's module as __main__
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        assert pool.submit(main_rerun_in_child).result(timeout=120) is None
