@@ -141,7 +141,7 @@ if r is not None:
 if r is not None:
     rep = TU.report(r)
     st.markdown("##### Default against tuned, on the test seeds")
-    st.dataframe(rep.cells, width="stretch")
+    st.table(rep.cells)  # wraps: the paired verdicts stay on screen
     st.caption("  \n".join(rep.notes))
 
     def open_compare(res=r) -> None:
