@@ -72,11 +72,10 @@ def test_verdict_rules_on_claims_with_a_known_truth():
 
 def test_seed_sets_are_the_single_seed_runs():
     """Set s of the base seed is runs s·N … s·N + N − 1: set 0 is the old single-seed result."""
-    from navlab.reproduce.engine import _Evaluator, _measure_all
-
     rep = _rep([Number("n", "x", Ref("e", "kf"), "rmse_x", 1.0)])
-    measured = _measure_all(rep, 12, 3, 1, lambda n: None, jobs=1)
-    per_set = _Evaluator(rep, measured, 12, 3, 1).per_set(Ref("e", "kf"), "rmse_x")
+    ev = rep.evaluate(12, 3, 1, jobs=1).evaluator
+    measured = ev.m
+    per_set = ev.per_set(Ref("e", "kf"), "rmse_x")
     for s in range(3):
         spec = SPEC.replace(runs=12 * (s + 1))
         res = run_experiment(spec)
@@ -155,11 +154,12 @@ def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
     per_run = engine.memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
     monkeypatch.setattr(engine, "BLOCK_BYTES", 4 * per_run)  # blocks of 4 runs
     monkeypatch.setattr(engine, "POOL_MIN_STEPS", 0)
-    _, blocks, _ = engine._blocks(rep.experiments[0], 5, 2, 1)
-    assert blocks == [(0, 3), (3, 6), (6, 10)]  # as few as blocks of ≤ 4 runs allow, sizes within one
+    first = rep.experiments[0].name
+    blocks = [(t.start, t.stop) for t in engine._plan(rep, 5, 2, 1) if t.experiment == first]
+    assert blocks == [(0, 2), (2, 5), (5, 7), (7, 10)]  # whole seeds, split into blocks of ≤ 4 runs
     seen = []
     two = rep.evaluate(runs=5, seeds=2, jobs=2, on_progress=lambda d, t: seen.append((d, t)))
-    assert seen[-1] == (20, 20) and len(seen) == 2 * len(blocks)
+    assert seen[0] == (0, 20) and seen[-1] == (20, 20) and len(seen) == 1 + 2 * len(blocks)
     serial = rep.evaluate(runs=5, seeds=2, jobs=1)
     for o in (two, serial):
         for name in ("verdicts", "readings"):
