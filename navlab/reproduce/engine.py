@@ -610,12 +610,12 @@ def _compute(
         for f, i in futs.items():
             if f not in handed and f.done() and not f.cancelled() and f.exception() is None:
                 keep(i, f.result())
+        # stopped: kill the workers (the pool then fails the blocks not done; cancelling them
+        # first would crash its manager thread on Python 3.11, which fails cancelled ones too)
         stopped = any(not f.done() for f in futs)
-        for f in futs:
-            f.cancel()
         if stopped:
             _terminate(pool)
-        pool.shutdown(wait=not stopped, cancel_futures=True)
+        pool.shutdown(wait=not stopped)
 
 
 def _pool_size(rep: Reproduction, tasks: Sequence[_Task], jobs: int) -> int:
