@@ -69,15 +69,17 @@ if b1.button("Run", type="primary", icon=":material/play_arrow:", key="rep_run")
     U.request(PAGE, job)
 b3.caption("Finished seed blocks are kept on the server: a stopped or repeated reproduction resumes.")
 
-board = st.empty()
+progress, board, stop = st.container(), st.empty(), b2.empty()
 if U.requested(PAGE, job):
-    out = ui.run_live(PAGE, config, b2, lambda o: ui.show_verdicts(board, o))
+    with progress:  # the progress bar under Run, the verdicts below it
+        out = ui.run_live(PAGE, config, stop, lambda o: ui.show_verdicts(board, o))
+    stop.empty()
 else:
     out = ui.stored_outcome(config)
     if out is not None:
         ui.show_verdicts(board, out)
 if out is None:
-    board.info("Press **Run** to judge the paper's claims; the first verdicts come after one seed.")
+    ui.show_claims(board, rep)
     st.stop()
 if not out.complete:
     st.info(f"{out.seeds} of {seeds} seeds judged and kept: press **Run** to resume.")

@@ -24,7 +24,7 @@ import streamlit as st
 from navlab import stats as S
 from navlab.reproduce import DEFAULT_SEEDS, REPRODUCTIONS, Outcome
 from navlab.reproduce.engine import TOLERANCE, iter_evaluate, workers
-from navlab.reproduce.report import verdict_table
+from navlab.reproduce.report import claims_table, verdict_table
 from navlab.ui import sweep as U
 from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
 from navlab.ui.figures import readable, title_layout
@@ -33,6 +33,7 @@ from navlab.ui.views import chart
 VERDICT_COLORS = {"reproduced": "#d9f2d9", "inconclusive": "#fff1c2", "contradicted": "#f8d0d0"}
 DOT_COLORS = {"reproduced": "#2ca02c", "contradicted": "#d62728", "inconclusive": "#f0a500"}
 MAX_CURVE_POINTS = 2000
+CELL_NAMES = {"#": "no."}  # st.table writes its cells as Markdown: "#" alone is an empty heading
 # The page opens on the paper that answers fastest, at a seed count that answers in seconds
 # (measured on this 2-core machine while shared, seeds judged in this process: irakf's first seed
 # ≈ 1–2 s, its 5 seeds ≈ 3–5 s; vbekf's first seed ≈ 3.5 s; hakf and nnmfukf take tens of seconds
@@ -73,7 +74,7 @@ def progress_note(o: Outcome) -> str:
 
 def style_verdicts(o: Outcome):
     """The verdict table (one row per claim) with the verdict cell coloured."""
-    t = verdict_table(o)
+    t = verdict_table(o).rename(columns=CELL_NAMES)
     return t.style.map(lambda v: f"background-color: {VERDICT_COLORS.get(v, '')}", subset=["verdict"])
 
 
@@ -253,21 +254,24 @@ def show_verdicts(container: Any, o: Outcome) -> None:
         for c, v in zip(cols[1:], ("reproduced", "contradicted", "inconclusive"), strict=True):
             c.metric(v, int(counts.get(v, 0)))
         (st.caption if o.complete else st.warning)(progress_note(o))
-        st.dataframe(
-            style_verdicts(o),
-            hide_index=True,
-            width="stretch",
-            column_config={
-                "#": st.column_config.NumberColumn("#", width=30),
-                "claim": st.column_config.TextColumn("claim", width="large"),
-            },
-        )
+        # a static table: its long claims wrap (no sideways scrolling for the verdict) and it
+        # needs no data-grid code in the browser (on a busy machine the grid's first load took
+        # up to 7 s after the verdicts were sent)
+        st.table(style_verdicts(o), hide_index=True, alt=f"verdicts of {o.reproduction.key}")
         for fig, alt, name in (
             (claims_figure(o), "navlab's value relative to the paper's for every number claim", "claims"),
             (evidence_figure(o), "the paired differences behind every ranking claim", "rankings"),
         ):
             if fig is not None:
                 chart(st, fig, alt, name=f"{o.reproduction.key}-{name}")
+
+
+def show_claims(container: Any, rep: Any) -> None:
+    """The paper's claims, not judged yet, under a note to press Run (in ``container``)."""
+    with container.container():
+        st.info("Press **Run** to judge the paper's claims; the first verdicts come after one seed.")
+        table = claims_table(rep).rename(columns=CELL_NAMES)
+        st.table(table, hide_index=True, alt=f"the claims of {rep.key}")
 
 
 # --------------------------------------------------------------------------- running
