@@ -98,6 +98,8 @@ def test_opens_on_the_fastest_paper_and_says_what_the_seeds_mean(open_page):
     captions = " ".join(c.value for c in at.caption)
     assert "answers in seconds" in captions and "`python -m navlab reproduce irakf --seeds 20`" in captions
     assert any("Press **Run**" in i.value for i in at.info)  # nothing computed before Run
+    claims = at.table[0].value  # the claims, listed before they are judged
+    assert len(claims) == 15 and set(claims["verdict"]) == {"not judged yet"}
 
 
 def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake, monkeypatch):
@@ -106,7 +108,7 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     assert any("Press **Run**" in i.value for i in at.info)
     at.button(key="rep_run").click().run()
     assert_clean(at)
-    table = at.dataframe[0].value
+    table = at.table[0].value
     assert list(table["claim"]) == ["KF x RMSE 1 m", "the oracle beats the KF"]
     assert set(table["verdict"]) <= {"reproduced", "contradicted", "inconclusive"}
     assert "Judged on 3 seeds × 4 runs" in " ".join(c.value for c in at.caption)
@@ -116,7 +118,10 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     assert len(figs) == 3  # the number claim, the ranking's evidence, one curve tab
     names = {t["name"] for t in figs[2]["data"]}
     assert names == {"KF", "Oracle KF"}  # no paper names declared: the filters' labels
-    assert "100.0 %" in at.get("progress")[0].proto.text or at.get("progress")[0].proto.value == 100
+    bar = at.get("progress")[0].proto
+    assert bar.value == 100 and bar.text.startswith(
+        "12/12 runs"
+    )  # 3 seeds × 4 runs  # progress ends at 100 %
     # another session (memory emptied): the verdicts come from the store, nothing is computed
     R._CACHE.clear()
     from navlab.reproduce import engine
@@ -124,7 +129,7 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     monkeypatch.setattr(engine, "_measure_block", lambda *a: pytest.fail("recomputed a stored block"))
     again = open_page(PAGE, rep="aaa-fake", rep_seeds="3")
     assert_clean(again)
-    assert again.dataframe[0].value["verdict"].tolist() == table["verdict"].tolist()
+    assert again.table[0].value["verdict"].tolist() == table["verdict"].tolist()
 
 
 def test_a_stopped_reproduction_shows_its_seeds_and_run_resumes(open_page, fake, monkeypatch):
@@ -180,6 +185,6 @@ def test_a_registered_reproduction_small_run(open_page):
     at = open_page(PAGE, rep="vbekf", rep_seeds="2", rep_runs_vbekf="3")
     at.button(key="rep_run").click().run()
     assert_clean(at)
-    claims = at.dataframe[0].value["claim"].tolist()
+    claims = at.table[0].value["claim"].tolist()
     assert "EKF/VB-EKF RMSE ratio 1.75" in claims
     R._CACHE.clear()
