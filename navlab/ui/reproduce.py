@@ -11,6 +11,7 @@ shows what the store holds, :func:`show_verdicts` draws an outcome.
 from __future__ import annotations
 
 import contextlib
+import re
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -72,9 +73,17 @@ def progress_note(o: Outcome) -> str:
     )
 
 
+def _cells(t: pd.DataFrame) -> pd.DataFrame:
+    """A table for ``st.table``, which writes every cell as Markdown: Markdown's characters
+    escaped (a paper cell "> 10.0 m" was a block quote), "#" renamed (alone, an empty heading).
+    """
+    esc = lambda v: re.sub(r"([\\`*_\[\]<>#~|])", r"\\\1", v) if isinstance(v, str) else v  # noqa: E731
+    return t.rename(columns=CELL_NAMES).map(esc)
+
+
 def style_verdicts(o: Outcome):
     """The verdict table (one row per claim) with the verdict cell coloured."""
-    t = verdict_table(o).rename(columns=CELL_NAMES)
+    t = _cells(verdict_table(o))
     return t.style.map(lambda v: f"background-color: {VERDICT_COLORS.get(v, '')}", subset=["verdict"])
 
 
@@ -270,7 +279,7 @@ def show_claims(container: Any, rep: Any) -> None:
     """The paper's claims, not judged yet, under a note to press Run (in ``container``)."""
     with container.container():
         st.info("Press **Run** to judge the paper's claims; the first verdicts come after one seed.")
-        table = claims_table(rep).rename(columns=CELL_NAMES)
+        table = _cells(claims_table(rep))
         st.table(table, hide_index=True, alt=f"the claims of {rep.key}")
 
 
