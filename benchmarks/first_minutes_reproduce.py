@@ -13,15 +13,14 @@ load (printed with each repeat); read min and median.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
 import statistics
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
+from unittest import mock
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # this checkout's navlab
@@ -29,20 +28,6 @@ VIEWPORT = {"width": 1440, "height": 900}
 TARGET_S = 10.0
 # a verdict in the verdict table (before Run the table lists the claims as "not judged yet")
 VERDICT = re.compile(r"^(reproduced|contradicted|inconclusive)$")
-
-
-@contextlib.contextmanager
-def _env(**values: str) -> Iterator[None]:
-    saved = {k: os.environ.get(k) for k in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def measure_reproduce(repeats: int = 3, timeout_s: float = 300.0) -> dict:
@@ -70,7 +55,7 @@ def measure_reproduce(repeats: int = 3, timeout_s: float = 300.0) -> dict:
             for i in range(repeats):
                 with (
                     tempfile.TemporaryDirectory(prefix="navlab-bench-store-") as store,
-                    _env(NAVLAB_STORE=store),
+                    mock.patch.dict(os.environ, NAVLAB_STORE=store),
                     serve(Path(tempfile.gettempdir()) / f"navlab-bench-reproduce-{i}.log") as url,
                 ):
                     page = browser.new_page(viewport=VIEWPORT)

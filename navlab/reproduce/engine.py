@@ -327,7 +327,7 @@ class Reproduction:
         jobs: int | None = None,
         store: Store | None = None,
     ) -> Outcome:
-        return evaluate(self, runs, seeds, seed, on_progress, jobs, store)
+        return evaluate(self, runs, seeds, seed, on_progress=on_progress, jobs=jobs, store=store)
 
 
 @dataclass(eq=False)
@@ -935,18 +935,8 @@ def _evidence(
     c: Claim, kind: str, a: str, b: str, cm: S.Comparison, within: float, lower_is_better: bool
 ) -> dict:
     """One paired relative difference (a − b)/b a qualitative claim rests on, with its interval."""
-    return dict(
-        claim=c.id,
-        kind=kind,
-        a=a,
-        b=b,
-        quantity=c.quantity,
-        rel=cm.value,
-        rel_lo=cm.lo,
-        rel_hi=cm.hi,
-        within=within,
-        lower=lower_is_better,
-    )
+    values = (c.id, kind, a, b, c.quantity, cm.value, cm.lo, cm.hi, within, lower_is_better)
+    return dict(zip(EVIDENCE_COLUMNS, values, strict=True))
 
 
 def _judge_margin(ev: _Evaluator, c: Margin, unit: str) -> dict:
@@ -1034,20 +1024,12 @@ def _judge_close(ev: _Evaluator, c: Close, unit: str) -> dict:
     )
 
 
-def evaluate(
-    rep: Reproduction,
-    runs: int | None = None,
-    seeds: int = DEFAULT_SEEDS,
-    seed: int = 1,
-    on_progress: Callable[[int, int], None] | None = None,
-    jobs: int | None = None,
-    store: Store | None = None,
-) -> Outcome:
-    """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim (the last
-    :class:`Outcome` of :func:`iter_evaluate`).
+def evaluate(rep: Reproduction, *args: Any, **kw: Any) -> Outcome:
+    """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim: the last
+    :class:`Outcome` of :func:`iter_evaluate` (the same arguments).
     """
     last = None
-    for o in iter_evaluate(rep, runs, seeds, seed, on_progress=on_progress, jobs=jobs, store=store):
+    for o in iter_evaluate(rep, *args, **kw):
         last = o
     assert last is not None
     return last
