@@ -105,6 +105,12 @@ def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server
     page.set_viewport_size({"width": 1440, "height": 4200})  # the whole page for a human to read
     page.screenshot(path=str(artifacts_dir / "reproduce-default-1440-full.png"))
     page.close()
+    # presentation mode: the judged reproduction is shown (from the server), without downloads
+    page = _open(browser, url, "present=1")
+    expect(_verdicts(page).first).to_be_visible()
+    expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(8, timeout=T)
+    expect(page.locator('[data-testid="stDownloadButton"]')).to_have_count(0)
+    page.close()
 
 
 def test_stop_keeps_the_seed_blocks_and_run_resumes(browser: Browser, server):
