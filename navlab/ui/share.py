@@ -14,6 +14,7 @@ from navlab.data.loaders import check_offered
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec
 from navlab.io import MAX_JSON_BYTES, decode_text
+from navlab.ui.frame import presenting
 from navlab.ui.uploads import offered_folders
 from navlab.ui.widgets import spec_to_state
 
@@ -40,7 +41,11 @@ def config_download(
 def csv_download(
     df: pd.DataFrame | Callable[[], pd.DataFrame], label: str, name: str, key: str, container=None
 ) -> None:
-    """Download button for a table as CSV (a callable is evaluated only on click)."""
+    """Download button for a table as CSV (a callable is evaluated only on click); none in
+    presentation mode.
+    """
+    if presenting():
+        return
     c = container if container is not None else st
     data = (lambda: df().to_csv(index=False)) if callable(df) else df.to_csv(index=False)
     c.download_button(label, data, file_name=name, mime="text/csv", key=key, on_click="ignore")

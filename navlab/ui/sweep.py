@@ -21,7 +21,6 @@ from typing import Any
 import streamlit as st
 
 from navlab import cluster
-from navlab.errors import NavlabError
 from navlab.store import Store
 from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     MAX_POINTS,
@@ -34,6 +33,7 @@ from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     run_sweep,
     sweepables,
 )
+from navlab.ui.runner import show_error
 
 PENDING_KEY = "_navlab_jobs"  # session: {page: job id} — a job the user asked for
 
@@ -82,15 +82,19 @@ def run_job(
     work: Callable[..., Any],
     *,
     what: str = "tasks",
+    where: str | None = None,
 ) -> Any:
     """Run ``work(store=…, executor=…, on_progress=…, tick=…)`` with a progress bar and a Stop
     button (in ``stop_container``). Returns its result, or None after an error (shown).
+    ``where``: where the work runs, in words, when it brings its own processes (a reproduction):
+    ``work`` then gets no executor.
 
     Stop reruns the page: the job is interrupted at its next progress update (at most
     :data:`navlab.cluster.POLL_S` while waiting on a cluster), the finished tasks are kept in
     the store and the tasks still running are cancelled.
     """
-    bar = st.progress(0.0, text=f"starting ({where_text()})…")
+    place = where or where_text()
+    bar = st.progress(0.0, text=f"starting ({place})…")
     stop_container.button(
         "Stop",
         key=f"_stop_{page}",
@@ -102,7 +106,7 @@ def run_job(
 
     def progress(done: int, total: int) -> None:
         state.update(done=done, total=max(total, 1))
-        bar.progress(min(1.0, done / state["total"]), text=f"{done}/{total} {what} · {where_text()}")
+        bar.progress(min(1.0, done / state["total"]), text=f"{done}/{total} {what} · {place}")
 
     def tick() -> None:  # an element update: Streamlit handles a pending Stop here
         bar.progress(
@@ -112,17 +116,15 @@ def run_job(
     store = app_store()
     try:
         try:
+            if where is not None:
+                return work(store=store, on_progress=progress, tick=tick)
             return work(store=store, executor=app_executor(), on_progress=progress, tick=tick)
         except cluster.ClusterError as exc:
             st.warning(f"{exc}. Running in the server process instead.")
             return work(store=store, executor=cluster.SerialExecutor(), on_progress=progress, tick=tick)
-    except NavlabError as exc:
+    except Exception as exc:  # shown as a message, never a traceback (the server log has it)
         bar.empty()
-        st.error(str(exc))
-        return None
-    except Exception as exc:  # shown as a message, never a traceback
-        bar.empty()
-        st.error(f"The job failed: {type(exc).__name__}: {exc}")
+        show_error(exc)
         return None
     finally:
         cancel(page)
