@@ -477,7 +477,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
-    p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    p.add_argument(
+        "--debug", action="store_true", help="show tracebacks of internal errors (also after the subcommand)"
+    )
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
 
     pl = sub.add_parser("list", help="list filters, scenarios, schedules, outliers, reproductions")
@@ -591,7 +593,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rest = [x for x in argv if x != "--debug"]
         if rest[:1] == ["app"]:  # everything after "app" is Streamlit's
             return _app(rest[1:])
-        a = build_parser().parse_args(argv)
+        a = build_parser().parse_args(rest)  # --debug is taken before or after the subcommand
         if a.cmd == "list":
             _emit(_list(a.what), a.format, None)
             return 0

@@ -26,11 +26,11 @@ from navlab.filters.base import Filter, get_filter_class, make_filter
 from navlab.linalg import Array, diag, quad
 from navlab.metrics import NEES_BOUND, divergence_bound, timed_from
 from navlab.noise import OUTLIERS, make_outliers, make_schedule
+from navlab.params import MAX_EPOCHS, SEED_MAX
 from navlab.scenarios.base import Scenario, ScenarioData, concat_runs, get_scenario_class
 
 MAX_RUNS = 20000  # a full run (per-epoch arrays of every run)
 MAX_SUMMARY_RUNS = 10_000_000  # a summary run (per-run statistics only)
-MAX_EPOCHS = 200000
 
 
 def _freeze(d: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -153,7 +153,7 @@ def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
             "per-epoch arrays)"
         )
     _check_int("runs", spec.runs, 1, max_runs)
-    _check_int("seed", spec.seed, 0, 2**63 - 1)
+    _check_int("seed", spec.seed, 0, SEED_MAX)
     scen_cls = get_scenario_class(spec.scenario)
     sp = dict(spec.scenario_params)
     if spec.epochs is not None:

@@ -34,14 +34,16 @@ FALLBACK = 4 * 2**30  # if the available memory cannot be read
 _UNITS = {"": 1, "b": 1, "k": 2**10, "kb": 2**10, "m": 2**20, "mb": 2**20, "g": 2**30, "gb": 2**30}
 
 
-def parse_bytes(text: str) -> int:
-    """'8GB', '500 MB', '1.5g', '123456' → bytes; NavlabError on anything else."""
+def parse_bytes(text: str, what: str = "a memory budget", hint: str = "") -> int:
+    """'8GB', '500 MB', '1.5g', '123456' → bytes; NavlabError naming ``what`` (and ``hint``:
+    what else to do) on anything else.
+    """
     m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kmg]?b?)\s*", str(text).lower())
     if not m:
-        raise NavlabError(f"a memory size must look like 8GB, 500MB or 1048576, got {text!r}")
+        raise NavlabError(f"{what} must be a memory size such as 8GB, 500MB or 1048576, got {text!r}{hint}")
     value = float(m.group(1)) * _UNITS[m.group(2)]
     if not value >= 1:
-        raise NavlabError(f"a memory budget must be positive, got {text!r}")
+        raise NavlabError(f"{what} must be positive, got {text!r}{hint}")
     return int(value)
 
 
@@ -109,6 +111,15 @@ class Size:
         return one + self.runs * per_run
 
 
+def budget_source(budget: int | str | None = None) -> str:
+    """Where the budget of :func:`budget_bytes` comes from, in words."""
+    if budget is not None:
+        return "the budget asked for"
+    if os.environ.get(ENV):
+        return f"{ENV}={os.environ[ENV]}"
+    return f"{int(SHARE * 100)} % of the available memory"
+
+
 def check(
     size: Size,
     what: float,
@@ -123,15 +134,9 @@ def check(
     if what <= limit:
         return
     shape = f"{size.runs} runs × {size.epochs + 1} epochs × {size.filters} filter(s)"
-    if budget is not None:
-        src = "the budget asked for"
-    elif os.environ.get(ENV):
-        src = f"{ENV}={os.environ[ENV]}"
-    else:
-        src = f"{int(SHARE * 100)} % of the available memory"
     msg = (
         f"this run would hold about {fmt_bytes(what)} ({shape}), more than the memory budget of "
-        f"{fmt_bytes(limit)} ({src}); "
+        f"{fmt_bytes(limit)} ({budget_source(budget)}); "
     )
     if summary:
         msg += "use fewer runs or epochs, or raise the budget (--memory-budget / NAVLAB_MEMORY_BUDGET)"

@@ -14,6 +14,14 @@ from typing import Any
 
 from navlab.errors import NavlabError
 
+#: Largest base seed, in the CLI, a configuration and the app alike: the largest whole number a
+#: browser holds exactly (2**53 − 1; a link's number and the app's number inputs are JavaScript
+#: numbers). numpy's SeedSequence takes any non-negative integer, so every seed in range works.
+SEED_MAX = 2**53 - 1
+#: Most epochs of a run, in the CLI, a configuration and the app alike (scenario parameters
+#: named ``epochs`` are capped by it too).
+MAX_EPOCHS = 200_000
+
 
 def param(
     default: Any,

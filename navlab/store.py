@@ -10,7 +10,8 @@ older result back, even between two commits of one version), so
 * concurrent sessions (two shells, the app's sessions, several app servers on one disk) share it
   safely: a file is written under a temporary name in the same folder and renamed into place
   (``os.replace`` is atomic), so a reader sees a whole file or none; two writers of one key
-  write the same content; a file that cannot be read is treated as missing and removed,
+  write the same content; an entry that cannot be read (a file cut short, a folder in its place,
+  arrays of the wrong length: :func:`navlab.tasks.compute` checks them) is removed and recomputed,
 * its size is bounded: above ``max_bytes`` the least recently used files go first (a hit
   refreshes a file's time), checked after every write.
 
@@ -27,6 +28,7 @@ import functools
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 import threading
 import zipfile
@@ -91,7 +93,13 @@ class Store:
         if str(where).strip().lower() in ("off", "none", ""):
             return cls(None)
         size = max_bytes if max_bytes is not None else os.environ.get(ENV_MAX) or DEFAULT_MAX
-        return cls(Path(where).expanduser(), parse_bytes(size) if isinstance(size, str) else int(size))
+        if isinstance(size, str):
+            size = parse_bytes(
+                size,
+                f"{ENV_MAX}, the results store's size limit,",
+                f"; give a size such as 2GB ({ENV_DIR}=off keeps no results)",
+            )
+        return cls(Path(where).expanduser(), int(size))
 
     def __repr__(self) -> str:
         return f"Store({self.root}, max {fmt_bytes(self.max_bytes)})"
@@ -114,15 +122,29 @@ class Store:
         except FileNotFoundError:
             return None
         except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError):
-            # a file cut short (disk full, a crash before the rename cannot leave one) or written
-            # by something else: recompute it
-            p.unlink(missing_ok=True)
+            # a file cut short (disk full, a crash before the rename cannot leave one), written
+            # by something else, or a folder in its place: recompute it
+            self.discard(key)
             return None
-        if header.get("key") != key:
+        if not isinstance(header, dict) or header.get("key") != key:
+            self.discard(key)
             return None
         with contextlib.suppress(OSError):
             os.utime(p)  # least recently used goes first
         return header, arrays
+
+    def discard(self, key: str) -> None:
+        """Remove the entry ``key`` whatever its form (a damaged file, a folder in its place), so
+        that it is recomputed; one that cannot be removed is left for :meth:`put` to report.
+        """
+        if self.root is None:
+            return
+        p = self.path(key)
+        with contextlib.suppress(OSError):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p)
+            else:
+                p.unlink(missing_ok=True)
 
     def __contains__(self, key: str) -> bool:
         return self.root is not None and self.path(key).exists()

@@ -208,6 +208,24 @@ def decode(head: dict[str, Any], arrays: dict[str, np.ndarray]) -> TaskResult:
     return TaskResult(st, bool(head["any_outliers"]), float(head["elapsed_s"]), head["version"], True)
 
 
+def stored_result(task: Task, head: dict[str, Any], arrays: dict[str, np.ndarray]) -> TaskResult | None:
+    """The stored result of ``task``, or None when the entry does not fit it (a header without
+    its fields, arrays of another length than the task's runs or epochs).
+    """
+    try:
+        res = decode(head, arrays)
+    except (KeyError, ValueError, TypeError):
+        return None
+    st, runs = res.stats, task.stop - task.start
+    per_epoch = [*st.sq.values(), *st.samples.values()]
+    ok = (
+        st.diverged.shape == (runs,)
+        and all(v.ndim >= 1 and v.shape[0] == runs for d in (st.sse, st.sums) for v in d.values())
+        and all(v.ndim == 2 and v.shape == (runs, st.epochs) for v in per_epoch)
+    )
+    return res if ok else None
+
+
 # --------------------------------------------------------------------------- running tasks
 
 
@@ -255,10 +273,14 @@ def compute(
     unique = {t.key: t for t in tasks}
     out: dict[str, TaskResult] = {}
     if store is not None:
-        for k in unique:
+        for k, task in unique.items():
             hit = store.get(k)
             if hit is not None:
-                out[k] = decode(*hit)
+                res = stored_result(task, *hit)
+                if res is None:
+                    store.discard(k)  # damaged: recomputed below
+                else:
+                    out[k] = res
     todo = [t for k, t in unique.items() if k not in out]
     total = len(unique)
     if on_progress is not None:

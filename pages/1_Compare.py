@@ -3,7 +3,7 @@
 import streamlit as st
 
 from navlab.ui import single
-from navlab.ui.frame import frame
+from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download, run_on_open
 from navlab.ui.views import CompareView, headline_groups, run_downloads, show_stored
@@ -39,7 +39,7 @@ live = o2.toggle(
     "of every filter once",
 )
 o3.caption(
-    f"{len(spec.filters)} filters × {spec.runs} runs · seed {spec.seed} · "
+    f"{plural(len(spec.filters), 'filter')} × {spec.runs} runs · seed {spec.seed} · "
     f"noise `{spec.noise_schedule}` · outliers `{spec.outliers}`"
 )
 

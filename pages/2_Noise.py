@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from navlab.ui.frame import frame
+from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download
 from navlab.ui.views import NoiseView, noise_preset_button, show_stored
@@ -20,13 +20,13 @@ frame(
 
 spec = sidebar_experiment(PageDefaults(), "noise")
 
-c1, c2, c3, c4 = st.columns([1, 1, 2, 3])
+c1, c2, c3, c4 = st.columns([1, 2, 2, 3])
 if c1.button("Run", type="primary", key="run_noise"):
     request_run(PAGE, spec)
 config_download(spec, key="dl_cfg_noise", container=c2)
 noise_preset_button(spec, c3)
 c4.caption(
-    f"{len(spec.filters)} filters × {spec.runs} runs · noise `{spec.noise_schedule}` · "
+    f"{plural(len(spec.filters), 'filter')} × {spec.runs} runs · noise `{spec.noise_schedule}` · "
     f"outliers `{spec.outliers}`"
 )
 

@@ -7,7 +7,7 @@ import streamlit as st
 from navlab.errors import NavlabError
 from navlab.ui import figures as F
 from navlab.ui import sweep as U
-from navlab.ui.frame import frame
+from navlab.ui.frame import frame, plural
 from navlab.ui.share import config_download, csv_download
 from navlab.ui.views import chart
 from navlab.ui.widgets import BIND, PageDefaults, sidebar_experiment
@@ -73,7 +73,9 @@ def axis_controls(tag: str, pid_key: str, first: str, n_default: int, exclude: s
         return s, None, bool(log)
 
 
-first = next((i for i in ids if i.endswith(".contamination")), ids[0])
+# the outlier ratio, else the noise schedule's multiplier (the default experiment has no outliers)
+first = next((i for i in ids if i.endswith(".contamination")), None)
+first = first or next((i for i in ids if i.startswith("ns.") and i.endswith(".factor")), ids[0])
 s1, v1, log1 = axis_controls("sw", "swp", first, 6)
 two = st.toggle(
     "Second parameter (2-D sweep: a heat map per filter)",
@@ -105,7 +107,7 @@ if b1.button("Run sweep", type="primary", key="run_sweep"):
 config_download(spec, key="dl_cfg_sweep", container=b3)
 n_tasks = len({t.key for t in sw.all_tasks()})
 b4.caption(
-    f"{len(sw.points)} points × {len(spec.filters)} filters × {spec.runs} runs = {n_tasks} tasks, "
+    f"{len(sw.points)} points × {plural(len(spec.filters), 'filter')} × {spec.runs} runs = {n_tasks} tasks, "
     f"run {U.where_text()}; finished tasks are kept on the server, so a repeated or resumed sweep "
     "computes only what is missing"
 )

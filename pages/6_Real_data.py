@@ -4,13 +4,15 @@ import streamlit as st
 
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
+from navlab.params import MAX_EPOCHS, SEED_MAX
 from navlab.scenarios.base import get_scenario_class
+from navlab.stats import MIN_RUNS
 from navlab.ui import realdata as R
-from navlab.ui.frame import frame
+from navlab.ui.frame import frame, plural
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND
+from navlab.ui.widgets import BIND, link_notice
 
 frame(
     "Real data",
@@ -20,6 +22,7 @@ frame(
 )
 
 sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
+problems = R.link_problems({k: st.query_params.get_all(k) for k in st.query_params})
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run
     st.header("Recording")
@@ -35,7 +38,7 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     epochs = st.number_input(
         "Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
         0,
-        100000,
+        MAX_EPOCHS,
         120 if is_drive else 300,
         step=10,
         key=f"rd_ep_{scen}",
@@ -44,13 +47,13 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     runs = st.number_input(
         "Noise/outlier injections (runs)",
         1,
-        50,
+        R.MAX_INJECTIONS,
         1,
         key=f"rd_runs_{scen}",
         bind=BIND,
         help="each run adds an independent draw of noise and outliers to the same real measurements",
     )
-    seed = st.number_input("Seed", 0, 10**9, 1, key="rd_seed", bind=BIND)
+    seed = st.number_input("Seed", 0, SEED_MAX, 1, key="rd_seed", bind=BIND)
     sp = {}
     if rec == "upload":  # your own drive: the data as recorded; synthetic noise/outliers are options
         sp["use_receiver_sigmas"] = st.toggle(
@@ -141,6 +144,7 @@ spec = R.build_spec(
     outlier_scale=float(scale),
     scenario_params=sp,
 )
+link_notice("real_data", spec, problems)  # link values not used, named as on the other pages
 key = spec.to_json()
 store = result_store()
 if rec == "upload" and store.get(key) is None:  # plain-words checks before the run
@@ -153,7 +157,7 @@ if rec == "upload" and store.get(key) is None:  # plain-words checks before the 
 c1, c2 = st.columns([1, 5])
 run_clicked = c1.button("Run", type="primary", key="rd_run")
 c2.caption(
-    f"{len(filters)} filters × {runs} run(s) · scenario `{spec.scenario}` · "
+    f"{plural(len(filters), 'filter')} × {plural(runs, 'run')} · scenario `{spec.scenario}` · "
     f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`"
 )
 
@@ -182,10 +186,11 @@ else:
         run = st.number_input("Show run", 0, d.B - 1, 0, key="rd_show_run")
     st.subheader("Results")
     R.show_findings(st, R.run_findings(res))
-    st.dataframe(R.metrics_table(res).round(3), key="rd_table")
+    st.table(R.metrics_table(res))
     st.caption(
         f"{d.K} epochs · {d.B} run(s) · computed in {res.elapsed_s:.1f} s. "
-        "Median/90 % horizontal errors pool every epoch and run."
+        "Median/90 % horizontal errors pool every epoch and run; [lo, hi]: the 95 % interval over "
+        f"the runs (from {MIN_RUNS} runs on; fewer give none)."
     )
     chart(st, R.track_figure(res, run), "track in local east/north metres", key="rd_track", name="track")
     log_y = st.toggle("log scale", False, key="rd_log")

@@ -6,6 +6,7 @@ import streamlit as st
 
 from navlab import tune as TU
 from navlab.errors import NavlabError
+from navlab.params import SEED_MAX
 from navlab.tasks import StoppedError
 from navlab.ui import figures as F
 from navlab.ui import sweep as U
@@ -72,7 +73,7 @@ train_seed = int(
     c4.number_input(
         "Training seed",
         min_value=0,
-        max_value=2**31 - 1,
+        max_value=SEED_MAX,
         value=spec.seed + 1,
         step=1,
         key="tn_train_seed",
@@ -140,7 +141,7 @@ if r is not None:
 if r is not None:
     rep = TU.report(r)
     st.markdown("##### Default against tuned, on the test seeds")
-    st.dataframe(rep.cells, width="stretch")
+    st.table(rep.cells)  # wraps: the paired verdicts stay on screen
     st.caption("  \n".join(rep.notes))
 
     def open_compare(res=r) -> None:

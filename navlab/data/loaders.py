@@ -19,12 +19,15 @@ sigma_u_m`` (1-σ position uncertainty) and ``vn_mps, ve_mps, vu_mps`` (velocity
 
 ``truth.csv`` (optional): ``t_s, lat_deg, lon_deg, h_m`` — reference positions for the errors.
 
-Lines starting with ``#`` are comments. Times must increase.
+Lines starting with ``#`` are comments. Times are seconds and increase strictly (a repeated time
+stamp is refused, and so are times in ms/µs/ns: :func:`check_time_unit` names the unit).
 """
 
 from __future__ import annotations
 
 import calendar
+import csv
+import io
 import math
 import os
 import struct
@@ -35,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from navlab import memory
 from navlab.errors import NavlabError
 from navlab.ins.align import RTKX_NOMINAL_C_BV, body_to_vehicle
 from navlab.ins.earth import G0_MPS2
@@ -207,13 +211,23 @@ def _parse_rows(
     return np.asarray(rows, dtype=float)
 
 
-def _check_increasing(path: Path, t: np.ndarray, what: str = "time") -> None:
+def _check_increasing(path: Path, t: np.ndarray, what: str = "time", strict: bool = False) -> None:
+    """Refuse times that go backwards (and, ``strict``, a time stamp given twice)."""
     d = np.diff(t)
     bad = np.flatnonzero(d < 0)
     if bad.size:
         raise NavlabError(
             f"{path}: {what} goes backwards at data row {bad[0] + 2} ({t[bad[0]]:.3f} -> "
             f"{t[bad[0] + 1]:.3f}); sort the rows by time"
+        )
+    same = np.flatnonzero(d == 0) if strict else ()
+    if len(same):
+        i = int(same[0])
+        many = f"{len(same)} of {len(t)} rows repeat" if len(same) > 1 else "one row repeats"
+        raise NavlabError(
+            f"{path}: data rows {i + 1} and {i + 2} have the same {what} ({t[i]:.10g}; {many} the time "
+            "of the row before): each row needs its own time stamp — delete rows written twice, or give "
+            "a continuous time (a leap second written as a repeated second: use GPS time)"
         )
 
 
@@ -441,20 +455,47 @@ def _read_header_csv(
     optional: tuple[str, ...],
     ranges: dict[str, Range],
     lines: list[str] | None = None,
+    *,
+    strict: bool = False,
 ) -> pd.DataFrame:
+    """A CSV with a header line naming the columns (``#`` comments before or between rows).
+
+    The data rows are parsed at C speed (:func:`_fast_rows`) when the file is plain; anything
+    unusual, and every problem, goes to the line-by-line :func:`_parse_rows`, which names the line.
+    ``strict``: times must increase strictly (one row per time stamp).
+    """
+    text = None
     if lines is None:
-        lines = _read_text(path).splitlines()
-    hdr_i = next((i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")), None)
+        text = _read_text(path)
+        if _plain(text):  # find the header without splitting the whole file into lines
+            hdr_i, pos = 0, 0
+            while True:
+                end = text.find("\n", pos)
+                stop = len(text) if end < 0 else end
+                line = text[pos:stop]
+                if line.strip() and not line.lstrip().startswith("#"):
+                    break
+                if end < 0:
+                    line = ""  # no header line
+                    break
+                hdr_i, pos = hdr_i + 1, end + 1
+            head = [*([""] * hdr_i), line]
+            body = text[stop + 1 :]
+        else:
+            lines = text.splitlines()
+    if lines is not None:
+        head, body = lines, None
+    hdr_i = next((i for i, ln in enumerate(head) if ln.strip() and not ln.lstrip().startswith("#")), None)
     if hdr_i is None:
         raise NavlabError(
             f"{path}: no header line; the first line must name the columns ({', '.join(required)})"
         )
-    if ";" in lines[hdr_i] and "," not in lines[hdr_i]:
+    if ";" in head[hdr_i] and "," not in head[hdr_i]:
         raise NavlabError(
             f"{path}: line {hdr_i + 1} (header) separates columns with ';'; save the file with "
             "commas between columns and '.' as the decimal point"
         )
-    header = [h.strip().strip('"').strip() for h in lines[hdr_i].split(",")]
+    header = [h.strip().strip('"').strip() for h in head[hdr_i].split(",")]
     missing = [c for c in required if c not in header]
     if missing:
         raise NavlabError(
@@ -466,19 +507,71 @@ def _read_header_csv(
         raise NavlabError(f"{path}: line {hdr_i + 1} is numbers, not a header; add a header line")
     except ValueError:
         pass
-    arr = _parse_rows(
-        path,
-        tuple(header),
-        lines=lines[hdr_i + 1 :],
-        first_line=hdr_i + 2,
-        ranges=ranges,
-        skip=lambda s: s.startswith("#"),
-    )
+    arr = _fast_rows(body, tuple(header), ranges) if body is not None else None
+    if arr is None:
+        arr = _parse_rows(
+            path,
+            tuple(header),
+            lines=body.splitlines() if body is not None else head[hdr_i + 1 :],
+            first_line=hdr_i + 2,
+            ranges=ranges,
+            skip=lambda s: s.startswith("#"),
+        )
+    del text, body
     df = pd.DataFrame(arr, columns=header)
     keep = [c for c in (*required, *optional) if c in df.columns]
     df = df[keep].copy()
-    _check_increasing(path, df.t_s.to_numpy())
+    _check_increasing(path, df.t_s.to_numpy(), strict=strict)
     return df
+
+
+#: Line breaks of str.splitlines other than "\n" and "\r\n": a file holding one is read line by line.
+_ODD_BREAKS = ("\v", "\f", "\x1c", "\x1d", "\x1e", "\x85", "\u2028", "\u2029")
+
+
+def _plain(text: str) -> bool:
+    """Whether ``text`` breaks lines only with LF or CR LF (as str.splitlines would)."""
+    return text.count("\r") == text.count("\r\n") and not any(c in text for c in _ODD_BREAKS)
+
+
+#: pandas' float parsing as exact as Python's float(): "round_trip" before pandas 3 (whose default
+#: is exact and which deprecates the option).
+_EXACT = {} if int(pd.__version__.split(".")[0]) >= 3 else {"float_precision": "round_trip"}
+
+
+def _fast_rows(body: str, names: tuple[str, ...], ranges: dict[str, Range]) -> np.ndarray | None:
+    """The data rows of a plain comma-separated ``body`` at C speed (pandas' parser), or None.
+
+    None (read it line by line instead: :func:`_parse_rows` names the line at fault) when the text
+    holds a comment or anything :func:`_parse_rows` would refuse or read otherwise: a row with
+    more or fewer columns than ``names``, a value that is not a plain number (quotes, blanks,
+    "NA"), NaN/inf, or a value outside ``ranges``. Values are parsed exactly (:data:`_EXACT`), so
+    an accepted file gives the numbers of the line by line parse (tests/unit/test_csv_fuzz.py
+    checks it on random files).
+    """
+    if "#" in body or not _plain(body):
+        return None
+    try:
+        arr = pd.read_csv(
+            io.BytesIO(body.encode("utf-8")),
+            header=None,
+            dtype=np.float64,
+            **_EXACT,
+            quoting=csv.QUOTE_NONE,
+            na_filter=False,
+            skip_blank_lines=True,
+            engine="c",
+        ).to_numpy()
+    except (ValueError, OverflowError, TypeError, pd.errors.ParserError):
+        return None
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] != len(names) or not np.isfinite(arr).all():
+        return None
+    for j, name in enumerate(names):
+        if name in ranges:
+            lo, hi, _ = ranges[name]
+            if not ((arr[:, j] >= lo) & (arr[:, j] <= hi)).all():
+                return None
+    return arr
 
 
 _POS_RANGES: dict[str, Range] = {
@@ -494,6 +587,65 @@ _POS_RANGES: dict[str, Range] = {
 }
 
 
+#: Sample intervals [s] an IMU (5 Hz – 10 kHz) and a GNSS receiver (0.02 – 100 Hz) can have: the
+#: time unit of a drive is judged from them (:func:`check_time_unit`).
+IMU_DT_S = (1e-4, 0.2)
+GNSS_DT_S = (0.01, 50.0)
+TIME_UNITS = (("seconds", 1.0), ("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+#: Bytes held per byte of a CSV while it is read (the file's bytes, its text and the parser's
+#: copy) and per number of its rows (the parsed array, the table and the INS's copies of them).
+READ_BYTES_PER_BYTE, READ_BYTES_PER_VALUE = 3, 48
+
+
+def check_read_size(path: Path, ncol: int) -> None:
+    """Refuse, before reading it, a CSV whose reading would not fit the memory budget.
+
+    The rows are estimated from the file's size and the length of its first lines; the message
+    gives the estimate, the budget and what to change.
+    """
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            sample = f.read(1 << 16)
+    except OSError:
+        return  # reading it says what is wrong
+    rows = size * max(sample.count(b"\n"), 1) / max(len(sample), 1)
+    need = READ_BYTES_PER_BYTE * size + READ_BYTES_PER_VALUE * rows * ncol
+    limit = memory.budget_bytes()
+    if need > limit:
+        raise NavlabError(
+            f"{path}: {memory.fmt_bytes(size)}, about "
+            + (f"{rows / 1e6:.3g} million" if rows >= 1e6 else f"{rows:,.0f}")
+            + " rows: reading it would hold "
+            f"about {memory.fmt_bytes(need)}, more than the memory budget of {memory.fmt_bytes(limit)} "
+            f"({memory.budget_source()}); cut the recording into shorter parts, or raise the budget "
+            f"({memory.ENV})"
+        )
+
+
+def check_time_unit(t_imu: np.ndarray, t_gnss: np.ndarray, names: str) -> None:
+    """Refuse times that are not in seconds, naming the unit they seem to be in.
+
+    The unit is judged from the median sample intervals: in seconds they must be an IMU's
+    (:data:`IMU_DT_S`) and a receiver's (:data:`GNSS_DT_S`); when they are not, but would be in
+    milliseconds, microseconds or nanoseconds, that unit is named.
+    """
+    dt_i, dt_g = float(np.median(np.diff(t_imu))), float(np.median(np.diff(t_gnss)))
+
+    def fits(per_s: float) -> bool:
+        return IMU_DT_S[0] <= dt_i / per_s <= IMU_DT_S[1] and GNSS_DT_S[0] <= dt_g / per_s <= GNSS_DT_S[1]
+
+    if fits(1.0):
+        return
+    for unit, per_s in TIME_UNITS[1:]:
+        if fits(per_s):
+            raise NavlabError(
+                f"{names}: t_s must be seconds, but it looks like {unit}: the IMU samples are {dt_i:.4g} "
+                f"apart and the GNSS fixes {dt_g:.4g} (in {unit}: an IMU at {per_s / dt_i:.4g} Hz, fixes at "
+                f"{per_s / dt_g:.4g} Hz); divide t_s by {per_s:.0e} in every file"
+            )
+
+
 def load_generic(
     imu_csv: str | os.PathLike,
     gnss_csv: str | os.PathLike,
@@ -505,7 +657,10 @@ def load_generic(
     imu_ranges.update(
         {c: (-35.0, 35.0, "rad/s (a value this large usually means deg/s)") for c in IMU_COLS[3:]}
     )
-    imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges)
+    files = [Path(imu_csv), Path(gnss_csv), *([Path(truth_csv)] if truth_csv is not None else [])]
+    for f, ncol in zip(files, (7, 10, 7), strict=False):
+        check_read_size(f, ncol)
+    imu = _read_header_csv(Path(imu_csv), ("t_s", *IMU_COLS), (), imu_ranges, strict=True)
     if len(imu) < 100:
         raise NavlabError(f"{imu_csv}: only {len(imu)} IMU rows; give at least 100 samples")
     fz = np.linalg.norm(imu[list(IMU_COLS[:3])].to_numpy().mean(axis=0))
@@ -516,7 +671,9 @@ def load_generic(
         )
     imu["repeated"] = np.r_[False, np.all(np.diff(imu[list(IMU_COLS)].to_numpy(), axis=0) == 0, axis=1)]
     opt = ("sigma_n_m", "sigma_e_m", "sigma_u_m", "vn_mps", "ve_mps", "vu_mps")
-    gnss = _read_header_csv(Path(gnss_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), opt, _POS_RANGES)
+    gnss = _read_header_csv(
+        Path(gnss_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), opt, _POS_RANGES, strict=True
+    )
     if len(gnss) < 3:
         raise NavlabError(f"{gnss_csv}: only {len(gnss)} GNSS rows; give at least 3 epochs")
     for c in opt:
@@ -524,13 +681,33 @@ def load_generic(
             gnss[c] = np.nan
     gnss["q"] = 0
     gnss = gnss[list(GNSS_COLS)]
+    check_time_unit(imu.t_s.to_numpy(), gnss.t_s.to_numpy(), f"{imu_csv} and {gnss_csv}")
+    if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
+        raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
     truth = None
     if truth_csv is not None:
         truth = _read_header_csv(
-            Path(truth_csv), ("t_s", "lat_deg", "lon_deg", "h_m"), ("vn_mps", "ve_mps", "vu_mps"), _POS_RANGES
+            Path(truth_csv),
+            ("t_s", "lat_deg", "lon_deg", "h_m"),
+            ("vn_mps", "ve_mps", "vu_mps"),
+            _POS_RANGES,
+            strict=True,
         )
-    if imu.t_s.iloc[0] > gnss.t_s.iloc[-1] or imu.t_s.iloc[-1] < gnss.t_s.iloc[0]:
-        raise NavlabError(f"{imu_csv} and {gnss_csv} do not overlap in time; use one time base (t_s)")
+        if len(truth) < 2:
+            raise NavlabError(
+                f"{truth_csv}: only {len(truth)} truth row(s); give at least 2, or leave the file out"
+            )
+        tt, tg = truth.t_s.to_numpy(), gnss.t_s.to_numpy()
+        if tt[0] > tg[-1] or tt[-1] < tg[0]:
+            unit = next(
+                (u for u, per_s in TIME_UNITS[1:] if tt[0] / per_s <= tg[-1] and tt[-1] / per_s >= tg[0]),
+                None,
+            )
+            raise NavlabError(
+                f"{truth_csv} and {gnss_csv} do not overlap in time"
+                + (f" (the truth's t_s looks like {unit}, not seconds)" if unit else "")
+                + "; give t_s in seconds on the GNSS's time base"
+            )
     return DriveRecording(
         name=name,
         imu=imu,

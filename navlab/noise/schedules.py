@@ -17,7 +17,7 @@ import numpy as np
 from navlab import params as P_
 from navlab.errors import NavlabError
 from navlab.linalg import Array
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.registry import Registry
 
 _CH_HELP = "channel indices that follow the schedule (empty = all channels)"
@@ -138,7 +138,9 @@ class Sinusoid(Schedule):
 
 @dataclass(frozen=True)
 class HakfTanhParams:
-    length: int = param(0, lo=0, hi=100000, help="the paper's len (epochs); 0 = this run's number of epochs")
+    length: int = param(
+        0, lo=0, hi=MAX_EPOCHS, help="the paper's len (epochs); 0 = this run's number of epochs"
+    )
     channels: tuple = param((), help=_CH_HELP, ui=False)
 
 

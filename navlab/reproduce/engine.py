@@ -22,22 +22,27 @@ base seed, so set 0 is the old single-seed result), reduced chunk by chunk to pe
 
 Every filter is judged on the same runs (navlab.metrics' divergence rule, per experiment).
 
-The runs of every experiment are computed in fixed blocks (one chunk each, up to
-:data:`BLOCK_BYTES` of per-epoch arrays), in ``jobs`` worker processes (``--jobs``,
-``NAVLAB_JOBS``; default the cores available; one BLAS thread each) when there is enough work, and
-joined in run order, so the numbers are the same for any ``jobs``. Each block is reduced to the
-per-run features in its worker; only those (and the float32 curves) travel back.
+The runs of every experiment are computed in fixed blocks of whole seeds (seeds 0, 1, 2–3, 4–7,
+…: :func:`seed_ranges`; a range larger than :data:`BLOCK_BYTES` of per-epoch arrays is split), in
+``jobs`` worker processes (``--jobs``, ``NAVLAB_JOBS``; default the cores available; one BLAS
+thread each) when there is enough work, and joined in run order, so the numbers are the same for
+any ``jobs``. Each block is reduced to the per-run features in its worker; only those (and the
+float32 curves) travel back. :func:`iter_evaluate` judges the claims each time the seeds counted
+from 0 are all finished (the first verdicts after one seed: provisional, exactly those of a
+reproduction with that many seeds) and keeps every finished block in a results store
+(:mod:`navlab.store`) when given one, so a stopped or repeated reproduction resumes.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import itertools
 import multiprocessing
 import os
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,6 +55,7 @@ from navlab import stats as S
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, fixed_chunks, iter_chunks, plan, run_size
 from navlab.metrics import judge, sq_error
+from navlab.store import Store, key_of
 
 Array = np.ndarray
 TOLERANCE = 0.20  # a number is reproduced within ±20 % of the paper's value
@@ -58,6 +64,7 @@ JOBS_ENV = "NAVLAB_JOBS"  # worker processes of a reproduction (default: the cor
 # the full arrays of one block of runs (each worker computes one at a time; a worker's peak RSS is
 # about twice this: ≈ 0.7 GB for hakf's blocks of 200 runs)
 BLOCK_BYTES = 512 * 2**20
+POLL_S = 0.2  # while waiting on the worker processes, call tick() this often (the app's Stop)
 POOL_MIN_STEPS = 1_000_000  # filter steps (runs × epochs × filters) below which one process is faster
 _BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -318,8 +325,9 @@ class Reproduction:
         seed: int = 1,
         on_progress: Callable[[int, int], None] | None = None,
         jobs: int | None = None,
+        store: Store | None = None,
     ) -> Outcome:
-        return evaluate(self, runs, seeds, seed, on_progress, jobs)
+        return evaluate(self, runs, seeds, seed, on_progress=on_progress, jobs=jobs, store=store)
 
 
 @dataclass(eq=False)
@@ -338,15 +346,30 @@ class Measured:
 
 @dataclass(eq=False)
 class Outcome:
-    """What a reproduction found: one verdict row per claim, the detailed readings, the curves."""
+    """What a reproduction found on its first ``seeds`` seeds (of ``seeds_asked``): one verdict
+    row per claim, the evidence of the qualitative claims (every paired relative difference a
+    ranking or a "close" claim rests on, with its interval), the curves, and the detailed
+    readings (computed on first use: a bootstrap per quantity and filter).
+    """
 
     reproduction: Reproduction
     verdicts: pd.DataFrame
-    readings: pd.DataFrame
+    evidence: pd.DataFrame
     curves: dict[str, pd.DataFrame]
     seeds: int
     runs: int
     seed: int
+    seeds_asked: int
+    evaluator: _Evaluator = field(repr=False)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every seed asked for is judged (else the verdicts are provisional)."""
+        return self.seeds >= self.seeds_asked
+
+    @functools.cached_property
+    def readings(self) -> pd.DataFrame:
+        return _readings(self.reproduction, self.evaluator)
 
 
 @dataclass(eq=False)
@@ -404,27 +427,98 @@ def _assemble(exp: Experiment, blocks: Sequence[_Block]) -> Measured:
     )
 
 
-def _blocks(exp: Experiment, runs: int, seeds: int, seed: int) -> tuple[ExperimentSpec, list, int]:
-    """The spec of ``exp`` at S·N runs and its blocks of runs [start, stop): one chunk each, whose
-    full arrays take at most :data:`BLOCK_BYTES` and a tenth of the memory budget (a block takes
-    about twice its estimate while it computes, and two workers compute one each). Large blocks
-    pay the per-epoch Python cost of every filter step over more runs (hakf, 250 runs of
-    sins-gps: 20 s in blocks of 25 runs, 12 s in blocks of 125; CPU per run of a case-4 block:
-    70 ms at 31 runs, 42 ms at 124, 34 ms at 248). The blocks are as few as the limit allows and
-    of equal size (± 1 run): a small last block would pay a whole block's per-epoch cost. Which
-    block a run is in never changes its numbers.
+def seed_ranges(seeds: int) -> list[tuple[int, int]]:
+    """Seeds [0, ``seeds``) as ranges ending at 1, 2, 4, 8, … (the last one cut at ``seeds``).
+
+    The first verdicts come after one seed; later ranges grow (fewer blocks, less per-epoch
+    overhead), and the ranges of S seeds are those of every larger S up to the cut one, so the
+    blocks a shorter reproduction kept serve a longer one.
     """
-    spec = exp.spec.replace(runs=runs * seeds, seed=seed)
-    size = run_size(plan(spec))
-    per_run = memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
+    out, lo, hi = [], 0, 1
+    while lo < seeds:
+        out.append((lo, min(hi, seeds)))
+        lo, hi = hi, 2 * hi
+    return out
+
+
+@dataclass(frozen=True)
+class _Task:
+    """Runs [start, stop) of one experiment (``spec``: at S·N runs and the base seed), a block of
+    the seeds [``seeds_from``, ``seeds_to``).
+    """
+
+    experiment: str
+    spec: ExperimentSpec
+    start: int
+    stop: int
+    seeds_from: int
+    seeds_to: int
+    steps: int  # filter steps (runs × epochs × filters)
+
+
+def _plan(rep: Reproduction, runs: int, seeds: int, seed: int) -> list[_Task]:
+    """Every experiment's blocks, seed range by seed range (every experiment's seed 0, then
+    seed 1, then seeds 2–3, …: the first verdicts need the first range of every experiment).
+
+    A seed range whose full arrays would take more than :data:`BLOCK_BYTES` or a tenth of the
+    memory budget is split into equal blocks (± 1 run; a block takes about twice its estimate
+    while it computes, and two workers compute one each). Large blocks pay the per-epoch Python
+    cost of every filter step over more runs (hakf, 250 runs of sins-gps: 20 s in blocks of 25
+    runs, 12 s in blocks of 125). Which block a run is in never changes its numbers.
+    """
     limit = min(BLOCK_BYTES, memory.budget_bytes() / 10)
-    chunk = int(max(1, min(spec.runs, limit // max(per_run, 1))))
-    steps = spec.runs * size.epochs * size.filters
-    # as few blocks as the limit allows, of sizes that differ by at most one run: no small last
-    # block paying the per-epoch cost of a whole one (1000 runs: 8 × 124 + 8 → 9 × 111–112)
-    count = -(-spec.runs // chunk)
-    edges = [spec.runs * i // count for i in range(count + 1)]
-    return spec, list(itertools.pairwise(edges)), steps
+    sized = []
+    for e in rep.experiments:
+        spec = e.spec.replace(runs=runs * seeds, seed=seed)
+        size = run_size(plan(spec))
+        per_run = memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
+        sized.append((e.name, spec, int(max(1, limit // max(per_run, 1))), size.epochs * size.filters))
+    tasks = []
+    for a, b in seed_ranges(seeds):
+        for name, spec, chunk, per_run_steps in sized:
+            lo, hi = a * runs, b * runs
+            count = -(-(hi - lo) // chunk)
+            edges = [lo + (hi - lo) * i // count for i in range(count + 1)]
+            tasks += [
+                _Task(name, spec, x, y, a, b, (y - x) * per_run_steps) for x, y in itertools.pairwise(edges)
+            ]
+    return tasks
+
+
+def _block_key(rep: Reproduction, t: _Task) -> str:
+    """The results store's key of a block: everything that decides its numbers."""
+    d = t.spec.to_dict()
+    d.pop("runs")
+    return key_of({"reproduction": rep.key, "experiment": t.experiment, "spec": d, "runs": [t.start, t.stop]})
+
+
+def _encode(b: _Block) -> tuple[dict[str, Any], dict[str, Array]]:
+    """A block as (JSON header, arrays) for the results store (lists keep the filters' order)."""
+    head: dict[str, Any] = {"start": b.start, "runs": b.runs, "labels": list(b.labels.items())}
+    arrays: dict[str, Array] = {"t": np.asarray(b.t)}
+    head["feats"] = [[k, q, name] for (k, q), f in b.feats.items() for name in f]
+    for i, (k, q, name) in enumerate(head["feats"]):
+        arrays[f"f{i}"] = b.feats[(k, q)][name]
+    head["curves"] = [list(kc) for kc in b.curves]
+    arrays |= {f"c{i}": v for i, v in enumerate(b.curves.values())}
+    head["diverged"] = list(b.diverged)
+    arrays |= {f"d{i}": np.asarray(v, dtype=bool) for i, v in enumerate(b.diverged.values())}
+    return head, arrays
+
+
+def _decode(head: dict[str, Any], arrays: dict[str, Array]) -> _Block:
+    feats: dict[tuple[str, str], dict[str, Array]] = {}
+    for i, (k, q, name) in enumerate(head["feats"]):
+        feats.setdefault((k, q), {})[name] = arrays[f"f{i}"]
+    return _Block(
+        int(head["start"]),
+        int(head["runs"]),
+        dict(head["labels"]),
+        feats,
+        {(k, c): arrays[f"c{i}"] for i, (k, c) in enumerate(head["curves"])},
+        {k: arrays[f"d{i}"] for i, k in enumerate(head["diverged"])},
+        arrays["t"],
+    )
 
 
 def _block_task(key: str, spec: ExperimentSpec, start: int, stop: int) -> _Block:
@@ -463,42 +557,95 @@ def _single_threaded_blas() -> Iterator[None]:
                 os.environ[v] = old
 
 
-def _measure_all(
-    rep: Reproduction, runs: int, seeds: int, seed: int, progress: Callable[[int], None], jobs: int
-) -> dict[str, Measured]:
-    """Every experiment's blocks, in ``jobs`` worker processes when there are several blocks and
-    enough work to pay for starting them (≈ 2 s: each imports navlab), else in this process.
+def _compute(
+    rep: Reproduction,
+    tasks: Sequence[_Task],
+    jobs: int,
+    keep: Callable[[int, _Block], None],
+    should_stop: Callable[[], bool] | None,
+    tick: Callable[[], None] | None,
+) -> Iterator[tuple[int, _Block]]:
+    """(index in ``tasks``, block) as each block finishes: in ``jobs`` worker processes when
+    there are several blocks and enough work to pay for starting them (≈ 2 s: each imports
+    navlab), else in this process, one after the other.
 
-    A block is a fixed range of runs and run r draws the same numbers in any block, so the
-    numbers do not depend on ``jobs``: the blocks are the same for every ``jobs``, only the order
-    in which they are computed differs, and they are joined in run order.
+    ``should_stop()`` is asked between blocks (in this process) or every :data:`POLL_S` while
+    waiting on the workers, when ``tick()`` is also called (the app handles a Stop there). On
+    stop, an error or when the caller closes this generator (a closed browser session), the blocks
+    not yet started are cancelled and the worker processes killed at once: the work in flight is
+    lost, the blocks that finished meanwhile go to ``keep``.
     """
-    plans = {e.name: _blocks(e, runs, seeds, seed) for e in rep.experiments}
-    tasks = [(e.name, a, b) for e in rep.experiments for a, b in plans[e.name][1]]
-    parts: dict[str, list[_Block]] = {e.name: [] for e in rep.experiments}
-    steps = sum(p[2] for p in plans.values())
-    if jobs == 1 or len(tasks) == 1 or steps < POOL_MIN_STEPS or not _registered(rep):
-        for name, a, b in tasks:
-            parts[name].append(_measure_block(rep, plans[name][0], a, b))
-            progress(b - a)
-    else:
-        ctx = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=ctx)
-        try:
-            with _single_threaded_blas():  # the workers start at the first submissions
-                futs = {pool.submit(_block_task, rep.key, plans[name][0], a, b): name for name, a, b in tasks}
-            for fut in as_completed(futs):
-                blk = fut.result()
-                parts[futs[fut]].append(blk)
-                progress(blk.runs)
-        except BrokenProcessPool:
-            raise NavlabError(
-                f"a worker process of the reproduction died (out of memory?): retry with --jobs 1 "
-                f"or {JOBS_ENV}=1"
-            ) from None
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-    return {e.name: _assemble(e, parts[e.name]) for e in rep.experiments}
+    if _pool_size(rep, tasks, jobs) == 1:
+        for i, t in enumerate(tasks):
+            if should_stop is not None and should_stop():
+                return
+            yield i, _measure_block(rep, t.spec, t.start, t.stop)
+        return
+    if should_stop is not None and should_stop():
+        return
+    ctx = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(_pool_size(rep, tasks, jobs), mp_context=ctx)
+    futs: dict[Future, int] = {}
+    handed: set[Future] = set()
+    try:
+        with _single_threaded_blas():  # the workers start at the first submissions
+            futs = {
+                pool.submit(_block_task, rep.key, t.spec, t.start, t.stop): i for i, t in enumerate(tasks)
+            }
+        pending = set(futs)
+        while pending:
+            if should_stop is not None and should_stop():
+                return
+            finished, pending = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
+            if not finished and tick is not None:
+                tick()
+            for f in sorted(finished, key=futs.__getitem__):  # in the plan's order
+                handed.add(f)
+                yield futs[f], f.result()
+    except BrokenProcessPool:
+        raise NavlabError(
+            f"a worker process of the reproduction died (out of memory?): retry with --jobs 1 or {JOBS_ENV}=1"
+        ) from None
+    finally:
+        for f, i in futs.items():
+            if f not in handed and f.done() and not f.cancelled() and f.exception() is None:
+                keep(i, f.result())
+        # stopped: kill the workers (the pool then fails the blocks not done; cancelling them
+        # first would crash its manager thread on Python 3.11, which fails cancelled ones too)
+        stopped = any(not f.done() for f in futs)
+        if stopped:
+            _terminate(pool)
+        pool.shutdown(wait=not stopped)
+
+
+def _pool_size(rep: Reproduction, tasks: Sequence[_Task], jobs: int) -> int:
+    """Worker processes for ``tasks`` (1: this process): several blocks, and enough filter steps
+    to pay for starting the workers.
+    """
+    if jobs == 1 or len(tasks) < 2 or sum(t.steps for t in tasks) < POOL_MIN_STEPS or not _registered(rep):
+        return 1
+    return min(jobs, len(tasks))
+
+
+def workers(rep: Reproduction, runs: int, seeds: int, seed: int, jobs: int | None = None) -> int:
+    """The processes a reproduction computes in (1: the calling process; blocks found in a
+    results store are not computed, so a resumed one may use fewer).
+    """
+    jobs = default_jobs() if jobs is None else check_jobs(jobs)
+    return _pool_size(rep, _plan(rep, runs, seeds, seed), jobs)
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Kill ``pool``'s worker processes now (their blocks in flight are lost)."""
+    kill = getattr(pool, "terminate_workers", None)  # Python ≥ 3.14
+    if callable(kill):
+        kill()
+        return
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        p.join(timeout=10)
 
 
 def default_jobs() -> int:
@@ -563,12 +710,27 @@ class _Evaluator:
         return S.Resampler(n, self.seed).estimate(self.estimator(ref, quantity, runs))
 
     def compare(self, a: Ref, b: Ref, quantity: str, relative: bool = False) -> S.Comparison | None:
+        got = self.compare_both(a, b, quantity, absolute=not relative, relative=relative)
+        return None if got is None else got[relative]
+
+    def compare_both(
+        self, a: Ref, b: Ref, quantity: str, absolute: bool = True, relative: bool = True
+    ) -> tuple[S.Comparison | None, S.Comparison | None] | None:
+        """(a − b, (a − b)/b) paired over the runs judged for both, on the same resamples (the
+        second one costs little more: the estimators' resampled values are computed once).
+        """
         runs = self.judged(a, b)
         n = int(runs.sum())
         if n == 0:
             return None
         rs = S.Resampler(n, self.seed)
-        return rs.compare(self.estimator(a, quantity, runs), self.estimator(b, quantity, runs), relative)
+        ea, eb = self.estimator(a, quantity, runs), self.estimator(b, quantity, runs)
+        return (rs.compare(ea, eb) if absolute else None, rs.compare(ea, eb, True) if relative else None)
+
+    def label(self, r: Ref, *others: Ref) -> str:
+        """The filter's name, with its experiment where ``others`` span several experiments."""
+        several = len({x.experiment for x in (r, *others)}) > 1
+        return f"{self.name(r)} ({r.experiment})" if several else self.name(r)
 
     def reliability_note(self, *refs: Ref) -> str:
         notes = []
@@ -712,7 +874,16 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
     share = float(np.mean(holds))  # a set on which the filter kept no run does not hold
     # the pooled paired test, Holm over the competitors; a filter diverging in more than 5 % of
     # the runs loses to a reliable one whatever its numbers
-    comps = {r: ev.compare(c.better, r, c.quantity) for r in c.than}
+    both = {r: ev.compare_both(c.better, r, c.quantity) for r in c.than}
+    comps = {r: (b[0] if b is not None else None) for r, b in both.items()}
+    refs = (c.better, *c.than)
+    evidence = [
+        _evidence(
+            c, "ranking", ev.label(c.better, *refs), ev.label(r, *refs), b[1], np.nan, q.lower_is_better
+        )
+        for r, b in both.items()
+        if b is not None
+    ]
     adj = S.holm({str(i): (cm.p_value if cm is not None else np.nan) for i, cm in enumerate(comps.values())})
     better, worse, parts = {}, {}, []
     for i, (r, cm) in enumerate(comps.items()):
@@ -751,7 +922,21 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
         p_value=p_value,
         verdict=verdict,
         note=_join(c.note, "; ".join(parts), ev.reliability_note(c.better, *c.than)),
+        evidence=evidence,
     )
+
+
+# a qualitative claim's evidence: the paired (a − b)/b of the claimed filter a against each
+# competitor b (a ranking), or of each filter against the best (a "close" claim, band ±within)
+EVIDENCE_COLUMNS = ("claim", "kind", "a", "b", "quantity", "rel", "rel_lo", "rel_hi", "within", "lower")
+
+
+def _evidence(
+    c: Claim, kind: str, a: str, b: str, cm: S.Comparison, within: float, lower_is_better: bool
+) -> dict:
+    """One paired relative difference (a − b)/b a qualitative claim rests on, with its interval."""
+    values = (c.id, kind, a, b, c.quantity, cm.value, cm.lo, cm.hi, within, lower_is_better)
+    return dict(zip(EVIDENCE_COLUMNS, values, strict=True))
 
 
 def _judge_margin(ev: _Evaluator, c: Margin, unit: str) -> dict:
@@ -798,11 +983,14 @@ def _judge_close(ev: _Evaluator, c: Close, unit: str) -> dict:
         spread = np.nanmax(vals, axis=0) / np.nanmin(vals, axis=0) - 1.0
     pooled = [ev.pooled(r, c.quantity).value for r in c.refs]
     best = c.refs[int(np.nanargmin(sign * np.asarray(pooled)))]
-    inside, outside, parts = 0, 0, []
+    inside, outside, parts, evidence = 0, 0, [], []
     for r in c.refs:
         if r == best:
             continue
         cm = ev.compare(r, best, c.quantity, relative=True)
+        if cm is not None and np.isfinite(cm.value):
+            a, b = ev.label(r, *c.refs), ev.label(best, *c.refs)
+            evidence.append(_evidence(c, "close", a, b, cm, c.within, q.lower_is_better))
         if cm is None or not np.isfinite(cm.lo):
             continue
         inside += -c.within <= cm.lo and cm.hi <= c.within
@@ -832,52 +1020,117 @@ def _judge_close(ev: _Evaluator, c: Close, unit: str) -> dict:
             "; ".join(parts),
             ev.reliability_note(*c.refs),
         ),
+        evidence=evidence,
     )
 
 
-def evaluate(
+def evaluate(rep: Reproduction, *args: Any, **kw: Any) -> Outcome:
+    """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim: the last
+    :class:`Outcome` of :func:`iter_evaluate` (the same arguments).
+    """
+    last = None
+    for o in iter_evaluate(rep, *args, **kw):
+        last = o
+    assert last is not None
+    return last
+
+
+def iter_evaluate(
     rep: Reproduction,
     runs: int | None = None,
     seeds: int = DEFAULT_SEEDS,
     seed: int = 1,
+    *,
     on_progress: Callable[[int, int], None] | None = None,
     jobs: int | None = None,
-) -> Outcome:
-    """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim.
+    store: Store | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    tick: Callable[[], None] | None = None,
+) -> Iterator[Outcome]:
+    """The verdicts as the seeds finish: an :class:`Outcome` of the first k seeds every time k
+    grows (seed ranges of :func:`seed_ranges`), the last one of all ``seeds`` seeds. The outcome
+    of k seeds is exactly that of a k-seed reproduction.
 
     ``jobs`` worker processes compute the blocks of runs (default :func:`default_jobs`); the
-    numbers are the same for any ``jobs``.
+    numbers are the same for any ``jobs``. ``store`` (:class:`navlab.store.Store`) keeps every
+    finished block of a registered reproduction, so a stopped, abandoned or repeated one computes
+    only what is missing. ``on_progress(runs done, runs in all)``; ``should_stop`` and ``tick`` as
+    in :func:`_compute` (``should_stop`` always true: what the store holds, nothing computed).
+    Closing this generator stops the work (worker processes included) at once.
     """
     runs = rep.default_runs if runs is None else runs
     jobs = default_jobs() if jobs is None else check_jobs(jobs)
     for name, v, lo in (("runs", runs, 1), ("seeds", seeds, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise NavlabError(f"--{name} must be a whole number ≥ {lo}, got {v!r}")
+    tasks = _plan(rep, runs, seeds, seed)
+    keyed = store is not None and store.root is not None and _registered(rep)
+    blocks: dict[int, _Block] = {}
+    if keyed:
+        for i, t in enumerate(tasks):
+            hit = store.get(_block_key(rep, t))
+            if hit is not None:
+                blocks[i] = _decode(*hit)
     total = runs * seeds * len(rep.experiments)
-    done = [0]
 
-    def progress(n: int) -> None:
-        done[0] += n
+    def keep(i: int, blk: _Block) -> None:
+        blocks[i] = blk
+        if keyed:
+            store.put(_block_key(rep, tasks[i]), *_encode(blk))
+
+    def judged_seeds() -> int:
+        """The seeds whose blocks have all finished, counted from seed 0."""
+        return min((t.seeds_from for i, t in enumerate(tasks) if i not in blocks), default=seeds)
+
+    def progress() -> None:
         if on_progress is not None:
-            on_progress(done[0], total)
+            on_progress(sum(b.runs for b in blocks.values()), total)
 
-    measured = _measure_all(rep, runs, seeds, seed, progress, jobs)
+    def outcome(k: int) -> Outcome:
+        upto = {t.experiment: [] for t in tasks}
+        for i, t in enumerate(tasks):
+            if t.seeds_to <= k:
+                upto[t.experiment].append(blocks[i])
+        return _judge(
+            rep, {e.name: _assemble(e, upto[e.name]) for e in rep.experiments}, runs, k, seed, seeds
+        )
+
+    progress()
+    shown = judged_seeds()
+    if shown:
+        yield outcome(shown)
+    todo = [i for i in range(len(tasks)) if i not in blocks]
+    work = _compute(rep, [tasks[i] for i in todo], jobs, lambda j, b: keep(todo[j], b), should_stop, tick)
+    with contextlib.closing(work) as done:
+        for j, blk in done:
+            keep(todo[j], blk)
+            progress()
+            k = judged_seeds()
+            if k > shown:
+                shown = k
+                yield outcome(k)
+
+
+def _judge(
+    rep: Reproduction, measured: dict[str, Measured], runs: int, seeds: int, seed: int, asked: int
+) -> Outcome:
+    """Every claim judged on the first ``seeds`` seeds."""
     ev = _Evaluator(rep, measured, runs, seeds, seed)
     units = {q.name: q.unit for q in rep.quantities}
-    rows = []
-    for c in rep.claims:
-        if isinstance(c, Number):
-            rows.append(_judge_number(ev, c, units[c.quantity]))
-        elif isinstance(c, Bound):
-            rows.append(_judge_bound(ev, c, units[c.quantity]))
-        elif isinstance(c, Ranking):
-            rows.append(_judge_ranking(ev, c, units[c.quantity]))
-        elif isinstance(c, Close):
-            rows.append(_judge_close(ev, c, units[c.quantity]))
-        else:
-            rows.append(_judge_margin(ev, c, units[c.quantity]))
-    verdicts = pd.DataFrame(rows)
-    return Outcome(rep, verdicts, _readings(rep, ev), _curves(rep, measured), seeds, runs, seed)
+    judges = {Number: _judge_number, Bound: _judge_bound, Ranking: _judge_ranking, Close: _judge_close}
+    rows = [judges.get(type(c), _judge_margin)(ev, c, units[c.quantity]) for c in rep.claims]
+    evidence = [e for r in rows for e in r.pop("evidence", [])]
+    return Outcome(
+        rep,
+        pd.DataFrame(rows),
+        pd.DataFrame(evidence, columns=list(EVIDENCE_COLUMNS)),
+        _curves(rep, measured),
+        seeds,
+        runs,
+        seed,
+        asked,
+        ev,
+    )
 
 
 def _readings(rep: Reproduction, ev: _Evaluator) -> pd.DataFrame:

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from navlab import stats as S
-from navlab.reproduce.engine import TOLERANCE, Outcome
+from navlab.reproduce.engine import TOLERANCE, Outcome, Reproduction
 
 WIDTH = 100  # prose (notes, rules) wrapped to a terminal; the verdict table keeps its columns
 RULES = (
@@ -98,6 +98,24 @@ def verdict_table(o: Outcome) -> pd.DataFrame:
                 "verdict": r["verdict"],
             }
         )
+    return pd.DataFrame(rows)
+
+
+def claims_table(rep: Reproduction, verdict: str = "not judged yet") -> pd.DataFrame:
+    """The paper's claims before any seed is judged: the verdict table's first columns."""
+    from navlab.reproduce.engine import Bound, Close, Margin, Number
+
+    units = {q.name: q.unit for q in rep.quantities}
+    rows = []
+    for i, c in enumerate(rep.claims, 1):
+        if isinstance(c, Number | Bound):
+            r = {"kind": "number" if isinstance(c, Number) else "bound", "unit": units[c.quantity]}
+            r["paper"] = c.paper if isinstance(c, Number) else c.bound
+        elif isinstance(c, Margin):
+            r = {"kind": "margin", "paper": c.paper, "unit": "ratio" if c.as_ratio else "relative"}
+        else:
+            r = {"kind": "close" if isinstance(c, Close) else "ranking", "paper": np.nan, "unit": ""}
+        rows.append({"#": i, "claim": c.text, "paper": paper_cell(pd.Series(r)), "verdict": verdict})
     return pd.DataFrame(rows)
 
 

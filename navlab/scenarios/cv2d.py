@@ -15,7 +15,7 @@ import numpy as np
 
 from navlab.filters.base import LinearModel
 from navlab.noise import OutlierModel, Schedule
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -29,7 +29,7 @@ from navlab.scenarios.base import (
 
 @dataclass(frozen=True)
 class Cv2dParams:
-    epochs: int = param(100, lo=2, hi=100000, help="number of epochs K (paper: not stated; 100)")
+    epochs: int = param(100, lo=2, hi=MAX_EPOCHS, help="number of epochs K (paper: not stated; 100)")
     dt: float = param(1.0, lo=1e-3, hi=100.0, help="sampling interval T (s)")
     sigma_q2: float = param(0.01, lo=0.0, hi=100.0, help="process-noise variance σ_q² (m²/s⁴)")
     sigma_r2: float = param(4.0, lo=1e-6, hi=1e6, help="nominal measurement variance σ_r² (m²)")

@@ -49,10 +49,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from navlab.errors import NavlabError
 from navlab.linalg import Array
 from navlab.metrics import QuantileMetric
 from navlab.noise import OutlierModel, Schedule
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -110,7 +111,6 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
     from pathlib import Path
 
     from navlab.data.loaders import load_generic, rtkx_drive_0708
-    from navlab.errors import NavlabError
     from navlab.ins.align import body_to_vehicle
     from navlab.ins.lc import prepare_drive, reference_solution
 
@@ -164,7 +164,7 @@ _START_HELP = (
 @dataclass(frozen=True)
 class Drive0708Params:
     epochs: int = param(
-        0, lo=0, hi=100000, help="1 Hz epochs after the static start (0: the whole drive, ≈513)"
+        0, lo=0, hi=MAX_EPOCHS, help="1 Hz epochs after the static start (0: the whole drive, ≈513)"
     )
     sigma_m: float = param(
         3.0, lo=0.01, hi=1000.0, help="nominal GNSS position σ per axis (m): R0 and the noise schedule's base"
@@ -221,7 +221,7 @@ class Drive0708Params:
 
 @dataclass(frozen=True)
 class OwnDriveParams(Drive0708Params):
-    epochs: int = param(0, lo=0, hi=1000000, help="GNSS epochs to use (0: all)")
+    epochs: int = param(0, lo=0, hi=MAX_EPOCHS, help="GNSS epochs to use (0: all)")
     sigma_m: float = param(
         3.0,
         lo=0.01,
@@ -261,6 +261,25 @@ class OwnDriveParams(Drive0708Params):
     data_dir: str = param(
         "", help="folder with imu.csv, gnss.csv[, truth.csv] (generic CSV format)", ui=False
     )
+
+
+#: Smallest receiver σ taken as a real one [m]: below it a fix claims to be exact.
+MIN_RX_SIGMA_M = 1e-3
+
+
+def check_receiver_sigmas(gnss, sigma_m: float) -> None:
+    """Refuse receiver σ's of (almost) 0: the filters would trust those fixes blindly."""
+    for col in ("sigma_n_m", "sigma_e_m", "sigma_u_m"):
+        v = gnss[col].to_numpy()
+        bad = int(np.sum(v < MIN_RX_SIGMA_M))
+        if bad:
+            raise NavlabError(
+                f"gnss.csv: {col} is below {MIN_RX_SIGMA_M * 1000:g} mm on {bad} of {len(v)} fixes (smallest "
+                f"{np.min(v):g} m): a σ of 0 claims an exact fix, which the filters then trust blindly; give "
+                "each fix's 1-σ uncertainty in metres, or set use_receiver_sigmas = false (CLI: --set "
+                "scenario.use_receiver_sigmas=false; app: turn off 'R from the receiver's σ') to use "
+                f"sigma_m = {sigma_m:g} m for every fix"
+            )
 
 
 @register_scenario
@@ -317,6 +336,7 @@ class Drive0708(Scenario):
         )
         rx_sigma = None
         if self.own and p.use_receiver_sigmas and setup.gnss_sigma is not None:
+            check_receiver_sigmas(rec.gnss, p.sigma_m)
             rx_sigma = setup.gnss_sigma if not p.add_noise else np.hypot(setup.gnss_sigma, p.sigma_m)
         model = InsGnssModel(
             setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma

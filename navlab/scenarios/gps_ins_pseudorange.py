@@ -31,7 +31,7 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -188,7 +188,7 @@ def display_trajectory(t: Array) -> Array:
 
 @dataclass(frozen=True)
 class PseudorangeParams:
-    epochs: int = param(200, lo=2, hi=100000, help="number of epochs K (paper: 200 s at 1 s)")
+    epochs: int = param(200, lo=2, hi=MAX_EPOCHS, help="number of epochs K (paper: 200 s at 1 s)")
     dt: float = param(1.0, lo=0.01, hi=10.0, help="sampling interval T (s)")
     q_a: float = param(0.1, lo=0.0, hi=100.0, help="velocity random-walk PSD per axis (m²/s³)")
     S_b: float = param(0.009, lo=0.0, hi=100.0, help="clock-bias PSD (m²/s), TCXO")

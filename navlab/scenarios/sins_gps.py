@@ -36,7 +36,7 @@ from navlab.ins.strapdown import discretise, error_model_FG
 from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule, make_outliers, make_schedule
 from navlab.noise.outliers import Mixture
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -83,7 +83,7 @@ CASES = {
 
 @dataclass(frozen=True)
 class SinsGpsParams:
-    epochs: int = param(850, lo=2, hi=200000, help="number of GPS epochs (paper: len = 850)")
+    epochs: int = param(850, lo=2, hi=MAX_EPOCHS, help="number of GPS epochs (paper: len = 850)")
     case: int = param(
         0,
         lo=0,
@@ -121,7 +121,7 @@ class SinsGpsParams:
     window_start: int = param(
         100,
         lo=0,
-        hi=200000,
+        hi=MAX_EPOCHS,
         help="metrics use epochs k ≥ this (paper plots settle by ≈100); runs shorter use all",
     )
 

@@ -98,7 +98,7 @@ from navlab.data.loaders import SMARTLOC_DIR, SMARTLOC_SOURCE
 from navlab.ins.earth import OMEGA_IE_RADPS, ecef_to_geodetic, rot_ecef_to_enu
 from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
-from navlab.params import param
+from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
     MetricGroup,
     Scenario,
@@ -442,7 +442,7 @@ class PseudorangeModel:
 
 @dataclass(frozen=True)
 class SmartlocParams:
-    epochs: int = param(0, lo=0, hi=100000, help="epochs to use (0: all 1371)")
+    epochs: int = param(0, lo=0, hi=MAX_EPOCHS, help="epochs to use (0: all 1371)")
     variance_model: str = param(
         "cn0-elevation",
         choices=("cn0-elevation", "cn0", "elevation", "file"),
@@ -725,7 +725,7 @@ class SmartlocBerlin(Scenario):
 
 @dataclass(frozen=True)
 class OwnPseudorangesParams(SmartlocParams):
-    epochs: int = param(0, lo=0, hi=1000000, help="epochs to use (0: all)")
+    epochs: int = param(0, lo=0, hi=MAX_EPOCHS, help="epochs to use (0: all)")
     height_aiding: str = param(
         "off",
         choices=("map-prior", "map", "off"),

@@ -541,7 +541,7 @@ def r_vs_rhat(
                 traces, t[1:], q[1], f"{_legend_name(fr)} {sym} used", c, key, dash="dash", width=1.5, **ax
             )
         if multi:
-            truth_line(traces, t, truth, f"true {sym}(t) (schedule)", width=2.0, **ax)
+            truth_line(traces, t, truth, f"true {sym}(t) (schedule)", **ax)
             if i > 0:
                 traces[-1].showlegend = False
     name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
@@ -564,10 +564,11 @@ def r_vs_rhat(
         truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
     n_panels = max(len(shown), 1) if multi else 1
     strip_ax = str(n_panels + 1) if outlier_strip else ""
-    if outlier_strip:
+    if outlier_strip:  # drawn first (the truth stays the last trace), listed last in the legend
         frac = data.outlier_mask[:, :, channel].mean(axis=0)
         idx, fmax = bucket_max(frac)
-        traces.append(
+        traces.insert(
+            0,
             go.Bar(
                 x=_f32(t[idx]),
                 y=_f32(fmax),
@@ -577,7 +578,8 @@ def r_vs_rhat(
                 hovertemplate="%{y:.0%} of runs<extra>outliers</extra>",
                 xaxis=f"x{strip_ax}",
                 yaxis=f"y{strip_ax}",
-            )
+                legendrank=2000,
+            ),
         )
     strip_h = 90 if outlier_strip else 0
     plot_h = (rows * PANEL_HEIGHT if multi else height - 120) + strip_h
@@ -599,8 +601,10 @@ def r_vs_rhat(
         # x labels under the bottom panel of each column (shared x axes, the strip shows its own)
         below = r == last_row or (r == last_row - 1 and cidx > (n_panels - 1) % cols)
         xa: dict = {"domain": [x0, x0 + col_w], "anchor": f"y{axis(i)}", "automargin": True}
-        if i:
-            xa["matches"] = "x"
+        # one time axis, titled: the strip's below them all, else the last panel's (bottom row)
+        ref = f"x{strip_ax}" if outlier_strip else f"x{axis(n_panels - 1)}"
+        if ref != f"x{axis(i)}":
+            xa["matches"] = ref
         xa["showticklabels"] = below and not outlier_strip
         if xa["showticklabels"]:
             xa["title"] = {"text": "time (s)"}
@@ -632,12 +636,11 @@ def r_vs_rhat(
         layout[f"xaxis{strip_ax}"] = {
             "domain": [0.0, 1.0],
             "anchor": f"y{strip_ax}",
-            "matches": "x",
             "title": {"text": "time (s)"},
             "automargin": True,
         }
         layout[f"yaxis{strip_ax}"] = {
-            "title": {"text": "outliers"},
+            "title": {"text": "share of runs"},
             "range": [0, 1],
             "dtick": 0.5,
             "tickformat": ".0%",

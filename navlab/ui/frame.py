@@ -5,13 +5,15 @@
   (:func:`navlab.ui.widgets.spec_query`), so the experiment chosen on one page is the experiment
   on the next; on a run page they are drawn after its widgets (:func:`fill_nav`).
 * Presentation mode (``?present=1`` on any page, carried by every link): large type, no sidebar,
-  charts sized to fill a screen, and the keyboard moves between charts (→ / PageDown / n next,
-  ← / PageUp / p previous); a chart's export buttons are hidden.
+  charts sized to fill a screen with every text ≥ 20 px, no download buttons, and the keyboard
+  moves between charts (→ / PageDown / n next, ← / PageUp / p previous).
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib.machinery
+import sys
 import threading
 
 import streamlit as st
@@ -70,6 +72,7 @@ html { font-size: 22px; }
 [data-testid="stMainBlockContainer"] { max-width: 100% !important; padding: 1rem 3rem 40vh 3rem; }
 [data-testid="stPlotlyChart"] { scroll-margin-top: 0.5rem; }
 h1 { font-size: 2.4rem !important; }
+[data-testid="stDownloadButton"] { display: none !important; }
 </style>
 """
 # → / PageDown / n: the next chart to the top of the screen; ← / PageUp / p: the previous one
@@ -103,6 +106,20 @@ PRESENT_JS = """
 """
 
 
+def spawn_safe_main() -> None:
+    """Name the running page's module ``__main__`` for multiprocessing.
+
+    Streamlit runs each page as a fresh ``__main__`` module with the page's ``__file__`` and no
+    ``__spec__``; a worker process started by "spawn" (the embedded Dask cluster's, a
+    reproduction's) then ran that page again in bare mode, which filled the server log with
+    "missing ScriptRunContext" warnings. A main module whose spec is named ``__main__`` is not run
+    again in the worker (multiprocessing.spawn).
+    """
+    main = sys.modules.get("__main__")
+    if main is not None and getattr(main, "__spec__", None) is None:
+        main.__spec__ = importlib.machinery.ModuleSpec("__main__", None)
+
+
 def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experiment: bool = False) -> None:
     """Page config + title (+ an intro line) + page menu + sidebar footer. Call first on every page.
 
@@ -111,6 +128,7 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
     process also warms the plotting and filtering code in a background thread, so the first Run
     does not pay for cold imports.
     """
+    spawn_safe_main()
     st.set_page_config(
         page_title=f"{title} · navlab",
         page_icon=icon,
@@ -136,6 +154,11 @@ def frame(title: str, icon: str = "🧭", intro: str | None = None, *, experimen
         "navlab — robust & adaptive Kalman filters, batched Monte Carlo. "
         "Every setting is in the URL: copy it to share the exact run."
     )
+
+
+def plural(n: int, word: str) -> str:
+    """'1 filter', '5 filters'."""
+    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def arrived_from_another_page() -> bool:

@@ -296,7 +296,20 @@ def render_filter_card(key: str) -> None:
         with st.expander("Parameters and defaults"):
             p = pd.DataFrame(info["params"])[["name", "default", "lo", "hi", "help"]]
             p["default"] = p["default"].astype(str)
+            for col in ("lo", "hi"):  # no bound: — (never a literal None)
+                p[col] = [f"{v:g}" if isinstance(v, (int, float)) else "—" for v in p[col]]
             st.dataframe(p, hide_index=True, width="stretch")
+
+
+def readable_table(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with every float written to 4 significant figures and a missing value as —."""
+    out = df.copy()
+    for col in out.columns:
+        if pd.api.types.is_float_dtype(out[col]):
+            out[col] = [f"{v:.4g}" if np.isfinite(v) else "—" for v in out[col]]
+        elif out[col].dtype == object:
+            out[col] = ["—" if v is None else v for v in out[col]]
+    return out
 
 
 def render_step(res: StepThrough, step: int) -> None:
@@ -335,14 +348,14 @@ def render_step(res: StepThrough, step: int) -> None:
         "**Per channel** (innovation, its normalised size, the weight/flag the filter "
         "gave it, the R it used, its R̂ and the filter's own stats)"
     )
-    st.dataframe(step_channels(res, step), hide_index=True, width="stretch")
+    st.dataframe(readable_table(step_channels(res, step)), hide_index=True, width="stretch")
     extra = res.extra_stats.get(step, {})
     if extra:
         with st.expander("Other stats at this epoch (e.g. per-iteration traces)"):
             for name, v in extra.items():
                 st.write(f"`{name}`", np.asarray(v))
     st.markdown("**States**: prior x⁻ (after predict), posterior x⁺ (after update), truth")
-    st.dataframe(step_states(res, step), hide_index=True, width="stretch")
+    st.dataframe(readable_table(step_states(res, step)), hide_index=True, width="stretch")
 
 
 def step_buttons(n_steps: int, key: str = "step") -> None:
@@ -590,7 +603,7 @@ def render_side_by_side(keys: list[str], spec: TinySpec) -> None:
 
     def draw(step: int) -> None:
         st.markdown(f"**Epoch {step}**, every filter after its update")
-        st.dataframe(side_by_side_table(results, step), hide_index=True, width="stretch")
+        st.dataframe(readable_table(side_by_side_table(results, step)), hide_index=True, width="stretch")
         chart(
             st,
             side_by_side_figure(results, step),

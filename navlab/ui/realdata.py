@@ -48,6 +48,37 @@ TABLE_METRICS = (
     ("runtime_s", "runtime (s)"),
 )
 MAX_POINTS = 4000
+#: Most noise/outlier injections (runs) the page offers.
+MAX_INJECTIONS = 50
+
+
+def link_problems(query: Mapping[str, Sequence[str]]) -> list[str]:
+    """Why each of this page's link values (``rd_*``) is not used, one line each, worded like the
+    other pages' notice (:func:`navlab.ui.widgets.url_problems`).
+    """
+    from navlab.params import MAX_EPOCHS, SEED_MAX
+    from navlab.ui.widgets import _check_value
+
+    numbers = {
+        "rd_seed": ("the seed", 0, SEED_MAX),
+        "rd_ep_": ("epochs", 0, MAX_EPOCHS),
+        "rd_runs_": ("runs", 1, MAX_INJECTIONS),
+    }
+    out = []
+    for key, raws in query.items():
+        for raw in raws:
+            why = None
+            if key == "rd_rec" and raw not in RECORDINGS:
+                why = f"no such recording (one of: {', '.join(RECORDINGS)})"
+            elif key.startswith("rd_flt_") and raw not in usable_filters(key.removeprefix("rd_flt_")):
+                why = "no filter that runs on this recording is registered under this key"
+            for prefix, (name, lo, hi) in numbers.items():
+                if key.startswith(prefix):
+                    bad = _check_value({"lo": lo, "hi": hi}, 1, raw)
+                    why = f"{name} {bad}" if bad else why
+            if why:
+                out.append(f"`{key}={raw}`: {why}")
+    return out
 
 
 def scenario_of(recording: str) -> str:
@@ -353,15 +384,26 @@ def flag_table(res: Results) -> pd.DataFrame:
 
 
 def metrics_table(res: Results) -> pd.DataFrame:
-    """One row per filter: the real-data headline metrics and the runtime."""
+    """One row per filter: the real-data headline metrics, each with its 95 % interval over the
+    runs where there is one (three significant figures), and the filter's run time.
+    """
     from navlab.metrics import timed_steps
+    from navlab.tables import cell
 
-    df = summarize(res)
-    wide = df.pivot_table(index="label", columns="metric", values="value", sort=False)
+    df = summarize(res).set_index(["label", "metric"])
     B, K = res.data.B, res.data.K
-    if "us_per_run_step" in wide:
-        wide["runtime_s"] = wide["us_per_run_step"] * timed_steps(B, K) / 1e6
-    cols = [(m, lab) for m, lab in TABLE_METRICS if m in wide.columns]
-    out = wide[[m for m, _ in cols]].rename(columns=dict(cols))
-    out.index.name = "filter"
-    return out
+    rows = []
+    for fr in res.runs.values():
+        lab = fr.label
+        row = {"filter": lab}
+        for m, name in TABLE_METRICS:
+            if m == "runtime_s" and (lab, "us_per_run_step") in df.index:
+                row[name] = cell(df.loc[(lab, "us_per_run_step"), "value"] * timed_steps(B, K) / 1e6)
+            elif m == "diverged" and (lab, m) in df.index:
+                row[name] = f"{int(df.loc[(lab, m), 'value'])} of {B}"
+            elif (lab, m) in df.index:
+                r = df.loc[(lab, m)]
+                row[name] = cell(r["value"], r["ci_lo"], r["ci_hi"])
+        rows.append(row)
+    out = pd.DataFrame(rows).set_index("filter").fillna("—")
+    return out.loc[:, (out != "—").any(axis=0)]

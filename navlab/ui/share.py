@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from navlab.data.loaders import check_offered
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec
 from navlab.io import MAX_JSON_BYTES, decode_text
+from navlab.ui.frame import presenting
 from navlab.ui.uploads import offered_folders
 from navlab.ui.widgets import spec_to_state
 
@@ -39,7 +41,11 @@ def config_download(
 def csv_download(
     df: pd.DataFrame | Callable[[], pd.DataFrame], label: str, name: str, key: str, container=None
 ) -> None:
-    """Download button for a table as CSV (a callable is evaluated only on click)."""
+    """Download button for a table as CSV (a callable is evaluated only on click); none in
+    presentation mode.
+    """
+    if presenting():
+        return
     c = container if container is not None else st
     data = (lambda: df().to_csv(index=False)) if callable(df) else df.to_csv(index=False)
     c.download_button(label, data, file_name=name, mime="text/csv", key=key, on_click="ignore")
@@ -67,6 +73,19 @@ def parse_config(
     return spec
 
 
+def literal(text: str) -> str:
+    """``text`` (one line that begins with a word) shown as it is by Streamlit's Markdown: the
+    characters of links, images, HTML, emphasis, code, LaTeX, tables and entities are escaped, so
+    that a file named ``[x](http://host).json`` is a name, not a link; so are the addresses that
+    GitHub-flavoured Markdown links by themselves (``www.``, ``://``, ``@``).
+    """
+    return _AUTOLINK.sub(r"\\\g<0>", _MARKUP.sub(r"\\\g<0>", text))
+
+
+_MARKUP = re.compile(r"[\\`*_\[\]()<>#!|~$&@]")
+_AUTOLINK = re.compile(r"(?i)(?<=www)\.|:(?=//)")
+
+
 def _on_upload(key: str) -> None:
     f = st.session_state.get(key)
     if f is None:
@@ -75,7 +94,7 @@ def _on_upload(key: str) -> None:
         spec = parse_config(f.getvalue(), offered=offered_folders())
         hidden = spec_to_state(spec)
     except NavlabError as exc:
-        st.session_state[UPLOAD_MSG_KEY] = ("error", f"Configuration not loaded: {exc}")
+        st.session_state[UPLOAD_MSG_KEY] = ("error", literal(f"Configuration not loaded: {exc}"))
         return
     except Exception as exc:  # never a traceback in the browser: the server log keeps it
         log.exception("configuration upload failed")
@@ -88,7 +107,7 @@ def _on_upload(key: str) -> None:
     msg = f"Loaded {f.name}: scenario {spec.scenario}, {len(spec.filters)} filters, {spec.runs} runs."
     if hidden:
         msg += " Settings without a widget (kept for this session, not in the URL): " + ", ".join(hidden)
-    st.session_state[UPLOAD_MSG_KEY] = ("success", msg)
+    st.session_state[UPLOAD_MSG_KEY] = ("success", literal(msg))  # the file's name is not Markdown
 
 
 def config_upload(key: str = "up_cfg", container=None) -> None:

@@ -23,7 +23,6 @@ from typing import Any
 import streamlit as st
 
 from navlab import cluster
-from navlab.errors import NavlabError
 from navlab.store import Store
 from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     MAX_POINTS,
@@ -36,6 +35,7 @@ from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     run_sweep,
     sweepables,
 )
+from navlab.ui.runner import show_error
 
 PENDING_KEY = "_navlab_jobs"  # session: {page: job id} — a job the user asked for
 
@@ -87,16 +87,24 @@ def run_job(
     work: Callable[..., Any],
     *,
     what: str = "tasks",
+    where: str | None = None,
 ) -> Any:
     """Run ``work(store=…, executor=…, on_progress=…, tick=…)`` with a progress bar and a Stop
     button (in ``stop_container``). Returns its result, or None after an error (shown).
+    ``where``: where the work runs, in words, when it brings its own processes (a reproduction):
+    ``work`` then gets no executor. Otherwise the bar says where the tasks run (the app's
+    executor), and at the end where they ran and why.
 
     Stop reruns the page: the job is interrupted at its next progress update (at most
     :data:`navlab.cluster.POLL_S` while waiting on a cluster), the finished tasks are kept in
     the store and the tasks still running are cancelled.
     """
-    ex = app_executor()
-    bar = st.progress(0.0, text=f"starting ({ex.now})…")
+    ex = None if where is not None else app_executor()
+
+    def place() -> str:
+        return where if ex is None else ex.now
+
+    bar = st.progress(0.0, text=f"starting ({place()})…")
     stop_container.button(
         "Stop",
         key=f"_stop_{page}",
@@ -112,19 +120,17 @@ def run_job(
 
     def tick() -> None:  # an element update: Streamlit handles a pending Stop here
         done, total = state["done"], state["total"]
-        bar.progress(min(1.0, done / total), text=f"{done}/{total} {what} · {ex.now}")
+        bar.progress(min(1.0, done / total), text=f"{done}/{total} {what} · {place()}")
 
     try:
+        if ex is None:
+            return work(store=app_store(), on_progress=progress, tick=tick)
         out = work(store=app_store(), executor=ex, on_progress=progress, tick=tick)
         bar.progress(1.0, text=f"Done: {ex.report}.")
         return out
-    except NavlabError as exc:
+    except Exception as exc:  # shown as a message, never a traceback (the server log has it)
         bar.empty()
-        st.error(str(exc))
-        return None
-    except Exception as exc:  # shown as a message, never a traceback
-        bar.empty()
-        st.error(f"The job failed: {type(exc).__name__}: {exc}")
+        show_error(exc)
         return None
     finally:
         cancel(page)

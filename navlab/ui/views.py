@@ -27,18 +27,30 @@ PLOTLY_CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png",
 PRESENT_HEIGHT = 700  # px: one chart fills a projector screen below its title
 
 
+PRESENT_FONT = 20  # px: the smallest type of a chart on a projector (axis labels, legend, subtitles)
+
+
 def present_style(fig: Any) -> Any:
-    """A copy of ``fig`` sized and lettered for a projector (presentation mode)."""
+    """A copy of ``fig`` sized and lettered for a projector (presentation mode): every text at
+    least ``PRESENT_FONT`` px — titles, subtitles, axis labels, legends, panel titles.
+    """
+    import re
+
     import plotly.graph_objects as go
+
+    from navlab.ui.figures import SUBTITLE_FONT
 
     out = go.Figure(fig)
     out.update_layout(
         height=max(PRESENT_HEIGHT, int(fig.layout.height or 0)),
-        font={"size": 18},
-        legend={"font": {"size": 17}},
+        font={"size": PRESENT_FONT},
+        legend={"font": {"size": PRESENT_FONT}},
     )
     if out.layout.title.text:
-        out.update_layout(title_font_size=24)
+        small = f"font-size:{SUBTITLE_FONT['size']}px"
+        text = re.sub(re.escape(small), f"font-size:{PRESENT_FONT}px", out.layout.title.text)
+        out.update_layout(title={"text": text, "font": {"size": PRESENT_FONT + 6}})
+    out.update_annotations(font_size=PRESENT_FONT)
     return out
 
 
@@ -305,10 +317,13 @@ def outlier_summary(res: Results, ch: int) -> str:
 
 
 def rhat_error_table(res: Results) -> Any:
-    """Per filter and channel: mean |σ̂/σ − 1| (%) against the σ the noise was drawn with, on
-    clean epochs, over the judged runs (filters with R̂ only).
+    """Per filter and channel: |σ̂/σ − 1| (%) against the σ the noise was drawn with, on clean
+    epochs of the analysis window — each run's mean, then their mean over the judged runs with a
+    95 % t interval over the runs (filters with R̂ only; — for a channel with no clean entry).
     """
     import pandas as pd
+
+    from navlab.stats import mean_ci
 
     d = res.data
     W = np.asarray(d.window, dtype=bool)
@@ -318,13 +333,16 @@ def rhat_error_table(res: Results) -> Any:
         if fr.R_hat is None:
             continue
         ok = jd.judged[key]
-        row = {"filter": fr.label, "key": key}
+        row = {"filter": fr.label}
         clean = ~d.outlier_mask[ok][:, W] & np.isfinite(d.z[ok][:, W])
         with np.errstate(all="ignore"):
             err = np.abs(np.sqrt(fr.R_hat[ok][:, W] / d.R_true[ok][:, W]) - 1.0)
         for ch in range(d.z.shape[2]):
-            e = err[..., ch][clean[..., ch] & np.isfinite(err[..., ch])]
-            row[channel_label(res, ch)] = float(100 * e.mean()) if e.size else float("nan")
+            use = clean[..., ch] & np.isfinite(err[..., ch])
+            n = use.sum(axis=1)
+            per_run = np.add.reduce(np.where(use, err[..., ch], 0.0), axis=1)[n > 0] / n[n > 0]
+            e = mean_ci(100 * per_run)
+            row[channel_label(res, ch)] = tables.cell(e.value, e.lo, e.hi) or "—"
         rows.append(row)
     return pd.DataFrame(rows).set_index("filter") if rows else pd.DataFrame()
 
@@ -404,11 +422,12 @@ class NoiseView:
             self.table.info(no_rhat())
         else:
             with self.table.container():
-                st.dataframe(tab.drop(columns="key").round(3), width="stretch")
+                st.table(tab)
                 st.caption(
-                    "Over the analysis window and the judged runs; outlier epochs are left out "
-                    "(their own number is in the Compare table's tidy download, "
-                    "rhat_err_contaminated_pct). An empty cell: no clean measurement on the channel."
+                    "Each run's mean over the clean epochs of the analysis window, then the mean "
+                    "over the judged runs with its 95 % t interval over the runs; outlier epochs "
+                    "are left out (their own number is in the Compare table's tidy download, "
+                    "rhat_err_contaminated_pct). —: no clean measurement on the channel."
                 )
         with self.notes.container():
             divergence_warnings(res)
@@ -469,7 +488,7 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
 
     spec = res.spec
     figs = default_figures(group, view.channel or 0)
-    cols = st.columns([1, 1, 1, 1, 2])
+    cols = st.columns([2, 2, 2, 2, 1])
     csv_download(
         lambda: summarize(res, compare_to=view.ref),
         "Metrics (CSV)",

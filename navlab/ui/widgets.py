@@ -37,7 +37,7 @@ from typing import Any
 import streamlit as st
 
 from navlab.errors import NavlabError
-from navlab.experiment import MAX_RUNS, ExperimentSpec, plan
+from navlab.experiment import MAX_RUNS, SEED_MAX, ExperimentSpec, plan
 from navlab.filters import registry
 from navlab.noise import OUTLIERS, SCHEDULES
 from navlab.params import describe
@@ -45,7 +45,6 @@ from navlab.scenarios import scenario_registry
 
 SCN, FLT, RUNS, SEED, NOISE, OUT = "scn", "flt", "runs", "seed", "noise", "out"
 UI_MAX_RUNS = min(MAX_RUNS, 5000)  # a browser user cannot start more than this per run
-SEED_MAX = 2**31 - 1
 BIND = "query-params"
 EXTRA_KEY = "_navlab_extra_params"  # uploaded settings that have no widget (kept per session)
 CARRY_KEY = "_navlab_carry"  # session: the URL parameters of the last experiment shown
@@ -597,10 +596,11 @@ def _check_value(p: dict[str, Any], default: Any, raw: str) -> str | None:
         lo_w = None if lo is None else (math.ceil(lo) if whole else lo)
         hi_w = None if hi is None else (math.floor(hi) if whole else hi)
         if (lo_w is not None and v < lo_w) or (hi_w is not None and v > hi_w):
+            f = "d" if whole else "g"  # a whole number in full (2147483647, not 2.14748e+09)
             rng = (
-                f"from {lo_w:g} to {hi_w:g}"
+                f"from {lo_w:{f}} to {hi_w:{f}}"
                 if lo_w is not None and hi_w is not None
-                else (f"at least {lo_w:g}" if lo_w is not None else f"at most {hi_w:g}")
+                else (f"at least {lo_w:{f}}" if lo_w is not None else f"at most {hi_w:{f}}")
             )
             return f"must be {rng}"
         return None

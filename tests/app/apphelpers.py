@@ -43,3 +43,10 @@ def assert_clean(at: AppTest) -> None:
     """No exception element and no error message on the page."""
     assert not at.exception, [e.value for e in at.exception]
     assert not at.error, [e.value for e in at.error]
+
+
+def main_rerun_in_child() -> str | None:
+    """In a worker process: the page file multiprocessing ran again as ``__mp_main__`` (None: none)."""
+    import sys
+
+    return getattr(sys.modules.get("__mp_main__"), "__file__", None)

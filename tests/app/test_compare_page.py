@@ -9,10 +9,11 @@ PAGE = "pages/1_Compare.py"
 def test_compare_renders_defaults_without_running(open_page):
     at = open_page(PAGE)
     assert_clean(at)
-    assert at.multiselect(key="flt").value == ["kf", "oracle-kf", "chi2-kf"]
+    # #21: the default experiment estimates R, on a schedule whose R changes
+    assert at.multiselect(key="flt").value == ["kf", "sage-husa", "vb-akf", "hakf", "oracle-kf"]
     assert at.button(key="run_compare")
     (preview,) = plotly_figs(at)  # nothing runs before Run: only the schedule preview
-    assert preview["layout"]["title"]["text"].startswith("Noise schedule 'constant'")
+    assert preview["layout"]["title"]["text"].startswith("Noise schedule 'step'")
 
 
 def test_query_params_initialise_the_widgets(open_page):
@@ -22,6 +23,7 @@ def test_query_params_initialise_the_widgets(open_page):
         seed="5",
         flt=["kf", "chi2-kf"],
         noise="step",
+        out="mixture",
         **{"ol.mixture.contamination": "0.2", "ns.step.factor": "4"},
     )
     assert_clean(at)
@@ -45,11 +47,12 @@ def test_small_run_completes_with_charts_and_table(open_page):
     assert {"KF", "Oracle KF", "χ²-gated KF"} <= set(names)
     # a spread band: a trace filled to the previous one
     assert any(t.get("fill") == "tonexty" for t in figs[0]["data"])
-    table = at.dataframe[0].value
+    table = at.table[0].value
     assert list(table.index) == ["KF", "Oracle KF", "χ²-gated KF"]
     rmse = np.array([float(c.split()[0]) for c in table["RMSE position (m)"]])  # "v [lo, hi]"
     assert np.all(np.isfinite(rmse)) and rmse[1] < rmse[0]  # the oracle beats the KF
-    vs = table["vs KF, RMSE position (m)"]
+    assert list(table.columns)[:2] == ["RMSE position (m)", "vs KF"]  # the verdict beside its metric
+    vs = table["vs KF"]
     assert vs.iloc[0] == "reference" and "no test" in vs.iloc[1]  # 6 runs: too few for a test
     assert any("too few runs for an interval" in c.value for c in at.caption)
     assert any("6/6 runs (complete)" in c.value for c in at.caption)
@@ -165,7 +168,7 @@ def test_single_run_view_shows_one_run_with_a_player(open_page):
 
 
 def test_rejected_link_values_are_named_with_the_reason(open_page):
-    at = open_page(PAGE, runs="-1", flt=["kf", "unknown"], **{"ol.mixture.contamination": "5"})
+    at = open_page(PAGE, runs="-1", flt=["kf", "unknown"], out="mixture", **{"ol.mixture.contamination": "5"})
     assert not at.exception
     (w,) = [w.value for w in at.warning if "were not used" in w.value]
     assert "`runs=-1`: Monte Carlo runs must be from 1 to 5000" in w

@@ -15,11 +15,14 @@ def test_home_demo_shows_a_result_figure_in_one_click(open_page):
     assert not at.get("plotly_chart")
     at.button(key="home_demo").click().run()
     assert_clean(at)
-    (fig,) = [el for el in at.get("plotly_chart")]
     import json
 
-    names = {t.get("name") for t in json.loads(fig.proto.spec)["data"]}
-    assert {"KF", "χ²-gated KF", "HKF (Huber)", "Oracle KF"} <= names
+    err, rhat = [json.loads(el.proto.spec) for el in at.get("plotly_chart")]
+    names = {t.get("name") for t in err["data"]}
+    assert {"KF", "Sage–Husa AKF", "AKF (VB)", "HAKF (VB + Huber)", "Oracle KF"} <= names
+    # #21: the demo shows R̂ against the true R(t), and says what to look at
+    assert "AKF (VB) R̂" in {t.get("name") for t in rhat["data"]}
+    assert any(m.value.startswith("**What to look at.** The true σ") for m in at.markdown)
 
 
 def test_home_lists_the_filters_by_family_with_one_line_each(open_page):
@@ -31,3 +34,17 @@ def test_home_lists_the_filters_by_family_with_one_line_each(open_page):
         assert head in text
     for key, cls in registry().items():
         assert f"**{cls.label}** (`{key}`) — {cls.summary}" in text
+
+
+def test_worker_processes_do_not_run_the_page_again(open_page):
+    """Issue 22 item 11: 966 'missing ScriptRunContext' warnings in one short session came from
+    worker processes (the embedded Dask cluster's, started by "spawn"), each of which ran the
+    current page again in bare mode."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from apphelpers import main_rerun_in_child
+
+    open_page("pages/2_Noise.py")  # Streamlit leaves the page's module as __main__
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        assert pool.submit(main_rerun_in_child).result(timeout=120) is None

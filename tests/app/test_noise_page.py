@@ -10,9 +10,9 @@ def test_noise_page_has_the_shared_defaults_and_offers_its_preset(open_page):
     Noise page's suggestion (σ step + isolated outliers) is a button."""
     at = open_page(PAGE)
     assert_clean(at)
-    assert at.selectbox(key="noise").value == "constant"
-    assert at.selectbox(key="out").value == "mixture"
-    assert at.multiselect(key="flt").value == ["kf", "oracle-kf", "chi2-kf"]
+    assert at.selectbox(key="noise").value == "step"
+    assert at.selectbox(key="out").value == "none"
+    assert at.multiselect(key="flt").value == ["kf", "sage-husa", "vb-akf", "hakf", "oracle-kf"]
     at.button(key="noise_preset").click().run()
     assert_clean(at)
     assert at.selectbox(key="noise").value == "step"
@@ -41,7 +41,7 @@ def test_noise_page_small_run(open_page):
     assert "Sage–Husa AKF R̂" in names
     assert any(t["type"] == "bar" for t in fig["data"])  # outlier epochs marked on the time axis
     assert any("epochs contaminated in most runs: 20, 25" in c.value for c in at.caption)
-    tab = at.dataframe[0].value
+    tab = at.table[0].value
     assert "Oracle KF" in tab.index and tab.shape[1] == 2  # one R̂ error column per channel
     at.toggle(key="noise_v_std").set_value(True).run()
     assert_clean(at)

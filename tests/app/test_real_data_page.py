@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from apphelpers import assert_clean, plotly_figs
+from apphelpers import SMALL, assert_clean, plotly_figs
 
 from navlab.data import data_root
 from navlab.data.loaders import RTKX_DIR, SMARTLOC_DIR
@@ -33,9 +33,10 @@ def test_short_drive_segment_runs(open_page):
     at.multiselect(key="rd_flt_drive0708").set_value(["kf", "huber-kf", "vb-akf"]).run()
     at.button(key="rd_run").click().run()
     assert_clean(at)
-    table = at.dataframe[0].value
+    table = at.table[0].value
     assert list(table.index) == ["KF", "HKF (Huber)", "AKF (VB)"]
-    med = table["median horizontal error (m)"].to_numpy()
+    # "v" or "v [lo, hi]": three significant figures with its interval where there is one
+    med = np.array([float(c.split()[0]) for c in table["median horizontal error (m)"]])
     assert np.all(np.isfinite(med)) and np.all(med < 10)
     figs = plotly_figs(at)
     assert len(figs) >= 3  # track, error vs time, R̂, flags
@@ -54,9 +55,9 @@ def test_short_smartloc_segment_runs(open_page):
     at.multiselect(key="rd_flt_smartloc-berlin").set_value(["wls", "ekf", "huber-kf"]).run()
     at.button(key="rd_run").click().run()
     assert_clean(at)
-    table = at.dataframe[0].value
+    table = at.table[0].value
     assert "WLS (per epoch)" in table.index
-    assert np.all(np.isfinite(table["median horizontal error (m)"].to_numpy()))
+    assert all(np.isfinite(float(c.split()[0])) for c in table["median horizontal error (m)"])
     assert any("CC BY-SA 4.0" in i.value for i in at.info)
 
 
@@ -85,3 +86,35 @@ def test_url_sets_the_recording_and_its_settings(open_page):
     assert at.number_input(key="rd_ep_smartloc-berlin").value == 40
     assert at.multiselect(key="rd_flt_smartloc-berlin").value == ["wls", "ekf"]
     assert at.slider(key="rd_alpha_sl").value == pytest.approx(0.05)
+
+
+def test_rejected_link_values_get_the_usual_notice(open_page):
+    """Issue 22 item 10: /Real_data?rd_rec=../../../etc/passwd was ignored without the notice."""
+    at = open_page(
+        PAGE, rd_rec="../../../etc/passwd", rd_seed="9007199254740992", **{"rd_ep_drive0708": "200001"}
+    )
+    assert not at.exception
+    (w,) = [w.value for w in at.warning if "were not used" in w.value]
+    assert "`rd_rec=../../../etc/passwd`: no such recording (one of: drive0708, smartloc-berlin, upload)" in w
+    assert (
+        "`rd_seed=9007199254740992`: the seed must be from 0 to 9007199254740991" in w
+    )  # whole, not 9.0e+15
+    assert "`rd_ep_drive0708=200001`: epochs must be from 0 to 200000" in w
+    assert at.selectbox(key="rd_rec").value == "drive0708"
+
+
+def test_seed_and_epochs_ranges_are_the_clis(open_page):
+    """Issue 22 item 10: one seed range and one epoch maximum for the CLI and every page."""
+    from navlab.cli import main
+    from navlab.params import MAX_EPOCHS, SEED_MAX
+
+    at = open_page(PAGE, rd_seed=str(SEED_MAX), **{"rd_ep_drive0708": str(MAX_EPOCHS)})
+    assert at.number_input(key="rd_seed").value == SEED_MAX
+    assert at.number_input(key="rd_ep_drive0708").value == MAX_EPOCHS
+    assert not [w for w in at.warning if "were not used" in w.value]
+    assert main(["run", "--filters", "kf", "--runs", "1", "--epochs", "3", "--seed", str(SEED_MAX)]) == 0
+    assert main(["run", "--filters", "kf", "--runs", "1", "--epochs", "3", "--seed", str(SEED_MAX + 1)]) == 2
+    at = open_page("pages/1_Compare.py", seed=str(SEED_MAX), **SMALL)  # the CLI's largest seed as a link
+    assert at.number_input(key="seed").value == SEED_MAX and not at.exception
+    assert not [w for w in at.warning if "were not used" in w.value]
+    assert main(["run", "--filters", "kf", "--runs", "1", "--epochs", str(MAX_EPOCHS + 1)]) == 2

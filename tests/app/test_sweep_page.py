@@ -1,13 +1,10 @@
-import pytest
 from apphelpers import assert_clean, plotly_figs
-
-from navlab.cluster import remote_client
 
 PAGE = "pages/3_Sweep.py"
 
 
 def test_sweep_contamination_small(open_page):
-    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], swn="3", out="mixture", **{"sc.cv2d.epochs": "30"})
+    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], out="mixture", swn="3", **{"sc.cv2d.epochs": "30"})
     assert_clean(at)
     assert at.selectbox(key="swp").value == "ol.mixture.contamination"
     at.button(key="run_sweep").click().run()
@@ -55,23 +52,3 @@ def test_two_d_sweep_heat_map_and_the_store_shows_it_again(open_page):
     assert_clean(again)
     assert len(plotly_figs(again)) == 1
     assert any("from the store" in c.value for c in again.caption)
-
-
-def test_a_cluster_without_workers_gives_a_message_not_a_wait(open_page, monkeypatch):
-    distributed = pytest.importorskip("distributed")
-    cluster = distributed.LocalCluster(
-        n_workers=0, processes=False, dashboard_address=":0", host="127.0.0.1", protocol="tcp"
-    )
-    addr = cluster.scheduler_address
-    monkeypatch.setenv("NAVLAB_DASK_SCHEDULER", addr)
-    monkeypatch.setenv("NAVLAB_DASK_NO_WORKERS_S", "2")
-    try:
-        at = open_page(PAGE, runs="4", flt=["kf"], swn="2", **{"sc.cv2d.epochs": "20"})
-        at.button(key="run_sweep").click().run()  # before: waited until the test's timeout
-        assert not at.exception
-        (err,) = at.error
-        assert addr in err.value and "has had no workers for 2 s" in err.value, err.value
-        assert "NAVLAB_DASK_SCHEDULER=serial" in err.value and "internal" not in err.value
-    finally:
-        remote_client(addr).close()
-        cluster.close()

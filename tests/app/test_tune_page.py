@@ -16,7 +16,7 @@ def test_tune_page_table_landscapes_and_compare_button(open_page):
     assert any("Run tuning" in i.value for i in at.info)
     at.button(key="run_tune").click().run()
     assert_clean(at)
-    (table,) = at.dataframe
+    (table,) = at.table
     df = table.value
     assert list(df.index) == ["KF", "HKF (Huber)", "χ²-gated KF"]
     assert any(c.startswith("test RMSE") and c.endswith("tuned") for c in df.columns)

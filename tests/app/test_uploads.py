@@ -43,6 +43,19 @@ def test_non_utf8_config_is_a_message(open_page):
     assert not at.exception and "not UTF-8 text" in _errors(at)
 
 
+def test_the_uploaded_files_name_is_shown_as_text_not_markdown(open_page):
+    """Issue 22 item 12: a file named ``[lnk](http:__127.0.0.1:8739_x).json`` showed a live link."""
+    import re
+
+    name = "[lnk](http:__127.0.0.1:8739_x).json"
+    at = open_page(COMPARE)
+    _upload_config(at, ExperimentSpec(filters=("kf",), runs=3).to_json().encode(), name=name)
+    assert not at.exception and not at.error
+    shown = at.success[0].value
+    assert "](" not in shown and "[lnk]" not in shown  # no link syntax left for Markdown
+    assert re.sub(r"\\(.)", r"\1", shown).startswith(f"Loaded {name}: scenario cv2d, 1 filters, 3 runs.")
+
+
 def test_config_naming_a_server_folder_is_refused_without_leaking_it(open_page, tmp_path):
     secret = tmp_path / "private"
     secret.mkdir()

@@ -283,7 +283,7 @@ CHART_PAGES = [
     ("compare", f"Compare?{SMALL}", "Run", COMPARE_CHARTS),
     ("noise", "Noise?runs=6&flt=kf&flt=oracle-kf&flt=sage-husa&sc.cv2d.epochs=60", "Run", 2),
     ("sweep", "Sweep?runs=4&flt=kf&flt=chi2-kf&swn=3&sc.cv2d.epochs=40", "Run sweep", 2),
-    ("reproduce", "Reproduce?rep=vbekf&rep_seeds=1&rep_runs_vbekf=3", "Run", 3),  # claims, 2 curve tabs
+    ("reproduce", "Reproduce?rep=vbekf&rep_seeds=1&rep_runs_vbekf=3", "Run", 4),  # claims, rankings, 2 curves
     ("learn", "Learn?filter=chi2-kf&ex_epochs=20&ex_noise=3", None, 1),
     ("realdata", "Real_data?rd_ep_drive0708=30", "Run", 4),
 ]

@@ -71,7 +71,7 @@ def test_compare_to_adds_paired_rows_and_a_verdict_column(capsys):
     assert oracle["verdict"] == "better" and oracle["value"] < 0
     rc, out, _ = run_cli(capsys, *argv, "--compare-to", "kf")
     assert rc == 0
-    assert "better than KF (Δ -" in out and "reference" in out
+    assert "vs KF" in out and "better (Δ -" in out and "reference" in out
     assert "nan" not in out.lower() and "None" not in out  # empty cells, reasons in footnotes
     assert "Analysis window: epochs 1–40" in out and "Divergence:" in out
     rc, _, err = run_cli(capsys, *argv, "--compare-to", "hakf")
@@ -250,3 +250,19 @@ def test_nlpd_is_offered_as_an_objective_only_where_a_filter_states_its_predicti
 
     assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "huber-kf"))) == []
     assert TU.truth_free_objectives(ExperimentSpec(filters=("kf", "skew-t-kf"))) == ["nlpd"]
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_is_taken_before_or_after_the_subcommand(capsys, monkeypatch, where):
+    """Issue 22 item 7: the message says 'rerun with --debug', but `navlab run … --debug` was refused."""
+    import navlab.experiment
+
+    def boom(*a, **k):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(navlab.experiment, "run_experiment", boom)
+    argv = ["run", "--filters", "kf", "--runs", "2", "--epochs", "5"]
+    rc, _, err = run_cli(capsys, *argv)
+    assert rc == 1 and "internal error: RuntimeError: boom (rerun with --debug)" in err
+    with pytest.raises(RuntimeError, match="boom"):
+        main(["--debug", *argv] if where == "before" else [*argv, "--debug"])

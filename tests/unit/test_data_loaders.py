@@ -172,3 +172,84 @@ def test_generic_roundtrip_and_errors(tmp_path):
     (tmp_path / "gnss.csv").write_text("t_s,lat_deg,lon_deg,h_m\n0,40,-105,1600\n1,95,-105,1600\n")
     with pytest.raises(NavlabError, match=r"line 3, column 2 \(lat_deg\) = 95"):
         load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+
+
+# ------------------------------------------------------------------ hardening, round three (issue 22)
+
+
+def _rows(path):
+    lines = path.read_text().splitlines()
+    return lines[:1], lines[1:]
+
+
+@pytest.mark.parametrize("which", ["imu", "gnss"])
+def test_every_row_written_twice_is_refused_with_its_rows(tmp_path, which):
+    """Issue 22 items 1-2: equal time stamps gave ZeroDivisionError / 'Maximum allowed size exceeded'."""
+    _write_generic(tmp_path)
+    f = tmp_path / f"{which}.csv"
+    head, body = _rows(f)
+    f.write_text("\n".join(head + [r for row in body for r in (row, row)]) + "\n")
+    n = 2 * len(body)
+    with pytest.raises(
+        NavlabError, match=rf"{which}.csv: data rows 1 and 2 have the same time .*{n // 2} of {n} rows repeat"
+    ) as e:
+        load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+    assert "delete rows written twice" in str(e.value)
+
+
+def test_one_repeated_time_stamp_a_leap_second_is_refused(tmp_path):
+    """Issue 22 item 3: one repeated GNSS time (a leap second) ended in 'SVD did not converge'."""
+    _write_generic(tmp_path, n=600)
+    f = tmp_path / "gnss.csv"
+    head, body = _rows(f)
+    body[3] = body[2]
+    f.write_text("\n".join(head + body) + "\n")
+    with pytest.raises(
+        NavlabError, match=r"gnss.csv: data rows 3 and 4 have the same time \(2; one row repeats"
+    ):
+        load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+
+
+@pytest.mark.parametrize(
+    ("unit", "per_s"), [("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9)]
+)
+def test_times_not_in_seconds_name_the_unit_they_seem_to_be_in(tmp_path, unit, per_s):
+    """Issue 22 item 5: nanoseconds were refused with a misleading cause (too few IMU samples)."""
+    _write_generic(tmp_path, n=600)
+    for name in ("imu.csv", "gnss.csv"):
+        f = tmp_path / name
+        head, body = _rows(f)
+        body = [f"{float(r.split(',', 1)[0]) * per_s:.0f},{r.split(',', 1)[1]}" for r in body]
+        f.write_text("\n".join(head + body) + "\n")
+    with pytest.raises(NavlabError, match=rf"t_s must be seconds, but it looks like {unit}") as e:
+        load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+    assert f"an IMU at 100 Hz, fixes at 1 Hz); divide t_s by {per_s:.0e}" in str(e.value)
+
+
+def test_a_truth_in_another_unit_is_named(tmp_path):
+    _write_generic(tmp_path, n=600)
+    (tmp_path / "truth.csv").write_text(
+        "t_s,lat_deg,lon_deg,h_m\n" + "".join(f"{t * 1e9:.0f},40.0,-105.0,1600.0\n" for t in range(1, 7))
+    )
+    with pytest.raises(NavlabError, match=r"do not overlap in time \(the truth's t_s looks like nanoseconds"):
+        load_drive(tmp_path)
+
+
+def test_a_csv_beyond_the_memory_budget_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """Issue 22 item 6: 10 million IMU rows ran for minutes above 2.3 GB with no estimate."""
+    _write_generic(tmp_path, n=3000)
+    monkeypatch.setenv("NAVLAB_MEMORY_BUDGET", "100kB")
+    import navlab.data.loaders as L
+
+    def unread(*a, **k):
+        raise AssertionError("read although refused")
+
+    monkeypatch.setattr(L, "_read_text", unread)
+    with pytest.raises(
+        NavlabError,
+        match=r"imu.csv: .*about 3,0[0-9][0-9] rows: reading it would hold about .* more than the "
+        r"memory budget of 100 kB \(NAVLAB_MEMORY_BUDGET=100kB\); cut the recording",
+    ):
+        load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+    monkeypatch.undo()
+    assert len(load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv").imu) == 3000

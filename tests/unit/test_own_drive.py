@@ -7,6 +7,7 @@ worked conversion of the README), so the example is tested too; they skip withou
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -277,3 +278,56 @@ def test_trust_check_warns_only_when_every_filter_is_much_worse_than_its_gnss(tr
         "gnss_time_offset_s" in c for c in w.causes
     )
     assert "Likely causes: (1)" in str(w)
+
+
+# ------------------------------------------------------------------ hardening, round three (issue 22)
+
+
+def _twice(df: pd.DataFrame) -> pd.DataFrame:
+    return df.loc[df.index.repeat(2)]
+
+
+def _leap(df: pd.DataFrame) -> pd.DataFrame:
+    df = df.copy()
+    df.loc[40, "t_s"] = df.t_s[39]
+    return df
+
+
+def _zero_sigma(df: pd.DataFrame) -> pd.DataFrame:
+    return df.assign(sigma_n_m=0.0)
+
+
+def _nanoseconds(df: pd.DataFrame) -> pd.DataFrame:
+    return df.assign(t_s=(df.t_s * 1e9).round().astype("int64"))
+
+
+@needs_rtkx
+@pytest.mark.parametrize(
+    ("files", "change", "says"),
+    [
+        (("imu",), _twice, r"imu.csv: data rows 1 and 2 have the same time"),  # item 1
+        (("gnss",), _twice, r"gnss.csv: data rows 1 and 2 have the same time"),  # item 2
+        (("gnss",), _leap, r"gnss.csv: data rows 40 and 41 have the same time .*one row repeats"),  # item 3
+        (
+            ("gnss",),
+            _zero_sigma,
+            r"gnss.csv: sigma_n_m is below 1 mm on 90 of 90 fixes .*use_receiver_sigmas",
+        ),
+        (("imu", "gnss", "truth"), _nanoseconds, r"t_s must be seconds, but it looks like nanoseconds"),
+    ],
+    ids=["imu-twice", "gnss-twice", "leap-second", "sigma-0", "nanoseconds"],
+)
+def test_bad_recordings_give_one_line_and_exit_2(tmp_path, moving, capsys, files, change, says):
+    """Issue 22 items 1-5 through the CLI: exit 2 and one line saying what to change (before:
+    ZeroDivisionError, 'Maximum allowed size exceeded', 'SVD did not converge', a silent run
+    with ANEES 1286, a misleading cause)."""
+    for name in ("imu", "gnss", "truth"):
+        df = pd.read_csv(moving / f"{name}.csv", comment="#")
+        (change(df) if name in files else df).to_csv(tmp_path / f"{name}.csv", index=False)
+    rc = main(
+        ["run", "--scenario", "own-drive", "--filters", "kf", "--set", f"scenario.data_dir={tmp_path}"]
+        + [f"--set=scenario.{k}={v}" for k, v in MOUNT.items()]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith("navlab: error: ") and re.search(says, err[0]), err[0]

@@ -22,6 +22,7 @@ from navlab.reproduce.engine import (
     Ref,
     Reproduction,
     component_error,
+    iter_evaluate,
     pooled_rmse,
     replace_spec,
 )
@@ -72,11 +73,10 @@ def test_verdict_rules_on_claims_with_a_known_truth():
 
 def test_seed_sets_are_the_single_seed_runs():
     """Set s of the base seed is runs s·N … s·N + N − 1: set 0 is the old single-seed result."""
-    from navlab.reproduce.engine import _Evaluator, _measure_all
-
     rep = _rep([Number("n", "x", Ref("e", "kf"), "rmse_x", 1.0)])
-    measured = _measure_all(rep, 12, 3, 1, lambda n: None, jobs=1)
-    per_set = _Evaluator(rep, measured, 12, 3, 1).per_set(Ref("e", "kf"), "rmse_x")
+    ev = rep.evaluate(12, 3, 1, jobs=1).evaluator
+    measured = ev.m
+    per_set = ev.per_set(Ref("e", "kf"), "rmse_x")
     for s in range(3):
         spec = SPEC.replace(runs=12 * (s + 1))
         res = run_experiment(spec)
@@ -155,11 +155,12 @@ def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
     per_run = engine.memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
     monkeypatch.setattr(engine, "BLOCK_BYTES", 4 * per_run)  # blocks of 4 runs
     monkeypatch.setattr(engine, "POOL_MIN_STEPS", 0)
-    _, blocks, _ = engine._blocks(rep.experiments[0], 5, 2, 1)
-    assert blocks == [(0, 3), (3, 6), (6, 10)]  # as few as blocks of ≤ 4 runs allow, sizes within one
+    first = rep.experiments[0].name
+    blocks = [(t.start, t.stop) for t in engine._plan(rep, 5, 2, 1) if t.experiment == first]
+    assert blocks == [(0, 2), (2, 5), (5, 7), (7, 10)]  # whole seeds, split into blocks of ≤ 4 runs
     seen = []
     two = rep.evaluate(runs=5, seeds=2, jobs=2, on_progress=lambda d, t: seen.append((d, t)))
-    assert seen[-1] == (20, 20) and len(seen) == 2 * len(blocks)
+    assert seen[0] == (0, 20) and seen[-1] == (20, 20) and len(seen) == 1 + 2 * len(blocks)
     serial = rep.evaluate(runs=5, seeds=2, jobs=1)
     for o in (two, serial):
         for name in ("verdicts", "readings"):
@@ -190,3 +191,103 @@ def test_jobs_must_be_a_whole_number(monkeypatch, capsys):
     assert default_jobs() >= 1
     rc = main(["reproduce", "vbekf", "--seeds", "1", "--runs", "2", "--jobs", "0"])
     assert rc == 2 and "--jobs" in capsys.readouterr().err
+
+
+def _numbers(o) -> np.ndarray:
+    return o.verdicts.select_dtypes("number").to_numpy(float)
+
+
+def test_verdicts_stream_by_seed_blocks_and_equal_shorter_reproductions():
+    """The provisional outcome after k seeds is exactly the k-seed reproduction's."""
+    e = lambda k: Ref("e", k)  # noqa: E731
+    rep = _rep(
+        [
+            Number("n", "oracle x RMSE 1 m", e("oracle-kf"), "rmse_x", 1.0),
+            Ranking("r", "the oracle beats the KF", e("oracle-kf"), (e("kf"),), "rmse_x"),
+        ]
+    )
+    outs = list(iter_evaluate(rep, 4, 5, 3, jobs=1))
+    assert [o.seeds for o in outs] == [1, 2, 4, 5]
+    assert [o.complete for o in outs] == [False, False, False, True]
+    assert {o.seeds_asked for o in outs} == {5}
+    for o in outs:
+        alone = rep.evaluate(4, o.seeds, 3, jobs=1)
+        np.testing.assert_array_equal(_numbers(o), _numbers(alone))
+        assert list(o.verdicts["note"]) == list(alone.verdicts["note"])
+    # one seed: a number has no interval, so it cannot be contradicted, only inconclusive or not
+    first = outs[0].verdicts.set_index("claim")
+    assert not np.isfinite(first.loc["n", "ci_lo"]) and first.loc["n", "verdict"] != "contradicted"
+
+
+def test_store_keeps_finished_blocks_a_stopped_run_resumes(monkeypatch, tmp_path):
+    """Stopped after the first blocks, a reproduction resumes from the store and computes only
+    what is missing; a repeated one computes nothing; a longer one reuses the shorter one's
+    seed blocks; the numbers are those of a run without a store.
+    """
+    from navlab.reproduce import engine
+    from navlab.store import Store
+
+    e = lambda k: Ref("e", k)  # noqa: E731
+    rep = _rep([Ranking("r", "the oracle beats the KF", e("oracle-kf"), (e("kf"),), "rmse_x")])
+    monkeypatch.setitem(REPRODUCTIONS, "test", rep)  # the store keeps registered reproductions only
+    computed = []
+    real = engine._measure_block
+
+    def counting(rep_, spec, start, stop):
+        computed.append((start, stop))
+        return real(rep_, spec, start, stop)
+
+    monkeypatch.setattr(engine, "_measure_block", counting)
+    store = Store(tmp_path / "store")
+    calls = iter(range(100))
+    stopped = list(iter_evaluate(rep, 4, 5, 1, jobs=1, store=store, should_stop=lambda: next(calls) >= 2))
+    assert [o.seeds for o in stopped] == [1, 2] and computed == [(0, 4), (4, 8)]
+    computed.clear()
+    shown = list(iter_evaluate(rep, 4, 5, 1, jobs=1, store=store, should_stop=lambda: True))
+    assert [o.seeds for o in shown] == [2] and computed == []  # what the store holds, nothing computed
+    resumed = rep.evaluate(4, 5, 1, jobs=1, store=store)
+    assert computed == [(8, 16), (16, 20)]  # seeds 2–3 and 4
+    computed.clear()
+    again = rep.evaluate(4, 5, 1, jobs=1, store=store)
+    assert computed == []
+    longer = rep.evaluate(4, 6, 1, jobs=1, store=store)
+    assert computed == [(16, 24)]  # seeds 0–3 from the store; seeds 4–5 are a new block
+    monkeypatch.setattr(engine, "_measure_block", real)
+    fresh = rep.evaluate(4, 5, 1, jobs=1)
+    for o in (resumed, again):
+        np.testing.assert_array_equal(_numbers(o), _numbers(fresh))
+        for k, df in fresh.curves.items():
+            np.testing.assert_array_equal(o.curves[k].to_numpy(), df.to_numpy())
+    np.testing.assert_array_equal(_numbers(longer), _numbers(rep.evaluate(4, 6, 1, jobs=1)))
+
+
+def test_closing_the_run_kills_its_worker_processes(monkeypatch, tmp_path):
+    """A closed browser session closes the generator: the blocks not started are cancelled and
+    the worker processes killed at once (not after the blocks in flight); the finished blocks are
+    kept, and the resumed reproduction equals one never stopped.
+    """
+    import multiprocessing
+
+    from navlab.reproduce import engine
+    from navlab.store import Store
+
+    rep = replace_spec(REPRODUCTIONS["irakf"], epochs=60)
+    monkeypatch.setattr(engine, "POOL_MIN_STEPS", 0)
+    killed = []
+    real = engine._terminate
+
+    def terminate(pool):
+        procs = list(pool._processes.values())
+        real(pool)
+        killed.extend(p.exitcode for p in procs)
+
+    monkeypatch.setattr(engine, "_terminate", terminate)
+    store = Store(tmp_path / "store")
+    gen = iter_evaluate(rep, 100, 16, 1, jobs=2, store=store)
+    first = next(gen)  # seed 0 of both experiments; seeds 1–15 queued or in flight
+    assert first.seeds == 1
+    gen.close()
+    assert killed and all(code is not None and code != 0 for code in killed)  # killed, not finished
+    assert multiprocessing.active_children() == []
+    kept = len(store.files())
+    assert 2 <= kept < 10  # 2 experiments × 5 seed ranges; at least seed 0 of each was kept

@@ -104,3 +104,42 @@ def test_concurrent_writers_and_readers(tmp_path):
     assert not errors
     assert all(s1.get(k) is not None for k in keys)
     assert not list(tmp_path.rglob(".tmp-*"))
+
+
+def test_a_damaged_entry_of_any_form_is_discarded_and_recomputed(tmp_path):
+    """Issue 22 item 8: a folder at an entry's path gave 'internal error: IsADirectoryError'; an
+    entry with the right header but arrays cut to half length gave 'could not broadcast' on every
+    rerun. Both are now removed and recomputed, with the numbers of the first computation."""
+    from navlab import tasks as T
+    from navlab.experiment import ExperimentSpec
+
+    spec = ExperimentSpec(filters=("kf", "chi2-kf"), runs=6, seed=3, epochs=20, contamination=0.1)
+    tasks = [t for v in T.tasks_for(spec, block=3).values() for t in v]
+    s = ST.Store(tmp_path)
+    first = T.compute(tasks, store=s)
+    calls: list[str] = []
+
+    def counted(task):
+        calls.append(task.key)
+        return T.run_task(task)
+
+    assert T.compute(tasks, store=s, task_fn=counted).keys() == first.keys() and calls == []  # all hits
+    folder, short = tasks[0].key, tasks[1].key
+    s.path(folder).unlink()
+    (s.path(folder) / "inside").mkdir(parents=True)  # a folder in its place
+    head, arrays = s.get(short)
+    s.put(
+        short,
+        {k: v for k, v in head.items() if k not in ("key", "navlab")},
+        {k: v[: len(v) // 2] for k, v in arrays.items()},
+    )  # the right header, arrays cut to half length
+    again = T.compute(tasks, store=s, task_fn=counted)
+    assert sorted(calls) == sorted([folder, short])
+    for k in (folder, short):
+        np.testing.assert_array_equal(again[k].stats.diverged, first[k].stats.diverged)
+        for name, v in first[k].stats.sse.items():
+            np.testing.assert_array_equal(again[k].stats.sse[name], v)
+    assert s.path(folder).is_file() and s.get(short) is not None
+    calls.clear()
+    T.compute(tasks, store=s, task_fn=counted)
+    assert calls == []  # mended for good

@@ -274,12 +274,17 @@ def test_a_rejected_noise_or_outlier_model_falls_back_like_the_page():
     from navlab.ui.widgets import PageDefaults, url_problems
 
     d = PageDefaults()
-    msgs = url_problems({"out": ["bogus"], f"ol.{d.outliers}.contamination": ["0.2"]})
-    assert len(msgs) == 1 and msgs[0].startswith("`out=bogus`: no such outlier model")
-    msgs = url_problems({"noise": ["bogus"], "ns.step.factor": ["3"]})
+    assert d.outliers != "mixture" and d.noise_schedule != "ramp"
+    msgs = url_problems({"out": ["bogus"], "ol.mixture.contamination": ["0.2"]})
+    assert msgs[0].startswith("`out=bogus`: no such outlier model")
+    assert msgs[1] == (
+        "`ol.mixture.contamination=0.2`: not used: "
+        f"this link's outlier model is '{d.outliers}', not 'mixture'"
+    )
+    msgs = url_problems({"noise": ["bogus"], "ns.ramp.factor": ["3"]})
     assert (
         msgs[1]
-        == f"`ns.step.factor=3`: not used: this link's noise schedule is '{d.noise_schedule}', not 'step'"
+        == f"`ns.ramp.factor=3`: not used: this link's noise schedule is '{d.noise_schedule}', not 'ramp'"
     )
     assert url_problems({"noise": ["bogus"], f"ns.{d.noise_schedule}.factor": ["3"]})[1:] == []
 
