@@ -326,8 +326,12 @@ class Reproduction:
         on_progress: Callable[[int, int], None] | None = None,
         jobs: int | None = None,
         store: Store | None = None,
+        stream: bool | None = None,
     ) -> Outcome:
-        return evaluate(self, runs, seeds, seed, on_progress=on_progress, jobs=jobs, store=store)
+        """:func:`evaluate` of this reproduction."""
+        return evaluate(
+            self, runs, seeds, seed, on_progress=on_progress, jobs=jobs, store=store, stream=stream
+        )
 
 
 @dataclass(eq=False)
@@ -456,9 +460,11 @@ class _Task:
     steps: int  # filter steps (runs × epochs × filters)
 
 
-def _plan(rep: Reproduction, runs: int, seeds: int, seed: int) -> list[_Task]:
+def _plan(rep: Reproduction, runs: int, seeds: int, seed: int, stream: bool = True) -> list[_Task]:
     """Every experiment's blocks, seed range by seed range (every experiment's seed 0, then
-    seed 1, then seeds 2–3, …: the first verdicts need the first range of every experiment).
+    seed 1, then seeds 2–3, …: the first verdicts need the first range of every experiment);
+    ``stream=False`` (only the final verdicts are wanted): all seeds as one range, in fewer,
+    larger blocks (less per-epoch overhead: benchmarks/reproduce_timing.py).
 
     A seed range whose full arrays would take more than :data:`BLOCK_BYTES` or a tenth of the
     memory budget is split into equal blocks (± 1 run; a block takes about twice its estimate
@@ -474,7 +480,7 @@ def _plan(rep: Reproduction, runs: int, seeds: int, seed: int) -> list[_Task]:
         per_run = memory.Size(1, size.epochs, size.n, size.m, size.filters).full()
         sized.append((e.name, spec, int(max(1, limit // max(per_run, 1))), size.epochs * size.filters))
     tasks = []
-    for a, b in seed_ranges(seeds):
+    for a, b in seed_ranges(seeds) if stream else [(0, seeds)]:
         for name, spec, chunk, per_run_steps in sized:
             lo, hi = a * runs, b * runs
             count = -(-(hi - lo) // chunk)
@@ -627,12 +633,14 @@ def _pool_size(rep: Reproduction, tasks: Sequence[_Task], jobs: int) -> int:
     return min(jobs, len(tasks))
 
 
-def workers(rep: Reproduction, runs: int, seeds: int, seed: int, jobs: int | None = None) -> int:
+def workers(
+    rep: Reproduction, runs: int, seeds: int, seed: int, jobs: int | None = None, stream: bool = True
+) -> int:
     """The processes a reproduction computes in (1: the calling process; blocks found in a
     results store are not computed, so a resumed one may use fewer).
     """
     jobs = default_jobs() if jobs is None else check_jobs(jobs)
-    return _pool_size(rep, _plan(rep, runs, seeds, seed), jobs)
+    return _pool_size(rep, _plan(rep, runs, seeds, seed, stream), jobs)
 
 
 def _terminate(pool: ProcessPoolExecutor) -> None:
@@ -1026,9 +1034,12 @@ def _judge_close(ev: _Evaluator, c: Close, unit: str) -> dict:
 
 def evaluate(rep: Reproduction, *args: Any, **kw: Any) -> Outcome:
     """Run ``seeds`` sets of ``runs`` runs of every experiment and judge every claim: the last
-    :class:`Outcome` of :func:`iter_evaluate` (the same arguments).
+    :class:`Outcome` of :func:`iter_evaluate` (the same arguments). ``stream`` None: in the
+    page's seed ranges with a results store (its blocks are those the page keeps), else in one.
     """
     last = None
+    if kw.get("stream") is None:
+        kw["stream"] = kw.get("store") is not None
     for o in iter_evaluate(rep, *args, **kw):
         last = o
     assert last is not None
@@ -1046,6 +1057,7 @@ def iter_evaluate(
     store: Store | None = None,
     should_stop: Callable[[], bool] | None = None,
     tick: Callable[[], None] | None = None,
+    stream: bool = True,
 ) -> Iterator[Outcome]:
     """The verdicts as the seeds finish: an :class:`Outcome` of the first k seeds every time k
     grows (seed ranges of :func:`seed_ranges`), the last one of all ``seeds`` seeds. The outcome
@@ -1056,14 +1068,15 @@ def iter_evaluate(
     finished block of a registered reproduction, so a stopped, abandoned or repeated one computes
     only what is missing. ``on_progress(runs done, runs in all)``; ``should_stop`` and ``tick`` as
     in :func:`_compute` (``should_stop`` always true: what the store holds, nothing computed).
-    Closing this generator stops the work (worker processes included) at once.
+    Closing this generator stops the work (worker processes included) at once. ``stream=False``:
+    one seed range (:func:`_plan`), so only the outcome of all seeds is yielded.
     """
     runs = rep.default_runs if runs is None else runs
     jobs = default_jobs() if jobs is None else check_jobs(jobs)
     for name, v, lo in (("runs", runs, 1), ("seeds", seeds, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise NavlabError(f"--{name} must be a whole number ≥ {lo}, got {v!r}")
-    tasks = _plan(rep, runs, seeds, seed)
+    tasks = _plan(rep, runs, seeds, seed, stream)
     keyed = store is not None and store.root is not None and _registered(rep)
     blocks: dict[int, _Block] = {}
     if keyed:
