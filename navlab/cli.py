@@ -142,20 +142,21 @@ def _run(a: argparse.Namespace) -> int:
     from navlab.experiment import run_experiment
 
     spec = _spec_from_args(a)
-    progress = None
-    if sys.stderr.isatty() and not a.quiet:
-
-        def progress(done: int, total: int) -> None:
-            print(f"\r{done}/{total} runs", end="" if done < total else "\n", file=sys.stderr)
-
-    # chunks only pay off when someone watches the progress (each chunk repeats the epoch loop)
-    chunk = max(1, spec.runs // 10) if progress is not None else None
+    progress = _progress(a.quiet)
+    if progress is not None:
+        progress.total = spec.runs
+    # on a terminal, chunks of a tenth (each chunk repeats the epoch loop); elsewhere one chunk,
+    # with a line every few seconds from within it (a long run shows it is alive)
+    chunk = max(1, spec.runs // 10) if progress is not None and progress.tty else None
     if a.summary:
         from navlab.experiment import run_summary
 
         res = run_summary(spec, on_progress=progress, budget=a.memory_budget)
     else:
-        res = run_experiment(spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget)
+        within = None if progress is None else progress.within
+        res = run_experiment(
+            spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget, on_epoch=within
+        )
     if a.compare_to is not None and a.compare_to not in spec.filters:
         raise NavlabError(
             f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
@@ -201,6 +202,12 @@ class _Progress:
                 f"\r{done}/{total} {self.what}", end="" if done < total else "\n", file=sys.stderr, flush=True
             )
         else:
+            self.tick()
+
+    def within(self, done: float) -> None:
+        """Runs done within a chunk (fractional): a line off a terminal every ``EVERY_S``."""
+        if not self.tty:
+            self.done = round(done, 1)
             self.tick()
 
     def tick(self) -> None:

@@ -605,10 +605,13 @@ def run_experiment(
     on_progress: Callable[[int, int], None] | None = None,
     chunk_runs: int | None = None,
     budget: int | str | None = None,
+    on_epoch: Callable[[float], None] | None = None,
 ) -> Results:
-    """Run ``spec`` to completion; ``on_progress(done_runs, total_runs)`` after each chunk."""
+    """Run ``spec`` to completion; ``on_progress(done_runs, total_runs)`` after each chunk,
+    ``on_epoch(runs done, fractional)`` after every epoch of a chunk.
+    """
     res = None
-    for res in iter_experiment(spec, chunk_runs, budget=budget):
+    for res in iter_experiment(spec, chunk_runs, budget=budget, on_epoch=on_epoch):
         if on_progress is not None:
             on_progress(res.done_runs, spec.runs)
     assert res is not None

@@ -266,3 +266,16 @@ def test_debug_is_taken_before_or_after_the_subcommand(capsys, monkeypatch, wher
     assert rc == 1 and "internal error: RuntimeError: boom (rerun with --debug)" in err
     with pytest.raises(RuntimeError, match="boom"):
         main(["--debug", *argv] if where == "before" else [*argv, "--debug"])
+
+
+def test_a_run_off_a_terminal_prints_progress_lines_from_within_its_one_chunk(capsys, monkeypatch):
+    """#22 item 6: a long `navlab run` in a log or a pipe shows it is alive (a line every
+    EVERY_S seconds, also inside its single chunk), not only when it ends."""
+    from navlab import cli
+
+    monkeypatch.setattr(cli._Progress, "EVERY_S", 0.0)  # a line at every epoch
+    rc, _, err = run_cli(capsys, "run", "--filters", "kf", "--runs", "4", "--epochs", "20")
+    assert rc == 0
+    lines = [ln for ln in err.splitlines() if ln.startswith("navlab: ") and " runs after " in ln]
+    assert len(lines) >= 10  # one chunk of 20 epochs
+    assert lines[0].startswith("navlab: 0.2/4 runs after")  # 4 runs × 1/20 of the epochs
