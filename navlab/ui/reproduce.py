@@ -161,7 +161,7 @@ def claims_figure(o: Outcome) -> go.Figure | None:
     readable(fig)
     fig.update_layout(
         title=title_layout(
-            "The paper's numbers: navlab relative to the paper (%)",
+            "navlab relative to the paper's numbers (%)",
             "mean over seeds; 95 % interval (thick), per-seed range (thin); shaded: ±20 % (reproduced)",
         ),
         yaxis={"automargin": True},

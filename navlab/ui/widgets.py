@@ -705,7 +705,7 @@ def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experim
     message when the configuration is invalid.
     """
     from navlab.ui.frame import arrived_from_another_page, fill_nav
-    from navlab.ui.share import config_upload  # share imports this module
+    from navlab.ui.share import UPLOAD_MSG_KEY, config_upload  # share imports this module
 
     carried = st.session_state.get(CARRY_SPEC_KEY)
     if carried and arrived_from_another_page():
@@ -722,7 +722,9 @@ def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experim
     with st.sidebar:
         st.header(header)
     cfg = experiment_config(defaults)
-    with st.sidebar.expander("Load / save configuration"):
+    # open while it has an upload's message to show (the widgets above it may have changed with
+    # the upload, and a changed sidebar redraws the expander closed)
+    with st.sidebar.expander("Load / save configuration", expanded=UPLOAD_MSG_KEY in st.session_state):
         config_upload(key=f"up_cfg_{page}")
     if cfg.spec is not None:
         st.session_state[CARRY_KEY] = spec_query(cfg.spec)

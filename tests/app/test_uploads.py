@@ -186,6 +186,6 @@ def test_own_drive_with_an_imu_gap_runs_on_the_page_with_its_notes(open_page, tm
     assert_clean(at)
     after = " ".join(m.value for m in at.markdown)
     assert "as recorded" in after and "start: moving" in after and "position RMS against the truth" in after
-    table = at.dataframe[0].value
+    table = at.table[0].value
     assert list(table.index) == ["KF", "HKF (Huber)"]
-    assert (table["RMSE 3-D (m)"] < 5.0).all()
+    assert all(float(c.split()[0]) < 5.0 for c in table["RMSE 3-D (m)"])

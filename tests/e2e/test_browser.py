@@ -23,7 +23,7 @@ CHART = '[data-testid="stPlotlyChart"]'
 COMPARE_CHARTS = 4  # the three result charts and the single-run view below them (#16 item 1)
 DRAWN = f"{CHART} .legendtext"  # Plotly has drawn a results figure (the preview has no legend)
 COMPLETE = re.compile(r"\d+/\d+ runs \(complete\)")
-SMALL = "runs=8&sc.cv2d.epochs=40"
+SMALL = "runs=8&sc.cv2d.epochs=40&flt=kf&flt=oracle-kf&flt=chi2-kf"
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -75,7 +75,7 @@ def expect_value(page: Page, label: str, value: str) -> None:
 def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_dir: Path):
     url = (
         f"{fresh_server}/Compare?runs=12&seed=7&flt=kf&flt=chi2-kf&noise=step"
-        "&ns.step.factor=4&ol.mixture.contamination=0.2"
+        "&ns.step.factor=4&out=mixture&ol.mixture.contamination=0.2"
     )
     page.goto(url)
     settle(page)
@@ -106,7 +106,7 @@ def test_deep_link_on_a_fresh_server(fresh_server: str, page: Page, artifacts_di
 
 
 def test_default_compare_run_and_timing(page: Page, artifacts_dir: Path):
-    """The default configuration (cv2d, 100 runs, kf/oracle-kf/chi2-kf): Run → charts."""
+    """The default configuration (cv2d, 100 runs, step schedule, five filters): Run → charts."""
     page.goto("/Compare")
     settle(page)
     first = run_and_wait(page)
@@ -119,10 +119,10 @@ def test_default_compare_run_and_timing(page: Page, artifacts_dir: Path):
         test="default_compare",
         run_to_first_chart_s=round(first, 2),
         server_compute_s=compute,
-        config="cv2d default 3 filters 100 runs",
+        config="cv2d default 5 filters 100 runs",
     )
     # the table lists every filter
-    expect(page.locator('[data-testid="stDataFrame"]').first).to_be_visible()
+    expect(page.locator('[data-testid="stTable"]').first).to_be_visible()
 
 
 def test_widget_change_updates_url_and_reload_restores(page: Page):

@@ -153,7 +153,10 @@ def test_settings_carry_from_compare_to_noise(page: Page):
     # the Compare link opened on /Noise is the same experiment (the pages share their defaults)
     page.goto("/Noise?seed=42")
     settle(page)
-    expect(page.get_by_role("combobox", name="Outlier model")).to_have_value("mixture", timeout=T)
+    from navlab.ui.widgets import PageDefaults
+
+    want = PageDefaults().outliers
+    expect(page.get_by_role("combobox", name="Outlier model")).to_have_value(want, timeout=T)
 
 
 def test_rejected_link_value_shows_a_notice(page: Page):
