@@ -272,8 +272,8 @@ class LocalExecutor:
                 if client is not None and work > PAYS_S:
                     cause = "started in the background" if started else "already running"
                     self.why = f": ≈ {work:.0f} s of work left, above {PAYS_S:g} s (cluster {cause})"
-                    self.now = f"on the embedded Dask cluster ({self.n_workers} workers)"
                     name = f"the embedded Dask cluster ({self.n_workers} workers)"
+                    self.now = f"on {name}"
                     count = _Count(done)
                     try:
                         DaskExecutor(client, name, fix=_EMBEDDED_FIX).run(

@@ -86,8 +86,8 @@ DIFF_COLUMNS = ["vs", "p_value", "p_holm", "verdict"]
 
 def timed_from(K: int) -> int:
     """The first epoch a filter's clock counts (:attr:`FilterRun.runtime_s`): epoch 1 carries
-    one-off start-up (a compiled kernel loaded or compiled, lazy imports, first-touch memory; it
-    charged the first filter of a run 20–100× a later one), so epochs 2 … K are timed (all of a
+    one-off start-up (a compiled kernel loaded or compiled, lazy imports, first-touch memory),
+    which would be charged to the first filter of a run alone, so epochs 2 … K are timed (all of a
     one-epoch run).
     """
     return 2 if K >= 2 else 1

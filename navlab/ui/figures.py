@@ -562,7 +562,7 @@ def r_vs_rhat(
             sub += "<br>outlier-epoch values above the top are cut off"
     if not multi:
         truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
-    n_panels = max(len(shown), 1) if multi else 1
+    n_panels = len(shown) if multi else 1
     strip_ax = str(n_panels + 1) if outlier_strip else ""
     if outlier_strip:  # drawn first (the truth stays the last trace), listed last in the legend
         frac = data.outlier_mask[:, :, channel].mean(axis=0)

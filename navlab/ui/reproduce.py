@@ -11,7 +11,6 @@ shows what the store holds, :func:`show_verdicts` draws an outcome.
 from __future__ import annotations
 
 import contextlib
-import re
 import threading
 from collections import OrderedDict
 from collections.abc import Callable
@@ -29,6 +28,7 @@ from navlab.reproduce.report import claims_table, verdict_table
 from navlab.ui import sweep as U
 from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
 from navlab.ui.figures import readable, title_layout
+from navlab.ui.share import literal
 from navlab.ui.views import chart
 
 VERDICT_COLORS = {"reproduced": "#d9f2d9", "inconclusive": "#fff1c2", "contradicted": "#f8d0d0"}
@@ -77,8 +77,7 @@ def _cells(t: pd.DataFrame) -> pd.DataFrame:
     """A table for ``st.table``, which writes every cell as Markdown: Markdown's characters
     escaped (a paper cell "> 10.0 m" was a block quote), "#" renamed (alone, an empty heading).
     """
-    esc = lambda v: re.sub(r"([\\`*_\[\]<>#~|])", r"\\\1", v) if isinstance(v, str) else v  # noqa: E731
-    return t.rename(columns=CELL_NAMES).map(esc)
+    return t.rename(columns=CELL_NAMES).map(lambda v: literal(v) if isinstance(v, str) else v)
 
 
 def style_verdicts(o: Outcome):

@@ -74,7 +74,7 @@ def parse_config(
 
 
 def literal(text: str) -> str:
-    """``text`` (one line that begins with a word) shown as it is by Streamlit's Markdown: the
+    """``text`` (one line: a message, a table cell) shown as it is by Streamlit's Markdown: the
     characters of links, images, HTML, emphasis, code, LaTeX, tables and entities are escaped, so
     that a file named ``[x](http://host).json`` is a name, not a link; so are the addresses that
     GitHub-flavoured Markdown links by themselves (``www.``, ``://``, ``@``).
