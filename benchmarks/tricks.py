@@ -154,54 +154,6 @@ def _plain_eig_inside():
     )
 
 
-def _plain_meas_space():
-    import navlab.filters.huber_vb as hv
-
-    class Plain:
-        def __init__(self, M, nu):
-            self.M, self.nu = M, nu
-
-        def step(self, Rt):
-            return hv.meas_space_step(self.M, self.nu, Rt)
-
-    return swap("navlab.filters.huber_vb", "MeasSpace", Plain)
-
-
-@contextlib.contextmanager
-def _plain_state_space_vb():
-    """The VB iterations in state space (S0 eqs. 18–20 as printed: K, x, P of every iteration)."""
-    import navlab.filters.huber_vb as hv
-    from navlab.linalg import diag, kf_gain, mT, mv
-
-    ctx = {}
-    orig = hv.measurement_prediction
-
-    def measurement_prediction(model, x, P, k, z, R=None):
-        mk = orig(model, x, P, k, z, R)
-        H = np.asarray(model.H(x, k))
-        ctx.update(P=P, U=mk.U, H=np.where(np.isfinite(z)[..., None], H, 0.0))
-        return mk
-
-    class StateSpace:
-        def __init__(self, M, nu):
-            self.M, self.nu = M, nu
-
-        def step(self, Rt):
-            P, U, H = ctx["P"], ctx["U"], ctx["H"]
-            S = self.M + Rt[:, :, None] * np.eye(Rt.shape[1])
-            K, fixed = kf_gain(U, S)  # (18)
-            dx = mv(K, self.nu)  # (19) x⁺ − x⁻
-            Pp = P - K @ H @ P  # (20) P⁺ = (I − K H) P⁻, n×n
-            resid = self.nu - mv(H, dx)
-            return resid, diag(H @ Pp @ mT(H)), np.broadcast_to(fixed, Rt.shape[:1])
-
-    with (
-        swap("navlab.filters.huber_vb", "measurement_prediction", measurement_prediction),
-        swap("navlab.filters.huber_vb", "MeasSpace", StateSpace),
-    ):
-        yield
-
-
 def _plain_select():
     """np.where with an all-true mask where the code passes None (every channel, every run)."""
 
@@ -332,22 +284,6 @@ TRICKS: list[Trick] = [
         "sage_husa.kernels.clamp_eig (eigh only where not certainly inside)",
         {"cv2d": ("sage-husa", "rakf"), "sins-gps": ("sage-husa", "rakf"), "smartloc": ("irakf",)},
         _plain_eig_inside,
-    ),
-    Trick(
-        "vb-closed-form",
-        "huber_vb.MeasSpace (closed-form S⁻¹ for m ≤ 3, per-epoch layout)",
-        {"cv2d": ("vb-akf", "hakf", "student-t-kf"), "sins-gps": ("vb-akf", "hakf", "student-t-kf")},
-        _plain_meas_space,
-    ),
-    Trick(
-        "vb-measurement-space",
-        "huber_vb (VB iterations in measurement space, not K, x, P per iteration)",
-        {
-            "cv2d": ("vb-akf", "hakf", "student-t-kf"),
-            "sins-gps": ("vb-akf", "hakf"),
-            "gps-ins-rtk": ("hakf",),
-        },
-        _plain_state_space_vb,
     ),
     Trick(
         "select-none-masks",

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Kernel", "carray", "enabled", "numpy_paths", "warm"]
+__all__ = ["Kernel", "RunStep", "carray", "enabled", "numpy_paths", "warm"]
 
 
 _OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
@@ -102,6 +102,91 @@ class Kernel:
                 )
             self._dispatcher = numba.njit(cache=True, nogil=True)(fn)
         return self._dispatcher
+
+
+class RunStep:
+    """A step written for ONE run, looped over the Monte Carlo runs: the filters' one implementation.
+
+    ``fn(*one_run, *params) -> tuple`` is plain numba-compatible Python, one equation a line as
+    the paper prints it. ``step(runs, params)`` calls it for r = 0 … B−1 with ``a[r]`` of every
+    array of ``runs`` (leading axis B) and ``params`` as they are, and returns its results
+    stacked over the runs. ``outs`` declares them: per result, the index of the run argument
+    whose one-run shape it has (None: a scalar) and its dtype. With numba the loop and ``fn``
+    are compiled together (``fn``'s helpers in ``uses``, as for :class:`Kernel`); without it, or
+    within :func:`numpy_paths`, the same loop runs the same Python uncompiled: the fallback and
+    the tests' oracle.
+    """
+
+    def __init__(
+        self,
+        fn: Callable,
+        n_runs: int,
+        outs: tuple[tuple[int | None, type], ...],
+        uses: tuple[Kernel, ...] = (),
+    ) -> None:
+        self.step = Kernel(fn, uses)
+        self.fn, self.n_runs, self.outs = fn, n_runs, outs
+        self._loop: Any = None
+
+    def __call__(self, runs: tuple, params: tuple) -> tuple:
+        if len(runs) != self.n_runs:
+            raise TypeError(f"{self.fn.__name__} takes {self.n_runs} arrays over the runs")
+        runs = tuple(_contiguous(a) for a in runs)
+        B = runs[0].shape[0]
+        outs = tuple(np.empty((B, *(() if i is None else runs[i].shape[1:])), dt) for i, dt in self.outs)
+        loop = self._compiled(len(params))
+        if loop is not None:
+            loop(*runs, *params, *outs)
+            return outs
+        for r in range(B):  # the same loop, uncompiled
+            for out, value in zip(outs, self.fn(*[a[r] for a in runs], *params), strict=True):
+                out[r] = value
+        return outs
+
+    def get(self) -> Callable | None:
+        """The compiled loop over runs, once a call has compiled it (None before, or without numba)."""
+        return self._loop
+
+    def _compiled(self, n_params: int) -> Callable | None:
+        step = self.step.get()
+        if step is None:
+            return None
+        if self._loop is None:
+            code = [self.fn] + [k.fn for k in self.step.uses]
+            self._loop = _runs_loop(self.fn.__name__, code, step, self.n_runs, n_params, len(self.outs))
+        return self._loop
+
+
+def _runs_loop(
+    name: str, code: list[Callable], step: Callable, n_runs: int, n_params: int, n_outs: int
+) -> Callable:
+    """The compiled loop over runs around ``step``, generated for its arity.
+
+    Cached on disk under a name that changes with the code of the step and its helpers (numba's
+    cache would not see a change of a function called from another file).
+    """
+    import hashlib
+
+    a = [f"a{i}" for i in range(n_runs)]
+    p = [f"p{i}" for i in range(n_params)]
+    o = [f"o{i}" for i in range(n_outs)]
+    text = b"".join(f.__code__.co_code + repr(f.__code__.co_consts).encode() for f in code)
+    name = f"_runs_{name}_{hashlib.sha1(text).hexdigest()[:10]}"
+    call = ", ".join([f"{x}[r]" for x in a] + p)
+    body = "".join(f"        {x}[r] = res[{i}]\n" for i, x in enumerate(o))
+    head = f"def {name}({', '.join(a + p + o)}):\n    for r in range({a[0]}.shape[0]):\n"
+    src = f"{head}        res = step({call})\n{body}"
+    env = {"step": step, "np": np}
+    exec(compile(src, __file__, "exec"), env)
+    loop = env[name]
+    loop.__module__ = __name__
+    return _load_numba().njit(cache=True, nogil=True)(loop)
+
+
+def _contiguous(a: Any) -> np.ndarray:
+    """``a`` C-contiguous and writeable with its own dtype (floats as float64: one signature)."""
+    a = np.asarray(a)
+    return carray(a) if a.dtype.kind in "fiu" else np.require(a, requirements=["C", "W"])
 
 
 def carray(a: Any) -> np.ndarray:

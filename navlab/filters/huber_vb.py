@@ -7,25 +7,20 @@
 
 Equation numbers in the code are S0's (Zuo et al. 2017) unless marked otherwise.
 
-Implementation note (what differs from the textbook form, and why it stayed). Every VB iteration
-restarts from the PRIOR (x⁻, P⁻) and only the diagonal R̃ changes between iterations, so the
-iterations are done in measurement space: with M = H P⁻ Hᵀ and S = M + R̃,
+One implementation (STYLE: the textbook step, compiled, is the filter). The VB iterations of an
+epoch are written once, for ONE run, one equation a line: :func:`vb_iterations` (S0 eqs. 15–21)
+and :func:`student_t_iterations` (§1.6), looped over the runs by :class:`navlab.jit.RunStep`
+(compiled by numba; the same Python uncompiled without it, and as the tests' oracle). Every
+iteration restarts from the PRIOR (x⁻, P⁻) and only the diagonal R̃ changes, so each is the
+update in measurement space (:func:`measurement_space_update`): with M = H P⁻ Hᵀ, S = M + R̃,
 
     z − H x^(it+1) = R̃ S⁻¹ ν ,        H P^(it+1) Hᵀ = M − M S⁻¹ M
 
-(algebraically identical to forming K, x and P each time, eqs. 18–20). :func:`meas_space_step`
-is that step written plainly; :class:`MeasSpace` is the same step with S⁻¹ in closed form for
-m ≤ 3 and everything that does not change between iterations laid out once per epoch.
-``benchmarks/tricks.py`` measures both: the measurement-space iterations save up to 54 % of the
-VB filters' time (vb-akf on cv2d; 17 % for hakf at n = 15, m = 6), the closed forms of
-:class:`MeasSpace` up to 45 % (vb-akf on cv2d, 20–27 % at m = 3 on sins-gps); so both stay, and
-the tests compare :class:`MeasSpace` with :func:`meas_space_step` and the filters with their
-reference. Measured below 10 % and removed: row reductions by hand for m ≤ 2 (6 %), whitening a
-diagonal R0 by 1/σ instead of its Cholesky factor (4 %). The n×n gain,
-mean and Joseph-form covariance are formed once, with the R̃ of the last iteration (the R in the
-last gain, §3.1), by the KF update of :mod:`navlab.filters.kalman`; for the optimal gain the
-Joseph form equals the paper's (I − K H) P⁻ (eq. 20). The state-space transcription, one run,
-is :mod:`navlab.filters.reference.huber_vb`.
+(the same algebra as forming K, x and P each time, eqs. 18–20; the test of this identity is
+tests/contract/test_kernel_properties.py). The n×n gain, mean and Joseph-form covariance are
+formed once, with the R̃ of the last iteration (the R in the last gain, §3.1), by the KF update
+of :mod:`navlab.filters.kalman`; for the optimal gain the Joseph form equals the paper's
+(I − K H) P⁻ (eq. 20).
 
 Iterations: at most N (``iters``, default 10, §3.1). A run stops early once its β changes by less
 than ``tol`` (relative, default 1e-6; ``tol = 0`` runs exactly N as the spec states); frozen runs
@@ -68,7 +63,7 @@ from navlab.filters.base import (
     register,
 )
 from navlab.filters.kalman import kf_update, measurement_prediction
-from navlab.jit import Kernel, carray
+from navlab.jit import Kernel, RunStep
 from navlab.linalg import (
     CHOLESKY_LOWER,
     CHOLESKY_SOLVE,
@@ -77,18 +72,25 @@ from navlab.linalg import (
     bcast,
     cholesky_lower,
     cholesky_solve,
-    cofactor_index,
     diag,
     diag_embed,
     mask_missing,
     mT,
     mv,
-    select,
-    solve_sym,
 )
 from navlab.params import param
 
-__all__ = ["HAKF", "VBAKF", "HuberKF", "MeasSpace", "StudentTKF", "huber_weight", "meas_space_step", "whiten"]
+__all__ = [
+    "HAKF",
+    "VBAKF",
+    "HuberKF",
+    "StudentTKF",
+    "huber_weight",
+    "measurement_space_update",
+    "student_t_iterations",
+    "vb_iterations",
+    "whiten",
+]
 
 _GAMMA_HELP = "Huber threshold γ_H on the normalised residual (1.345: 95 % Gaussian efficiency)"
 _RHO_DEFAULT = 1.0 - math.exp(-4.0)  # ≈ 0.9817, memory 1/(1−ρ) ≈ 55 epochs (§3.1, §10 #8)
@@ -99,194 +101,107 @@ def huber_weight(e: Array, gamma: float) -> Array:
     return gamma / np.maximum(np.abs(e), gamma)  # exactly 1.0 where |e| ≤ γ
 
 
-def meas_space_step(M: Array, nu: Array, Rt: Array) -> tuple[Array, Array, Array]:
-    """One update from the prior with a diagonal R̃, in measurement space (S0 eqs. 18–20).
+def measurement_space_update(M, nu, Rt):  # pragma: no cover - compiled by numba
+    """One update from the prior with a diagonal R̃, for ONE run, in measurement space (S0 18–20).
 
-    The plain form for any m, one LU solve (the reference of :class:`MeasSpace`).
+    M (m, m) = H P⁻ Hᵀ, nu (m,) the prior innovation ν = z − H x⁻, Rt (m,) diag R̃ > 0. The
+    paper's K, x⁺ and P⁺ (eqs. 18–20) enter the VB loop only through z − H x⁺ and H P⁺ Hᵀ, which
+    are, with S = M + R̃ and x⁺ = x⁻ + P⁻Hᵀ S⁻¹ ν, P⁺ = (I − K H) P⁻ (the same algebra, m × m):
 
-    Parameters
-    ----------
-    M : (B, m, m) H P⁻ Hᵀ;  nu : (B, m) prior innovation ν = z − H x⁻;  Rt : (B, m) diag R̃ > 0.
+        z − H x⁺ = ν − M S⁻¹ ν = R̃ S⁻¹ ν ,        H P⁺ Hᵀ = M − M S⁻¹ M .
 
-    Returns
-    -------
-    resid : z − H x⁺ = ν − M S⁻¹ ν = R̃ S⁻¹ ν, with S = M + R̃ and x⁺ = x⁻ + P⁻Hᵀ S⁻¹ ν.
-    hph : diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M), with P⁺ = (I − K H) P⁻.
-    fixed : (B,) S needed jitter (flag 9).
+    Returns (z − H x⁺, diag H P⁺ Hᵀ, fixed): fixed if S needed jitter to factor (flag 9).
     """
-    S = M + diag_embed(Rt)  # (18) S = H P⁻ Hᵀ + R̃
-    X, fixed = solve_sym(S, np.concatenate([nu[..., None], M], axis=-1))  # S⁻¹ [ν | M]
-    resid = Rt * X[..., 0]  # (19) z − H x⁺ = R̃ S⁻¹ ν
-    hph = diag(M) - np.einsum("bij,bji->bi", M, X[..., 1:])  # (20) diag(M − M S⁻¹ M)
-    return resid, hph, np.broadcast_to(fixed, Rt.shape[:1])
+    m = nu.shape[0]
+    S = M + np.diag(Rt)  # (18) S = H P⁻ Hᵀ + R̃
+    L = np.zeros((m, m))
+    fixed = False
+    if not cholesky_lower(S, L):  # S = L Lᵀ; a numerical repair is recorded, never silent
+        tr = np.trace(S)
+        S = S + max(1e-12 * tr / m, 1e-300) * np.eye(m)
+        fixed = cholesky_lower(S, L) and np.isfinite(tr)
+    Sinv_nu = nu.copy()
+    cholesky_solve(L, Sinv_nu)
+    Sinv_M = np.empty((m, m))
+    for j in range(m):
+        col = M[:, j].copy()
+        cholesky_solve(L, col)
+        Sinv_M[:, j] = col
+    resid = Rt * Sinv_nu  # (19) z − H x⁺ = R̃ S⁻¹ ν
+    hph = np.diag(M) - np.sum(M * Sinv_M.T, axis=1)  # (20) diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M)
+    return resid, hph, fixed
 
 
-class MeasSpace:
-    """The iterations of one epoch in measurement space for a fixed prior (M = H P⁻ Hᵀ, ν), fast.
-
-    ``step(R̃)`` equals :func:`meas_space_step` (its reference; the tests compare them) and is
-    the speed trick this module keeps (``benchmarks/tricks.py`` "vb-closed-form"). Only the
-    diagonal R̃ changes between iterations, and these problems are so small that numpy's
-    per-call overhead, not arithmetic, is the cost; so for m ≤ 3 S⁻¹ is written out in closed
-    form, with everything that does not change between iterations computed once per epoch:
-
-    * m = 1: S = d + r; z − H x⁺ = r ν / S; H P⁺ Hᵀ = d − d²/S.
-    * m = 2: M = [[d0, b], [b, d1]], s_i = d_i + r_i, det S = s0 s1 − b², adj S = [[s1, −b],
-      [−b, s0]]: z − H x⁺ = r ∘ (s1 ν0 − b ν1, s0 ν1 − b ν0)/det S and diag(M adj(S) M) =
-      (d0² s1 + b² s0 − 2 b² d0, b² s1 + d1² s0 − 2 b² d1): a dozen (B, 2) operations a step.
-    * m = 3: the cofactors C of S in one gather (:func:`navlab.linalg.cofactor_index`), det S =
-      Σ_j S_0j C_0j: z − H x⁺ = r ∘ (C ν)/det S, diag(M C M)_i = Σ_jk M_ij M_ik C_jk.
-    * m > 3: :func:`meas_space_step`.
-
-    S = M + R̃ is positive definite by construction (M ⪰ 0, R̃ > 0); the KF update that forms the
-    final gain checks the final S itself.
-    """
-
-    def __init__(self, M: Array, nu: Array) -> None:
-        B, m = nu.shape
-        self.B, self.m, self.M, self.nu = B, m, M, nu
-        self.dM = diag(M).copy()
-        if m == 2:
-            b = M[:, 0, 1:]  # (B, 1)
-            self.b2 = b * b
-            self.c = b * nu[:, ::-1]  # b (ν1, ν0)
-            self.A1 = np.concatenate([self.dM[:, :1] ** 2, self.b2], axis=1)  # (d0², b²): × s1
-            self.A0 = np.concatenate([self.b2, self.dM[:, 1:] ** 2], axis=1)  # (b², d1²): × s0
-            self.C2 = 2.0 * self.b2 * self.dM  # 2 b² d_i
-        elif m == 3:
-            self.Mf = np.ascontiguousarray(M).reshape(B, m * m)
-            self.E = np.eye(m * m)[:: m + 1]  # (m, m²): the diagonal entries of a flattened S
-            self.idx = cofactor_index(m)[0]
-            self.nu_f = np.tile(nu, (1, m))[:, np.arange(m * m).reshape(m, m)]  # (B, m, m): ν_k
-            self.MM = (M[:, :, :, None] * M[:, :, None, :]).reshape(B, m, m * m)  # M_ij M_ik
-
-    def step(self, Rt: Array) -> tuple[Array, Array, Array]:
-        """(z − H x⁺, diag H P⁺ Hᵀ, fixed) for S = M + diag(R̃) (S0 eqs. 18–20)."""
-        m = self.m
-        if m > 3:
-            return meas_space_step(self.M, self.nu, Rt)
-        no_fix = np.zeros(self.B, dtype=bool)
-        if m == 1:
-            inv = 1.0 / (self.dM + Rt)  # 1/S
-            return Rt * self.nu * inv, self.dM - self.dM * self.dM * inv, no_fix
-        if m == 2:
-            s = self.dM + Rt  # (s0, s1)
-            inv = 1.0 / (s[:, :1] * s[:, 1:] - self.b2)  # 1/det S
-            resid = Rt * (s[:, ::-1] * self.nu - self.c) * inv
-            hph = self.dM - (self.A1 * s[:, 1:] + self.A0 * s[:, :1] - self.C2) * inv
-            return resid, hph, no_fix
-        Sf = self.Mf + Rt @ self.E  # S, flattened
-        G = Sf[:, self.idx]
-        C = G[:, 0:9] * G[:, 9:18] - G[:, 18:27] * G[:, 27:36]  # cofactors (= adj S)
-        inv = (1.0 / np.einsum("bi,bi->b", Sf[:, :m], C[:, :m]))[:, None]  # 1/det S
-        resid = Rt * np.einsum("bij,bij->bi", C.reshape(-1, m, m), self.nu_f) * inv
-        hph = self.dM - np.einsum("bij,bj->bi", self.MM, C) * inv
-        return resid, hph, no_fix
+MEASUREMENT_SPACE_UPDATE = Kernel(measurement_space_update, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
 
 
-def _vb_runs(
-    M,
-    nu,
-    ok,
-    alpha,
-    beta_minus,
-    huber,
-    gamma,
-    irls,
-    robust_beta,
-    adapt,
-    iters,
-    tol,
-    beta,
-    Rt_out,
-    w_out,
-    n_iter,
-    delta,
-    fixed,
-):  # pragma: no cover - numba
-    """The VB iterations of one epoch (S0 eqs. 15–21), one run at a time (compiled).
+def vb_iterations(
+    M, nu, ok, alpha, beta_minus, huber, gamma, irls, robust_beta, adapt, iters, tol
+):  # pragma: no cover - compiled by numba
+    """The VB iterations of one epoch for ONE run (S0 eqs. 15–21), each from the prior.
 
-    M (1 or B, m, m) = H P⁻ Hᵀ (masked), nu (B, m) the prior innovation, ok (B, m) the channels
-    present, alpha (B, m) = α⁻ + ½, beta_minus (B, m) = β⁻. Every iteration restarts from the
-    prior, with S = H P⁻ Hᵀ + R̃ factored by Cholesky: z − H x⁺ = R̃ S⁻¹ ν (19) and
-    diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M) (20). Writes β (21), the last R̃ and Huber weights, the
+    M (m, m) = H P⁻ Hᵀ and nu (m,) = ν with missing channels masked (ok False), alpha (m,) =
+    α⁻ + ½, beta_minus (m,) = β⁻. ``huber``: the HAKF's Huber lines (16), (9), (17); otherwise
+    R̃ = R̂ (the AKF). A run stops once its β changes by less than ``tol`` (relative).
+
+    Returns β (21), the R̃ and Huber weights of the last iteration (the R in the last gain), the
     iterations done, the last max |Δβ/β| and whether S needed jitter (flag 9).
     """
-    B, m = nu.shape
-    S = np.empty((m, m))
-    L = np.empty((m, m))
-    y = np.empty(m)
-    Z = np.empty((m, m))  # S⁻¹ M, column by column
-    Rhat = np.empty(m)
-    resid = np.empty(m)
-    hph = np.empty(m)
-    for r in range(B):
-        Mr = M[r if M.shape[0] > 1 else 0]
-        for i in range(m):
-            beta[r, i] = beta_minus[r, i]  # β^(0) = β⁻
-            resid[i] = nu[r, i]
-            w_out[r, i] = 1.0
-            Rt_out[r, i] = 1.0
-        n_iter[r] = 0.0
-        delta[r] = 0.0
-        fixed[r] = False
-        for it in range(iters):
-            for i in range(m):
-                Rhat[i] = beta[r, i] / alpha[r, i]  # (15) R̂ = diag(β/α)
-                w = 1.0
-                if huber and ok[r, i]:  # (16) e = R̂^{-1/2} ν (posterior residual with irls), (9)
-                    e = (resid[i] if (irls and it > 0) else nu[r, i]) / np.sqrt(Rhat[i])
-                    w = gamma / max(abs(e), gamma)
-                w_out[r, i] = w
-                Rt_out[r, i] = Rhat[i] / w if ok[r, i] else 1.0  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
-            # (18) S = H P⁻ Hᵀ + R̃, from the prior
-            for i in range(m):
-                for j in range(m):
-                    S[i, j] = Mr[i, j]
-                S[i, i] += Rt_out[r, i]
-            if not cholesky_lower(S, L):
-                tr = 0.0
-                for i in range(m):
-                    tr += S[i, i]
-                for i in range(m):
-                    S[i, i] += max(1e-12 * tr / m, 1e-300)
-                if cholesky_lower(S, L) and np.isfinite(tr):
-                    fixed[r] = True
-            for i in range(m):
-                y[i] = nu[r, i]
-            cholesky_solve(L, y)
-            for i in range(m):
-                resid[i] = Rt_out[r, i] * y[i]  # (19) z − H x⁺ = R̃ S⁻¹ ν
-            for j in range(m):
-                for i in range(m):
-                    y[i] = Mr[i, j]
-                cholesky_solve(L, y)
-                for i in range(m):
-                    Z[i, j] = y[i]
-            for i in range(m):  # (20) diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M)
-                s = Mr[i, i]
-                for j in range(m):
-                    s -= Mr[i, j] * Z[j, i]
-                hph[i] = s
-            n_iter[r] += 1.0
-            if not adapt:
-                break
-            d = 0.0
-            for i in range(m):
-                if not ok[r, i]:
-                    continue
-                r2 = resid[i] * resid[i]
-                if huber and robust_beta:  # navlab extension: Huber-weighted residual in β
-                    r2 *= gamma / max(abs(resid[i] / np.sqrt(Rhat[i])), gamma)
-                b_new = beta_minus[r, i] + 0.5 * (r2 + hph[i])  # (21) β = β⁻ + ½ (r² + H P⁺ Hᵀ)
-                d = max(d, abs(b_new - beta[r, i]) / beta[r, i])
-                beta[r, i] = b_new
-            delta[r] = d
-            if tol > 0.0 and d < tol:  # converged: this run stops (its numbers never depend on the batch)
-                break
+    m = nu.shape[0]
+    beta = beta_minus.copy()  # β^(0) = β⁻
+    resid = nu.copy()
+    w = np.ones(m)
+    Rt = np.ones(m)
+    n_iter, delta, fixed = 0, 0.0, False
+    for it in range(iters):
+        Rhat = beta / alpha  # (15) R̂ = diag(β/α)
+        if huber:  # (16) e = R̂^{-1/2} ν (the posterior residual with irls); (9) Huber weights
+            e = (resid if irls and it > 0 else nu) / np.sqrt(Rhat)
+            w = np.where(ok, gamma / np.maximum(np.abs(e), gamma), 1.0)
+        Rt = np.where(ok, Rhat / w, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
+        resid, hph, fix = measurement_space_update(M, nu, Rt)  # (18)–(20) from the prior
+        fixed = fixed or fix
+        n_iter += 1
+        if not adapt:
+            break
+        r2 = resid * resid
+        if huber and robust_beta:  # navlab extension (off by default, §3.2): Huber-weighted β
+            r2 = r2 * gamma / np.maximum(np.abs(resid / np.sqrt(Rhat)), gamma)
+        beta_new = np.where(ok, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21) β = β⁻ + ½(r² + HP⁺Hᵀ)
+        delta = np.max(np.abs(beta_new - beta) / beta)
+        beta = beta_new
+        if tol > 0.0 and delta < tol:  # converged: this run stops
+            break
+    return beta, Rt, w, n_iter, delta, fixed
 
 
-_VB_RUNS = Kernel(_vb_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+VB_ITERATIONS = RunStep(
+    vb_iterations,
+    n_runs=5,
+    outs=((1, float), (1, float), (1, float), (None, float), (None, float), (None, bool)),
+    uses=(MEASUREMENT_SPACE_UPDATE,),
+)
+
+
+def student_t_iterations(M, nu, m_ok, dof, iters):  # pragma: no cover - compiled by numba
+    """The λ̄ iterations of one epoch for ONE run (§1.6), whitened by R0 = L Lᵀ (R_eff = I/λ̄).
+
+    M (m, m) = L⁻¹ H P⁻ Hᵀ L⁻ᵀ, nu (m,) = L⁻¹ ν (missing channels zero), m_ok the channels present.
+    Returns λ̄ and whether S needed jitter (flag 9).
+    """
+    lam, fixed = 1.0, False
+    for _ in range(iters):
+        # KF update with R_eff = R0/λ̄ (whitened: I/λ̄): whitened z − H x⁺ and diag H P⁺ Hᵀ
+        resid, hph, fix = measurement_space_update(M, nu, np.ones(nu.shape[0]) / lam)
+        fixed = fixed or fix
+        tr = max(np.sum(resid * resid + hph), 0.0)  # tr(D R0⁻¹); missing channels add 0
+        lam = (dof + m_ok) / (dof + tr)  # λ̄ = (ν_t + m)/(ν_t + tr(D R0⁻¹))
+    return lam, fixed
+
+
+STUDENT_T_ITERATIONS = RunStep(
+    student_t_iterations, n_runs=3, outs=((None, float), (None, bool)), uses=(MEASUREMENT_SPACE_UPDATE,)
+)
 
 
 def _flags(down: Array, fixed: Array) -> Array:
@@ -460,87 +375,17 @@ class _VBBase(Filter):
         rho = self.params.rho
         return st._replace(alpha=rho * st.alpha, beta=rho * st.beta)  # (13)–(14) α⁻, β⁻
 
-    def _weights(self, e: Array) -> Array:
-        return np.ones_like(e)
-
-    def _iterate(self, mk, beta_minus: Array, alpha: Array):
-        """The VB iterations of one epoch in numpy, batched (the reference of :func:`_vb_runs`)."""
-        p = self.params
-        ok, nu = mk.ok, mk.nu
-        B = nu.shape[0]
-        ms = MeasSpace(batched(mk.M, B), nu)
-        beta = beta_minus  # β^(0) = β⁻
-        resid = nu
-        present = None if ok.all() else ok  # channel mask (None: every channel present)
-        # per-run convergence: a run whose β changed by < tol is frozen (its β, R̃ and weights
-        # are those of its last iteration), so a run's result never depends on its batch
-        active = np.ones(B, dtype=bool)
-        running = None  # the runs still iterating (None: all of them)
-        iters, delta = np.zeros(B), np.zeros(B)
-        fixed = np.zeros(B, dtype=bool)
-        Rt_last = w_last = w = np.ones_like(nu)
-        for it in range(p.iters):
-            Rhat = beta / alpha  # (15) R̂^(it) = diag(β^(it)/α)
-            if self.huber:
-                r_e = resid if (p.irls and it > 0) else nu  # (16) prior innovation (or IRLS)
-                w = select(present, self._weights(r_e / np.sqrt(Rhat)), 1.0)  # (16) e = R̂^{-1/2} r; (9)
-            Rt = select(present, Rhat / w if self.huber else Rhat, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
-            resid, hph, fix = ms.step(Rt)  # (18)–(20) from the prior, in measurement space
-            if fix.any():
-                fixed |= fix & active
-            iters += active
-            rows = None if running is None else running[:, None]
-            Rt_last, w_last = select(rows, Rt, Rt_last), select(rows, w, w_last)
-            if not p.adapt:
-                break
-            r2 = resid * resid
-            if self.huber and p.robust_beta:  # navlab extension (off by default, §3.2)
-                r2 = r2 * self._weights(resid / np.sqrt(Rhat))
-            beta_new = select(present, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21)
-            d = np.max(np.abs(beta_new - beta) / beta, axis=-1)
-            delta, beta = select(running, d, delta), select(rows, beta_new, beta)
-            if p.tol > 0:
-                active = active & (d >= p.tol)
-                n_active = np.count_nonzero(active)
-                if n_active == 0:
-                    break
-                running = None if n_active == B else active
-        return beta, Rt_last, w_last, iters, delta, fixed
-
     def update(self, model: Model, state: VBState, k: int, z: Array, side: SideInfo):
         p = self.params
         x0, P0 = state.x, state.P
-        B, m = z.shape
+        B = z.shape[0]
         mk = measurement_prediction(model, x0, P0, k, z, np.asarray(model.R0, dtype=float))
         ok, nu = mk.ok, mk.nu
         alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
-        kernel = _VB_RUNS.get()
-        if kernel is not None:  # compiled, one run at a time; the numpy loop below is the reference
-            beta, Rt_last, w_last = np.empty((B, m)), np.empty((B, m)), np.empty((B, m))
-            iters, delta, fixed = np.empty(B), np.empty(B), np.empty(B, dtype=bool)
-            M = mk.M if mk.M.ndim == 3 else mk.M[None]
-            kernel(
-                carray(M),
-                carray(nu),
-                np.ascontiguousarray(ok),
-                carray(alpha),
-                carray(state.beta),
-                self.huber,
-                float(getattr(p, "gamma", 1.0)),
-                bool(getattr(p, "irls", False)),
-                bool(getattr(p, "robust_beta", False)),
-                bool(p.adapt),
-                int(p.iters),
-                float(p.tol),
-                beta,
-                Rt_last,
-                w_last,
-                iters,
-                delta,
-                fixed,
-            )
-        else:
-            beta, Rt_last, w_last, iters, delta, fixed = self._iterate(mk, state.beta, alpha)
+        flag = float(getattr(p, "gamma", 1.0)), bool(getattr(p, "irls", False))
+        opts = (self.huber, *flag, bool(getattr(p, "robust_beta", False)), p.adapt, p.iters, p.tol)
+        runs = (batched(mk.M, B), nu, ok, alpha, state.beta)
+        beta, Rt_last, w_last, iters, delta, fixed = VB_ITERATIONS(runs, opts)
         R_used = mask_missing(z, nu, diag_embed(Rt_last)).R  # the R in the last gain, R̃^(N−1)
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu, R_used)  # (18)–(20) in state space
         R_hat = diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
@@ -650,9 +495,6 @@ class HAKF(_VBBase):
         ),
     )
 
-    def _weights(self, e: Array) -> Array:
-        return huber_weight(e, self.params.gamma)
-
 
 # ---------------------------------------------------------------------------------------------
 # Student-t VB KF (§1.6)
@@ -722,15 +564,7 @@ class StudentTKF(Filter):
         mk = measurement_prediction(model, x0, P0, k, z, R0)
         dof_m = np.count_nonzero(mk.ok, axis=1).astype(float)
         Mw, nuw = whiten(mk.R, mk.M, mk.nu)  # by R0 = L Lᵀ: R_eff = I/λ̄ is diagonal
-        ms = MeasSpace(batched(Mw, B), nuw)
-        lam, ones = np.ones(B), np.ones(m)
-        fixed = np.zeros(B, dtype=bool)
-        for _ in range(p.iters):
-            # KF update with R_eff = R0/λ̄ (whitened: I/λ̄): whitened z − H x⁺ and diag H P⁺ Hᵀ
-            resid, hph, fix = ms.step(ones / lam[:, None])
-            fixed |= fix
-            tr = np.maximum(np.sum(resid * resid + hph, axis=-1), 0.0)  # tr(D R0⁻¹); missing channels add 0
-            lam = (p.dof + dof_m) / (p.dof + tr)  # λ̄ = (ν_t + m)/(ν_t + tr(D R0⁻¹))
+        lam, fixed = STUDENT_T_ITERATIONS((batched(Mw, B), nuw, dof_m), (p.dof, p.iters))
         Reff = mk.R / lam[:, None, None]  # R_eff = R0/λ̄
         x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, mk.nu, Reff)
         w = np.where(mk.ok, lam[:, None], 1.0) * np.ones((B, m))

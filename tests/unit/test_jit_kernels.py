@@ -1,7 +1,8 @@
 """The compiled filter kernels (navlab.jit) against their numpy reference paths, to round-off.
 
 Kernels: linalg's Cholesky solve (solve_sym, kf_gain), Joseph form and quadratic form; the VB
-iterations of vb-akf / hakf (huber_vb._vb_runs); the Sage–Husa clamp's inside test
+iterations of vb-akf / hakf / student-t-kf (huber_vb.vb_iterations, one run, uncompiled
+as the oracle); the Sage–Husa clamp's inside test
 (sage_husa.kernels.eig_inside); the INS model's f, h, H (ins.lc, through the drive0708 scenario).
 Each is compared with ``jit.numpy_paths()`` on the same inputs.
 """
@@ -174,6 +175,7 @@ VB_CASES = [
     ("hakf", {}),
     ("hakf", {"tol": 0.0, "irls": True}),
     ("hakf", {"robust_beta": True, "gamma": 1.0}),
+    ("student-t-kf", {}),
 ]
 
 
