@@ -342,7 +342,22 @@ def cholesky_solve(L, y):  # pragma: no cover - compiled by numba
         y[i] = s / L[i, i]
 
 
+def forward_substitute(L, G):  # pragma: no cover - compiled by numba
+    """G ← L⁻¹ G in place for a lower-triangular L (m, m) and G (m, p): L Y = G, row by row.
+
+    A helper of the compiled kernels.
+    """
+    m, p = G.shape
+    for j in range(p):
+        for i in range(m):
+            s = G[i, j]
+            for c in range(i):
+                s -= L[i, c] * G[c, j]
+            G[i, j] = s / L[i, i]
+
+
 CHOLESKY_LOWER = Kernel(cholesky_lower)
+FORWARD_SUBSTITUTE = Kernel(forward_substitute)
 CHOLESKY_SOLVE = Kernel(cholesky_solve)
 _SOLVE = Kernel(_solve_runs, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
 

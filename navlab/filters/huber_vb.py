@@ -67,6 +67,7 @@ from navlab.jit import Kernel, RunStep
 from navlab.linalg import (
     CHOLESKY_LOWER,
     CHOLESKY_SOLVE,
+    FORWARD_SUBSTITUTE,
     Array,
     batched,
     bcast,
@@ -74,6 +75,7 @@ from navlab.linalg import (
     cholesky_solve,
     diag,
     diag_embed,
+    forward_substitute,
     mask_missing,
     mT,
     mv,
@@ -101,38 +103,44 @@ def huber_weight(e: Array, gamma: float) -> Array:
     return gamma / np.maximum(np.abs(e), gamma)  # exactly 1.0 where |e| ≤ γ
 
 
-def measurement_space_update(M, nu, Rt):  # pragma: no cover - compiled by numba
+def measurement_space_update(M, nu, Rt, S, L, G, resid, hph):  # pragma: no cover - compiled by numba
     """One update from the prior with a diagonal R̃, for ONE run, in measurement space (S0 18–20).
 
     M (m, m) = H P⁻ Hᵀ, nu (m,) the prior innovation ν = z − H x⁻, Rt (m,) diag R̃ > 0. The
     paper's K, x⁺ and P⁺ (eqs. 18–20) enter the VB loop only through z − H x⁺ and H P⁺ Hᵀ, which
-    are, with S = M + R̃ and x⁺ = x⁻ + P⁻Hᵀ S⁻¹ ν, P⁺ = (I − K H) P⁻ (the same algebra, m × m):
+    are, with S = M + R̃ = L Lᵀ, x⁺ = x⁻ + P⁻Hᵀ S⁻¹ ν and P⁺ = (I − K H) P⁻ (the same algebra, m × m):
 
-        z − H x⁺ = ν − M S⁻¹ ν = R̃ S⁻¹ ν ,        H P⁺ Hᵀ = M − M S⁻¹ M .
+        z − H x⁺ = ν − M S⁻¹ ν = R̃ S⁻¹ ν ,    (H P⁺ Hᵀ)_ii = M_ii − (M S⁻¹ M)_ii = M_ii − |L⁻¹ M_:i|² .
 
-    Returns (z − H x⁺, diag H P⁺ Hᵀ, fixed): fixed if S needed jitter to factor (flag 9).
+    Writes z − H x⁺ into ``resid`` and diag H P⁺ Hᵀ into ``hph`` (S, L, G (m, m): work arrays, so
+    that an iteration allocates nothing); returns True if S needed jitter to factor (flag 9).
     """
     m = nu.shape[0]
-    S = M + np.diag(Rt)  # (18) S = H P⁻ Hᵀ + R̃
-    L = np.zeros((m, m))
+    S[:] = M
+    for i in range(m):
+        S[i, i] += Rt[i]  # (18) S = H P⁻ Hᵀ + R̃
     fixed = False
     if not cholesky_lower(S, L):  # S = L Lᵀ; a numerical repair is recorded, never silent
         tr = np.trace(S)
-        S = S + max(1e-12 * tr / m, 1e-300) * np.eye(m)
+        for i in range(m):
+            S[i, i] += max(1e-12 * tr / m, 1e-300)
         fixed = cholesky_lower(S, L) and np.isfinite(tr)
-    Sinv_nu = nu.copy()
-    cholesky_solve(L, Sinv_nu)
-    Sinv_M = np.empty((m, m))
-    for j in range(m):
-        col = M[:, j].copy()
-        cholesky_solve(L, col)
-        Sinv_M[:, j] = col
-    resid = Rt * Sinv_nu  # (19) z − H x⁺ = R̃ S⁻¹ ν
-    hph = np.diag(M) - np.sum(M * Sinv_M.T, axis=1)  # (20) diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M)
-    return resid, hph, fixed
+    resid[:] = nu
+    cholesky_solve(L, resid)  # S⁻¹ ν
+    for i in range(m):
+        resid[i] *= Rt[i]  # (19) z − H x⁺ = R̃ S⁻¹ ν
+    G[:] = M
+    forward_substitute(L, G)  # G = L⁻¹ M
+    for i in range(m):  # (20) diag(H P⁺ Hᵀ) = diag(M − M S⁻¹ M) = M_ii − |L⁻¹ M_:i|²
+        hph[i] = M[i, i]
+        for c in range(m):
+            hph[i] -= G[c, i] * G[c, i]
+    return fixed
 
 
-MEASUREMENT_SPACE_UPDATE = Kernel(measurement_space_update, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+MEASUREMENT_SPACE_UPDATE = Kernel(
+    measurement_space_update, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE, FORWARD_SUBSTITUTE)
+)
 
 
 def vb_iterations(
@@ -150,26 +158,33 @@ def vb_iterations(
     m = nu.shape[0]
     beta = beta_minus.copy()  # β^(0) = β⁻
     resid = nu.copy()
-    w = np.ones(m)
-    Rt = np.ones(m)
+    w, Rt, Rhat, hph = np.ones((4, m))  # per channel: weight, R̃, R̂, H P⁺ Hᵀ
+    S, L, G = np.empty((3, m, m))  # work arrays of the update
     n_iter, delta, fixed = 0, 0.0, False
     for it in range(iters):
-        Rhat = beta / alpha  # (15) R̂ = diag(β/α)
-        if huber:  # (16) e = R̂^{-1/2} ν (the posterior residual with irls); (9) Huber weights
-            e = (resid if irls and it > 0 else nu) / np.sqrt(Rhat)
-            w = np.where(ok, gamma / np.maximum(np.abs(e), gamma), 1.0)
-        Rt = np.where(ok, Rhat / w, 1.0)  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
-        resid, hph, fix = measurement_space_update(M, nu, Rt)  # (18)–(20) from the prior
+        for i in range(m):
+            if not ok[i]:  # a missing channel: no weight, no estimate
+                continue
+            Rhat[i] = beta[i] / alpha[i]  # (15) R̂ = diag(β/α)
+            if huber:  # (16) e = R̂^{-1/2} ν (the posterior residual with irls); (9) Huber weight
+                e = (resid[i] if irls and it > 0 else nu[i]) / np.sqrt(Rhat[i])
+                w[i] = gamma / max(abs(e), gamma)
+            Rt[i] = Rhat[i] / w[i]  # (17) R̃ = R̂^{1/2} Ψ⁻¹ R̂^{1/2}
+        fix = measurement_space_update(M, nu, Rt, S, L, G, resid, hph)  # (18)–(20) from the prior
         fixed = fixed or fix
         n_iter += 1
         if not adapt:
             break
-        r2 = resid * resid
-        if huber and robust_beta:  # navlab extension (off by default, §3.2): Huber-weighted β
-            r2 = r2 * gamma / np.maximum(np.abs(resid / np.sqrt(Rhat)), gamma)
-        beta_new = np.where(ok, beta_minus + 0.5 * (r2 + hph), beta_minus)  # (21) β = β⁻ + ½(r² + HP⁺Hᵀ)
-        delta = np.max(np.abs(beta_new - beta) / beta)
-        beta = beta_new
+        delta = 0.0
+        for i in range(m):
+            if not ok[i]:
+                continue
+            r2 = resid[i] ** 2
+            if huber and robust_beta:  # navlab extension (off by default, §3.2): Huber-weighted β
+                r2 *= gamma / max(abs(resid[i]) / np.sqrt(Rhat[i]), gamma)
+            b_new = beta_minus[i] + 0.5 * (r2 + hph[i])  # (21) β = β⁻ + ½ ((z − Hx⁺)² + H P⁺ Hᵀ)
+            delta = max(delta, abs(b_new - beta[i]) / beta[i])
+            beta[i] = b_new
         if tol > 0.0 and delta < tol:  # converged: this run stops
             break
     return beta, Rt, w, n_iter, delta, fixed
@@ -189,10 +204,13 @@ def student_t_iterations(M, nu, m_ok, dof, iters):  # pragma: no cover - compile
     M (m, m) = L⁻¹ H P⁻ Hᵀ L⁻ᵀ, nu (m,) = L⁻¹ ν (missing channels zero), m_ok the channels present.
     Returns λ̄ and whether S needed jitter (flag 9).
     """
+    m = nu.shape[0]
     lam, fixed = 1.0, False
+    resid, hph = np.empty((2, m))
+    S, L, G = np.empty((3, m, m))  # work arrays of the update
     for _ in range(iters):
         # KF update with R_eff = R0/λ̄ (whitened: I/λ̄): whitened z − H x⁺ and diag H P⁺ Hᵀ
-        resid, hph, fix = measurement_space_update(M, nu, np.ones(nu.shape[0]) / lam)
+        fix = measurement_space_update(M, nu, np.full(m, 1.0 / lam), S, L, G, resid, hph)
         fixed = fixed or fix
         tr = max(np.sum(resid * resid + hph), 0.0)  # tr(D R0⁻¹); missing channels add 0
         lam = (dof + m_ok) / (dof + tr)  # λ̄ = (ν_t + m)/(ν_t + tr(D R0⁻¹))

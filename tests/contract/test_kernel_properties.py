@@ -201,7 +201,9 @@ def test_vb_measurement_space_update_equals_state_space(B, m, seed):
     dx = (K @ nu[..., None])[..., 0]
     Pp = P - K @ H @ P
     for b in range(B):
-        resid, hph, fixed = measurement_space_update(M[b], nu[b], Rt[b])
+        work = np.empty((3, m, m))
+        resid, hph = np.empty(m), np.empty(m)
+        fixed = measurement_space_update(M[b], nu[b], Rt[b], *work, resid, hph)
         np.testing.assert_allclose(resid, nu[b] - H @ dx[b], rtol=1e-7, atol=1e-9)
         np.testing.assert_allclose(hph, np.diag(H @ Pp[b] @ H.T), rtol=1e-7, atol=1e-8 * np.abs(M).max())
         assert not fixed
