@@ -16,42 +16,20 @@ Per epoch, in §4.6's numbering::
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import (
-    DOWNWEIGHTED,
-    REJECTED,
-    REJECTED_AUX,
-    Filter,
-    KFLimit,
-    Model,
-    SideInfo,
-    StepOut,
-    Teaching,
-    flag_fix,
-    register,
-)
+from navlab.filters.base import KFLimit, Model, Teaching, register
 from navlab.filters.kalman import measurement_prediction
-from navlab.filters.sage_husa.kernels import (
-    Window,
-    check_k0_k1,
-    clamp_eig,
-    irakf_weights,
-    rae_estimate,
-    rhat_bounds,
-    scale_diag,
-    zero_columns,
-)
+from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag, zero_columns
+from navlab.filters.sage_husa.rrae import RRAE, Robust
 from navlab.linalg import (
     Array,
-    PHt,
-    batched,
+    Masked,
     diag,
     joseph_from_gain,
     kf_gain,
-    mask_missing,
     mv,
     predict_cov,
     sym,
@@ -113,7 +91,7 @@ class IRAKFState(NamedTuple):
 
 
 @register
-class IRAKF(Filter):
+class IRAKF(RRAE):
     """Improved robust adaptive KF (Ge, Zhang, Tang 2020; ALGORITHMS.md §4.6).
 
     Per epoch: (1) a parallel, ungated standard KF with the fixed R0 flags channels whose
@@ -132,6 +110,7 @@ class IRAKF(Filter):
         "Windowed residual-based R̂, three-segment IGG/Huber weights that zero the gain of "
         "rejected channels, and a parallel standard KF as a second outlier detector."
     )
+    reconstruction = False  # unlike RRAE, whose update steps it shares: S1 itself is implemented
     estimates_R = True
     Params = IRAKFParams
     kf_limit = KFLimit(
@@ -159,34 +138,23 @@ class IRAKF(Filter):
         ),
     )
 
-    def __init__(self, params: Any = None, **kwargs: Any) -> None:
-        super().__init__(params, **kwargs)
-        check_k0_k1(self.key, self.params.k0, self.params.k1)
-
     def init(self, model: Model, x0: Array, P0: Array) -> IRAKFState:
-        x0 = np.array(x0, dtype=float)
-        B = x0.shape[0]
-        P = batched(np.asarray(P0, dtype=float), B).copy()
-        win = Window.empty(B, self.params.window, model.m)
+        st = super().init(model, x0, P0)
         Ps = np.array(P0, dtype=float)  # the ungated SKF keeps a shared P if P0 is shared
-        return IRAKFState(x0, P, P, win, x0.copy(), Ps)
+        return IRAKFState(*st, st.x.copy(), Ps)
 
     def predict(self, model: Model, state: IRAKFState, k: int) -> IRAKFState:
-        F, Q = model.F(k), model.Q(k)
-        x = model.f(state.x, k)  # 2  x⁻ = F x⁺
-        P = predict_cov(F, state.P, Q)  # 2  P⁻ = F P⁺ Fᵀ + Q
-        if self.params.dual_detection:  # the parallel SKF's own prediction
-            xs, Ps = model.f(state.xs, k), predict_cov(F, state.Ps, Q)
-        else:
-            xs, Ps = state.xs, state.Ps
-        return state._replace(x=x, P=P, P_post=state.P, xs=xs, Ps=Ps)
+        st = super().predict(model, state, k)  # 2  x⁻ = F x⁺ ;  P⁻ = F P⁺ Fᵀ + Q
+        if not self.params.dual_detection:
+            return st
+        return st._replace(xs=model.f(state.xs, k), Ps=predict_cov(model.F(k), state.Ps, model.Q(k)))
 
-    def _skf_step(self, model: Model, state: IRAKFState, k: int, z: Array):
+    def detect(self, model: Model, state: IRAKFState, k: int, z: Array) -> Detection:
         """1  Parallel SKF (§4.5): detection flags from its own innovation, then its own update."""
         p = self.params
         B, m = z.shape
         if not p.dual_detection:
-            return np.zeros((B, m), dtype=bool), np.zeros((B, m)), state.xs, state.Ps
+            return Detection(np.zeros((B, m), dtype=bool), np.zeros((B, m)), state.xs, state.Ps)
         mk = measurement_prediction(model, state.xs, state.Ps, k, z, model.R0)
         Ss = sym(mk.M + mk.R)  # S_S = H P_S⁻ Hᵀ + R0
         nt_s = mk.nu / np.sqrt(diag(Ss))
@@ -194,41 +162,22 @@ class IRAKF(Filter):
         K, _ = kf_gain(mk.U, Ss)  # the standard KF update; gated option: detections' columns zeroed
         if p.skf_gated and flag_s.any():
             K = zero_columns(K, flag_s)
-        xs = state.xs + mv(K, mk.nu)
-        Ps = joseph_from_gain(state.Ps, K, mk.U, Ss)
-        return flag_s, nt_s, xs, Ps
+        return Detection(flag_s, nt_s, state.xs + mv(K, mk.nu), joseph_from_gain(state.Ps, K, mk.U, Ss))
 
-    def update(self, model: Model, state: IRAKFState, k: int, z: Array, side: SideInfo):
+    def use_prior(self, det: Detection, B: int) -> Array:
+        """3  P⁻ in R̂ (eq. 4, "improved RAE") on the epochs the parallel SKF flags (or always/never)."""
+        if self.params.improved_rae == "conditional":
+            return det.flag.any(axis=1)
+        return np.full(B, self.params.improved_rae == "always")
+
+    def robust_gain(self, mk: Masked, S: Array, nt: Array, sig: Array, det: Detection) -> Robust:
+        """4–5  K from the unmodified R̂; three-segment weights (eq. 7) + SKF detections."""
         p = self.params
-        B, m = z.shape
-        flag_s, nt_s, xs, Ps = self._skf_step(model, state, k, z)  # 1
-        x_m, P_m = state.x, state.P  # 2 (predict)
-        H = model.H(x_m, k)
-        U, M = PHt(P_m, H)
-        # 3  R̂ by RAE (eq. 3) or improved RAE (eq. 4)
-        if p.improved_rae == "conditional":  # eq. 4 on the epochs the parallel SKF flags
-            use_prior = flag_s.any(axis=1)
-        else:
-            use_prior = np.full(B, p.improved_rae == "always")
-        flags = np.zeros((B, m), dtype=np.int8)
-        if state.win.full:
-            HPH_ref = np.where(use_prior[:, None, None], M, PHt(state.P_post, H)[1])  # H P_ref Hᵀ
-            lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
-            R_hat, clamped = clamp_eig(rae_estimate(state.win, HPH_ref, model.R0), lo, hi)
-            flag_fix(flags, clamped, overwrite=False)
-        else:
-            R_hat = batched(np.asarray(model.R0, dtype=float), B).copy()
-        # 4  gain from the unmodified R̂; normalised innovations
-        mk = mask_missing(z, z - model.h(x_m, k), R_hat, U=U, M=M)
-        S = sym(mk.M + mk.R)
-        K, fixed = kf_gain(mk.U, S)
-        sig = np.sqrt(diag(S))
-        nt = mk.nu / sig  # ν̃_i = ν_i / √S_ii
-        # 5  three-segment weights (eq. 7) + SKF detections: zero gain columns
+        K, fixed = kf_gain(mk.U, S)  # 4  K = P⁻ Hᵀ S⁻¹
         w, zone = irakf_weights(nt, p.k0, p.k1, p.middle_segment, sig)
         own_reject = (zone == 2) & mk.ok
-        aux_reject = flag_s & ~own_reject
-        reject = own_reject | aux_reject
+        aux = det.flag & ~own_reject
+        reject = own_reject | aux
         down = (zone == 1) & ~reject & mk.ok
         R_used, S_used, nu_w = mk.R, S, np.where(down, w * mk.nu, mk.nu)  # ν_i ← ν_i k0/|ν̃_i|
         if p.middle_zone == "variance" and down.any():
@@ -241,30 +190,30 @@ class IRAKF(Filter):
             fixed = fixed | fixed2
             nu_w = mk.nu
         if reject.any():
-            K = zero_columns(K, reject)  # K[:, i] = 0
-        # 6  state and Joseph covariance (P keeps the information of rejected channels out)
-        x = x_m + mv(K, nu_w)
-        P = joseph_from_gain(P_m, K, mk.U, S_used)
-        # 7  raw posterior residual into the window (rejected channels included, S1)
-        win = state.win.push(z - model.h(x, k), mk.ok)
-        flags[down] = DOWNWEIGHTED
-        flags[own_reject] = REJECTED
-        flags[aux_reject] = REJECTED_AUX
-        flag_fix(flags, fixed, overwrite=False)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=R_used,
-            R_hat=R_hat,
-            weights=np.where(reject, 0.0, np.where(down, w, 1.0)),
-            flags=flags,
-            stats={
-                "nu_tilde": nt,
-                "skf_nu_tilde": nt_s,
-                "skf_flag": flag_s.astype(float),
-                "improved_rae": use_prior.astype(float),
-            },
-        )
-        return IRAKFState(x, P, P, win, xs, Ps), out
+            K = zero_columns(K, reject)  # 5  K[:, i] = 0
+        weights = np.where(reject, 0.0, np.where(down, w, 1.0))
+        return Robust(K, nu_w, S_used, R_used, weights, down, reject, aux, fixed)
+
+    def posterior(self, P_m: Array, K: Array, U: Array, S: Array) -> Array:
+        """6  Joseph form: P keeps the information of rejected channels out."""
+        return joseph_from_gain(P_m, K, U, S)
+
+    def stats(self, nt: Array, det: Detection) -> dict[str, Array]:
+        return {
+            "nu_tilde": nt,
+            "skf_nu_tilde": det.nu_tilde,
+            "skf_flag": det.flag.astype(float),
+            "improved_rae": self.use_prior(det, nt.shape[0]).astype(float),
+        }
+
+    def next_state(self, state: IRAKFState, x: Array, P: Array, win: Window, det: Detection) -> IRAKFState:
+        return IRAKFState(x, P, P, win, det.xs, det.Ps)  # 7  the window took η_k = z − H x⁺
+
+
+class Detection(NamedTuple):
+    """The parallel SKF's verdict (flag, ν̃ per channel) and its own updated mean and covariance."""
+
+    flag: Array
+    nu_tilde: Array
+    xs: Array
+    Ps: Array

@@ -20,6 +20,7 @@ import numpy as np
 from navlab.filters.base import (
     DOWNWEIGHTED,
     REJECTED,
+    REJECTED_AUX,
     Filter,
     KFLimit,
     Model,
@@ -38,7 +39,7 @@ from navlab.filters.sage_husa.kernels import (
     rhat_bounds,
     scale_diag,
 )
-from navlab.linalg import Array, PHt, batched, diag, kf_gain, mask_missing, mT, mv, predict_cov, sym
+from navlab.linalg import Array, Masked, PHt, batched, diag, kf_gain, mask_missing, mT, mv, predict_cov, sym
 from navlab.params import param
 
 
@@ -129,26 +130,65 @@ class RRAE(Filter):
         P = predict_cov(model.F(k), state.P, model.Q(k))
         return state._replace(x=x, P=P, P_post=state.P)
 
+    # The update in named steps (§4.7's numbering; IRAKF overrides its own, §4.6) ---------------
     def update(self, model: Model, state: RAEState, k: int, z: Array, side: SideInfo):
-        p = self.params
         B, m = z.shape
+        det = self.detect(model, state, k, z)  # a second outlier detector (none here)
         x_m, P_m = state.x, state.P
         H = model.H(x_m, k)
-        # 1  RAE R̂ with P⁺_{k−1} (S1 eq. 3), eigenvalue guard
-        flags = np.zeros((B, m), dtype=np.int8)
-        if state.win.full:
-            lo, hi = rhat_bounds(model.R0)
-            R_hat, clamped = clamp_eig(rae_estimate(state.win, PHt(state.P_post, H)[1], model.R0), lo, hi)
-            flag_fix(flags, clamped, overwrite=False)
-        else:
-            R_hat = batched(np.asarray(model.R0, dtype=float), B).copy()
-        # 2  innovation statistics with R̂
         U, M = PHt(P_m, H)
+        flags = np.zeros((B, m), dtype=np.int8)
+        R_hat = self.rhat(model, state, H, M, det, flags)  # 1  RAE R̂ (eq. 3), eigenvalue guard
+        # 2  innovation statistics with R̂: S = H P⁻ Hᵀ + R̂, ν̃_i = ν_i / √S_ii
         mk = mask_missing(z, z - model.h(x_m, k), R_hat, U=U, M=M)
         S = sym(mk.M + mk.R)
-        nt = mk.nu / np.sqrt(diag(S))  # ν̃_i = ν_i / √S_ii
-        # 3  IGG-III equivalent weights
-        w, zone = igg3_weights(nt, p.k0, p.k1)
+        sig = np.sqrt(diag(S))
+        nt = mk.nu / sig
+        g = self.robust_gain(mk, S, nt, sig, det)  # 3–5  weights, then the gain they leave
+        x = x_m + mv(g.K, g.nu)  # 5  x⁺ = x⁻ + K ν
+        P = self.posterior(P_m, g.K, mk.U, g.S)
+        win = state.win.push(z - model.h(x, k), mk.ok)  # 6  posterior residual into the window
+        flags[g.down] = DOWNWEIGHTED
+        flags[g.reject & ~g.aux] = REJECTED
+        flags[g.aux] = REJECTED_AUX
+        flag_fix(flags, g.fixed, overwrite=False)
+        out = StepOut(
+            x=x,
+            P=P,
+            innov=mk.nu,
+            S=S,
+            R_used=g.R,
+            R_hat=R_hat,
+            weights=g.weights,
+            flags=flags,
+            stats=self.stats(nt, det),
+        )
+        return self.next_state(state, x, P, win, det), out
+
+    def detect(self, model: Model, state: RAEState, k: int, z: Array) -> Any:
+        """A second outlier detector beside the filter's own weights (RRAE has none)."""
+        return None
+
+    def use_prior(self, det: Any, B: int) -> Array:
+        """(B,) True where R̂ takes H P⁻ Hᵀ (eq. 4) instead of H P⁺ₖ₋₁ Hᵀ (eq. 3): never here."""
+        return np.zeros(B, dtype=bool)
+
+    def rhat(self, model: Model, state: RAEState, H: Array, M: Array, det: Any, flags: Array) -> Array:
+        """R̂_k = (1/M) Σ η_j η_jᵀ + H P_ref Hᵀ (S1 eqs. 3/4), R0 until the window is full, clamped."""
+        B = M.shape[0] if M.ndim == 3 else state.x.shape[0]
+        if not state.win.full:
+            return batched(np.asarray(model.R0, dtype=float), B).copy()
+        use_prior = self.use_prior(det, B)
+        HPH_ref = np.where(use_prior[:, None, None], M, PHt(state.P_post, H)[1])  # H P_ref Hᵀ
+        lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
+        R_hat, clamped = clamp_eig(rae_estimate(state.win, HPH_ref, model.R0), lo, hi)
+        flag_fix(flags, clamped, overwrite=False)
+        return R_hat
+
+    def robust_gain(self, mk: Masked, S: Array, nt: Array, sig: Array, det: Any) -> Robust:
+        """3–5  IGG-III weights; middle zone R̄_ii = R̂_ii / w_i, rejection zone ν_i ← 0; K with R̄."""
+        p = self.params
+        w, zone = igg3_weights(nt, p.k0, p.k1)  # 3  IGG-III equivalent weights
         w = np.where(mk.ok, w, 1.0)
         zone = np.where(mk.ok, zone, 0)
         if p.form == "literal_scaling":  # option: ν_i ← w_i ν_i in every zone, K and P from R̂
@@ -157,25 +197,34 @@ class RRAE(Filter):
             mid = zone == 1
             R_bar = scale_diag(mk.R, np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0))
             nu_w = np.where(zone == 2, 0.0, mk.nu)
-        # 5  gain with R̄; short-form P (deliberately: P shrinks on zeroed channels, §4.7)
         S_bar = sym(mk.M + R_bar)
-        K, fixed = kf_gain(mk.U, S_bar)
-        x = x_m + mv(K, nu_w)
-        P = sym(P_m - K @ mT(mk.U))  # (I − K H) P⁻, with H P⁻ = Uᵀ (P⁻ symmetric)
-        # 6  posterior residual into the window
-        win = state.win.push(z - model.h(x, k), mk.ok)
-        flags[zone == 1] = DOWNWEIGHTED
-        flags[zone == 2] = REJECTED
-        flag_fix(flags, fixed, overwrite=False)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=R_bar,
-            R_hat=R_hat,
-            weights=w,
-            flags=flags,
-            stats={"nu_tilde": nt},
-        )
-        return RAEState(x, P, P, win), out
+        K, fixed = kf_gain(mk.U, S_bar)  # 5  K = P⁻ Hᵀ (H P⁻ Hᵀ + R̄)⁻¹
+        no = np.zeros(zone.shape, dtype=bool)
+        return Robust(K, nu_w, S_bar, R_bar, w, zone == 1, zone == 2, no, fixed)
+
+    def posterior(self, P_m: Array, K: Array, U: Array, S: Array) -> Array:
+        """5  P⁺ = (I − K H) P⁻, the short form on purpose (P shrinks on zeroed channels, §4.7)."""
+        return sym(P_m - K @ mT(U))  # with H P⁻ = Uᵀ (P⁻ symmetric)
+
+    def stats(self, nt: Array, det: Any) -> dict[str, Array]:
+        return {"nu_tilde": nt}
+
+    def next_state(self, state: RAEState, x: Array, P: Array, win: Window, det: Any) -> RAEState:
+        return RAEState(x, P, P, win)
+
+
+class Robust(NamedTuple):
+    """What the weight step leaves for the update: the gain, the (weighted) innovation, the S and R
+    in that gain, the per-channel weights (B, m), and which channels were down-weighted, rejected
+    (by either detector) or rejected by the auxiliary detector only; fixed: S needed a repair.
+    """
+
+    K: Array
+    nu: Array
+    S: Array
+    R: Array
+    weights: Array
+    down: Array
+    reject: Array
+    aux: Array
+    fixed: Array
