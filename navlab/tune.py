@@ -49,7 +49,7 @@ from navlab import metrics as M
 from navlab import stats as S
 from navlab import tasks as T
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, plan
+from navlab.experiment import ExperimentSpec, filter_group, plan
 from navlab.filters import registry
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
@@ -133,8 +133,7 @@ def space(spec: ExperimentSpec, key: str, ranges: dict[str, tuple[float, float]]
     or added by ``ranges`` {"FILTER.NAME": (lo, hi)}); defaults are the spec's values.
     """
     cls = registry()[key]
-    scls = scenario_registry()[spec.scenario]
-    base = {**scls.filter_defaults.get(key, {}), **spec.filter_params.get(key, {})}
+    base = filter_group(spec, key).settings()
     ranges = {k: v for k, v in (ranges or {}).items() if k.split(".", 1)[0] == key}
     known = {p["name"]: p for p in describe(cls.Params)}
     for name in ranges:

@@ -19,7 +19,8 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), PAGE)
+experiment = sidebar_experiment(PageDefaults(), PAGE)  # planned once, run as it is
+spec = experiment.spec
 
 # Run, Stop and the progress on one line, above the charts
 c1, c2, c3 = st.columns([1, 1, 6], vertical_alignment="center")
@@ -47,7 +48,7 @@ view = CompareView(PAGE)
 if run_requested(PAGE, spec):
     view.live = True
     res = run_live(
-        spec,
+        experiment,
         PAGE,
         view.render,
         first_chunk=None if live else spec.runs,

@@ -18,7 +18,8 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "noise")
+experiment = sidebar_experiment(PageDefaults(), "noise")  # planned once, run as it is
+spec = experiment.spec
 
 c1, c2, c3, c4 = st.columns([1, 2, 2, 3])
 if c1.button("Run", type="primary", key="run_noise"):
@@ -32,6 +33,6 @@ c4.caption(
 
 view = NoiseView(PAGE)
 if run_requested(PAGE, spec):
-    run_live(spec, PAGE, view.render)
+    run_live(experiment, PAGE, view.render)
 else:
     show_stored(view, spec)

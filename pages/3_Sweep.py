@@ -22,7 +22,7 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "sweep", header="Base experiment")
+spec = sidebar_experiment(PageDefaults(), "sweep", header="Base experiment").spec
 
 params = {s.id: s for s in U.sweepables(spec)}
 if not params:

@@ -32,7 +32,7 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "tune", header="Experiment (test runs)")
+spec = sidebar_experiment(PageDefaults(), "tune", header="Experiment (test runs)").spec
 
 c1, c2, c3, c4 = st.columns([1, 1, 2, 1])
 budget = int(

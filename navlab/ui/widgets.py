@@ -37,7 +37,17 @@ from typing import Any
 import streamlit as st
 
 from navlab.errors import NavlabError
-from navlab.experiment import MAX_RUNS, SEED_MAX, ExperimentSpec, plan
+from navlab.experiment import (
+    KINDS,
+    MAX_RUNS,
+    SEED_MAX,
+    ExperimentSpec,
+    Plan,
+    as_plan,
+    param_groups,
+    plan,
+    presets,
+)
 from navlab.filters import registry
 from navlab.noise import OUTLIERS, SCHEDULES
 from navlab.params import describe
@@ -117,13 +127,6 @@ def default_runs(scn: str, defaults: PageDefaults) -> int:
     return int(max(1, min(UI_MAX_RUNS, n)))
 
 
-def outlier_param_default(scn: str, model: str, name: str, class_default: Any) -> Any:
-    """The scenario's override of an outlier-model default (e.g. cv2d's isolated preset)."""
-    over = scenario_registry()[scn].outlier_defaults.get(model, {})
-    v = over.get(name, class_default)
-    return tuple(v) if isinstance(v, list) else v
-
-
 # --------------------------------------------------------------------------- generic widget
 
 
@@ -135,56 +138,62 @@ def _float_step(default: float, lo: float | None, hi: float | None) -> float:
     return 0.1
 
 
-def param_widget(p: dict[str, Any], key: str, default: Any, container: Any = None) -> Any:
+def param_widget(
+    p: dict[str, Any],
+    key: str,
+    default: Any,
+    container: Any = None,
+    *,
+    label: str | None = None,
+    style: str | None = None,
+    step: float | None = None,
+) -> Any:
     """One bound widget for a parameter described by :func:`navlab.params.describe`.
 
     Returns the widget's value, or ``default`` for parameters that have no widget (tuples,
     ``ui=False``). Ranges come from the parameter's ``lo``/``hi``, so impossible values cannot
-    be entered.
+    be entered. ``label`` replaces the parameter's name; ``style`` "toggle" draws a switch for a
+    true/false parameter, "slider" a slider for a number; ``step`` replaces the number's step.
     """
     c = container if container is not None else st
     if not p.get("ui", True) or isinstance(default, tuple):
         return default
-    label = p["name"].replace("_", " ")
-    help_ = p.get("help") or None
+    label = label or p["name"].replace("_", " ")
+    common = {"key": key, "help": p.get("help") or None, "bind": BIND}
     lo, hi = p.get("lo"), p.get("hi")
     if isinstance(default, bool):
-        return c.checkbox(label, value=default, key=key, help=help_, bind=BIND)
+        return (c.toggle if style == "toggle" else c.checkbox)(label, value=default, **common)
     if isinstance(default, int):
-        return int(
-            c.number_input(
-                label,
-                value=int(default),
-                step=1,
-                key=key,
-                help=help_,
-                bind=BIND,
-                min_value=None if lo is None else math.ceil(lo),
-                max_value=None if hi is None else math.floor(hi),
-            )
-        )
+        lo_i, hi_i = None if lo is None else math.ceil(lo), None if hi is None else math.floor(hi)
+        bounds = {"min_value": lo_i, "max_value": hi_i}
+        return int(c.number_input(label, value=int(default), step=step or 1, **bounds, **common))
     if isinstance(default, float):
+        lo_f, hi_f = None if lo is None else float(lo), None if hi is None else float(hi)
+        step = step or _float_step(default, lo, hi)
+        if style == "slider":
+            return float(c.slider(label, lo_f, hi_f, float(default), step, **common))
         return float(
             c.number_input(
-                label,
-                value=float(default),
-                step=_float_step(default, lo, hi),
-                format="%g",
-                key=key,
-                help=help_,
-                bind=BIND,
-                min_value=None if lo is None else float(lo),
-                max_value=None if hi is None else float(hi),
+                label, value=float(default), step=step, format="%g", min_value=lo_f, max_value=hi_f, **common
             )
         )
     choices = p.get("choices")
     if choices:
         opts = list(choices)
-        idx = opts.index(default) if default in opts else 0
-        return c.selectbox(label, opts, index=idx, key=key, help=help_, bind=BIND)
+        return c.selectbox(label, opts, index=opts.index(default) if default in opts else 0, **common)
     if isinstance(default, str):
-        return c.text_input(label, value=default, key=key, help=help_, bind=BIND)
+        return c.text_input(label, value=default, **common)
     return default
+
+
+def field_widget(Params: type, name: str, key: str, label: str, *, default: Any = None, **kw: Any) -> Any:
+    """A bound widget for field ``name`` of the parameter dataclass ``Params``: its bounds,
+    choices and help come from the field's :func:`navlab.params.param` (a page never restates
+    them); ``default`` (None: the field's) is the page's starting value. ``kw``: as
+    :func:`param_widget` (``container``, ``style``, ``step``).
+    """
+    p = next(d for d in describe(Params) if d["name"] == name)
+    return param_widget(p, key, p["default"] if default is None else default, label=label, **kw)
 
 
 def param_group(
@@ -264,6 +273,7 @@ class Config:
     spec: ExperimentSpec | None
     error: str | None = None
     skipped: dict[str, str] = field(default_factory=dict)  # filter key -> reason
+    plan: Plan | None = None  # the spec, planned (validated) once: passed on to the run
 
 
 def _selectbox(c: Any, label: str, options: list[str], default: str, key: str, **kw: Any) -> str:
@@ -283,8 +293,8 @@ def _on_scenario_change(defaults: PageDefaults) -> None:
     # parameters some scenario presets (outlier model, filter) restart from the new scenario's
     # value; everything else the user set is kept
     for scls in scenario_registry().values():
-        for kind, presets in (("ol", scls.outlier_defaults), ("fp", scls.filter_defaults)):
-            for owner, values in presets.items():
+        for kind, table in (("ol", scls.outlier_defaults), ("fp", scls.filter_defaults)):
+            for owner, values in table.items():
                 for name in values:
                     st.session_state.pop(pkey(kind, owner, name), None)
 
@@ -377,9 +387,8 @@ def experiment_config(
     c.caption(ocls.summary)
     oparams: dict[str, Any] = {}
     if has_widgets(ocls.Params):
-        over = scls.outlier_defaults.get(out, {})
         with c.expander("Outlier parameters", expanded=True):
-            oparams = param_group("ol", out, ocls.Params, overrides=over)
+            oparams = param_group("ol", out, ocls.Params, overrides=presets(scls, "ol", out))
 
     skipped: dict[str, str] = {}
     run_filters: list[str] = []
@@ -398,7 +407,7 @@ def experiment_config(
         with c.expander("Filter tuning", expanded=False):
             for k in tunable:
                 st.markdown(f"**{reg[k].label}** (`{k}`)")
-                vals = param_group("fp", k, reg[k].Params, overrides=scls.filter_defaults.get(k))
+                vals = param_group("fp", k, reg[k].Params, overrides=presets(scls, "fp", k))
                 if vals:
                     fparams[k] = vals
 
@@ -417,14 +426,13 @@ def experiment_config(
     }
     try:
         spec = ExperimentSpec.from_dict(spec_d)
-        if run_filters:
-            plan(spec)
+        planned = plan(spec) if run_filters else None
     except NavlabError as exc:
         return Config(None, str(exc), skipped)
-    if not run_filters:
+    if planned is None:
         msg = "choose at least one filter" if not skipped else "none of the chosen filters can run here"
         return Config(None, msg, skipped)
-    return Config(spec, None, skipped)
+    return Config(spec, None, skipped, planned)
 
 
 # --------------------------------------------------------------------------- spec -> widgets
@@ -436,9 +444,8 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     Returns the settings that have no widget (kept for this session in :data:`EXTRA_KEY`, but not
     in the URL). Raises NavlabError when the spec names something unknown.
     """
-    p = plan(spec)  # validates every key and value first
+    plan(spec)  # validates every key and value first
     ss = st.session_state
-    scls = type(p.scenario)
     ss[SCN] = spec.scenario
     ss[FLT] = list(spec.filters)
     ss[RUNS] = int(spec.runs)
@@ -447,53 +454,17 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     ss[OUT] = spec.outliers
     extra: dict[str, dict[str, Any]] = {}
     no_widget: list[str] = []
-
-    def put(
-        kind: str,
-        owner: str,
-        Params: type,
-        values: dict[str, Any],
-        section: str,
-        overrides: dict[str, Any] | None = None,
-    ) -> None:
-        for d in describe(Params):
-            name = d["name"]
-            default = (overrides or {}).get(name, d["default"])
-            v = values.get(name, default)
+    for g in param_groups(spec):
+        section = KINDS[g.kind] + (f".{g.owner}" if g.kind == "fp" else "")
+        values = {**g.defaults(), **g.values}
+        for d in describe(g.Params):
+            name, v = d["name"], values[d["name"]]
             if not d.get("ui", True) or isinstance(d["default"], tuple):
-                if name in values:
+                if name in g.values:
                     extra.setdefault(section, {})[name] = v
                     no_widget.append(f"{section}.{name}")
                 continue
-            ss[pkey(kind, owner, name)] = list(v) if isinstance(v, tuple) else v
-
-    sp = dict(spec.scenario_params)
-    if spec.epochs is not None:
-        sp["epochs"] = spec.epochs
-    put("sc", spec.scenario, scls.Params, sp, "scenario_params")
-    put("ns", spec.noise_schedule, type(p.schedule).Params, spec.noise_params, "noise_params")
-    op = dict(spec.outlier_params)
-    if spec.contamination is not None:
-        op["contamination"] = spec.contamination
-    if spec.outlier_scale is not None:
-        op["scale"] = spec.outlier_scale
-    put(
-        "ol",
-        spec.outliers,
-        type(p.outliers).Params,
-        op,
-        "outlier_params",
-        scls.outlier_defaults.get(spec.outliers, {}),
-    )
-    for f in p.filters:
-        put(
-            "fp",
-            f.key,
-            type(f).Params,
-            spec.filter_params.get(f.key, {}),
-            f"filter_params.{f.key}",
-            scls.filter_defaults.get(f.key, {}),
-        )
+            ss[pkey(g.kind, g.owner, name)] = list(v) if isinstance(v, tuple) else v
     ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
     return no_widget
 
@@ -528,14 +499,13 @@ def _widget_params(cls: Any) -> dict[str, dict[str, Any]]:
     }
 
 
-def spec_query(spec: ExperimentSpec) -> dict[str, str | list[str]]:
+def spec_query(spec: ExperimentSpec | Plan) -> dict[str, str | list[str]]:
     """The URL query of ``spec`` on any run page: the values that differ from the shared defaults
     (the widgets' keys; settings without a widget are not in a URL). Raises NavlabError for a spec
-    naming something unknown.
+    naming something unknown. ``spec`` may be its plan (then it is not planned again).
     """
-    plan(spec)  # validates every key and value first
+    spec = as_plan(spec).spec  # validates every key and value first
     d = PageDefaults()
-    scls = scenario_registry()[spec.scenario]
     q: dict[str, str | list[str]] = {}
     if spec.scenario != d.scenario:
         q[SCN] = spec.scenario
@@ -549,28 +519,11 @@ def spec_query(spec: ExperimentSpec) -> dict[str, str | list[str]]:
         q[NOISE] = spec.noise_schedule
     if spec.outliers != d.outliers:
         q[OUT] = spec.outliers
-    sp = dict(spec.scenario_params)
-    if spec.epochs is not None:
-        sp["epochs"] = spec.epochs
-    op = dict(spec.outlier_params)
-    if spec.contamination is not None:
-        op["contamination"] = spec.contamination
-    if spec.outlier_scale is not None:
-        op["scale"] = spec.outlier_scale
-    groups: list[tuple[str, str, Any, dict[str, Any], dict[str, Any]]] = [
-        ("sc", spec.scenario, scls, sp, {}),
-        ("ns", spec.noise_schedule, SCHEDULES[spec.noise_schedule], dict(spec.noise_params), {}),
-        ("ol", spec.outliers, OUTLIERS[spec.outliers], op, scls.outlier_defaults.get(spec.outliers, {})),
-    ]
-    groups += [
-        ("fp", k, registry()[k], dict(spec.filter_params.get(k, {})), scls.filter_defaults.get(k, {}))
-        for k in spec.filters
-    ]
-    for kind, owner, cls, values, over in groups:
-        params = _widget_params(cls)
-        for name, v in values.items():
-            if name in params and v != over.get(name, params[name]["default"]):
-                q[pkey(kind, owner, name)] = url_value(v)
+    for g in param_groups(spec):
+        params, defaults = _widget_params(g.cls), g.defaults()
+        for name, v in g.values.items():
+            if name in params and v != defaults[name]:
+                q[pkey(g.kind, g.owner, name)] = url_value(v)
     return q
 
 
@@ -696,8 +649,11 @@ def link_notice(page: str, spec: ExperimentSpec | None, problems: list[str]) -> 
     )
 
 
-def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experiment") -> ExperimentSpec:
+def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experiment") -> Plan:
     """The sidebar every run page shares: experiment widgets, config upload, skipped filters.
+
+    Returns the experiment planned (validated) once: ``.spec`` is the spec, and the plan itself
+    is what :func:`navlab.ui.runner.run_live` takes, so the Run path does not plan it again.
 
     Every run page passes the same :class:`PageDefaults` (so a link is the same experiment on
     every page). Link values the widgets reject are named in a notice; the page links (drawn by
@@ -726,14 +682,14 @@ def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experim
     # the upload, and a changed sidebar redraws the expander closed)
     with st.sidebar.expander("Load / save configuration", expanded=UPLOAD_MSG_KEY in st.session_state):
         config_upload(key=f"up_cfg_{page}")
-    if cfg.spec is not None:
-        st.session_state[CARRY_KEY] = spec_query(cfg.spec)
+    if cfg.plan is not None:
+        st.session_state[CARRY_KEY] = spec_query(cfg.plan)
         st.session_state[CARRY_SPEC_KEY] = cfg.spec.to_json()
     fill_nav()
     link_notice(page, cfg.spec, problems)
     for key, why in cfg.skipped.items():
         st.warning(f"`{key}` is left out: it {why}.")
-    if cfg.error:
+    if cfg.error or cfg.plan is None:
         st.error(cfg.error)
         st.stop()
-    return cfg.spec
+    return cfg.plan
