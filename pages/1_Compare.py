@@ -6,8 +6,9 @@ from navlab.ui import single
 from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download, run_on_open
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import CompareView, headline_groups, run_downloads, show_stored
-from navlab.ui.widgets import PageDefaults, sidebar_experiment
+from navlab.ui.widgets import PageDefaults
 
 PAGE = "compare"
 

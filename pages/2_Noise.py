@@ -5,8 +5,9 @@ import streamlit as st
 from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import NoiseView, noise_preset_button, show_stored
-from navlab.ui.widgets import PageDefaults, sidebar_experiment
+from navlab.ui.widgets import PageDefaults
 
 PAGE = "noise"
 
