@@ -311,106 +311,15 @@ def experiment_config(
     ``Config.skipped`` with the reason; an invalid combination gives ``Config.error``.
     """
     c = container if container is not None else st.sidebar
-    reg, sreg = registry(), scenario_registry()
-    skeys = scenario_keys()
-    scn = _selectbox(
-        c,
-        "Scenario",
-        skeys,
-        defaults.scenario,
-        SCN,
-        help="the simulated experiment (or real recording) every filter runs on",
-        on_change=_on_scenario_change,
-        args=(defaults,),
-    )
-    scls = sreg[scn]
-    c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
-
-    chosen = c.multiselect(
-        "Filters",
-        filter_keys(),
-        default=default_filters(scn, defaults),
-        key=FLT,
-        bind=BIND,
-        help="registry keys; all selected filters see exactly the same measurements",
-    )
-    if chosen:
-        c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
-    col1, col2 = c.columns(2)
-    runs = int(
-        col1.number_input(
-            "Monte Carlo runs",
-            min_value=1,
-            max_value=int(runs_max),
-            value=min(default_runs(scn, defaults), int(runs_max)),
-            step=10,
-            key=RUNS,
-            bind=BIND,
-        )
-    )
-    seed = int(
-        col2.number_input(
-            "Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed, step=1, key=SEED, bind=BIND
-        )
-    )
-
-    sparams: dict[str, Any] = {}
-    if has_widgets(scls.Params):
-        with c.expander("Scenario parameters", expanded=False):
-            sparams = param_group("sc", scn, scls.Params)
-
-    noise = _selectbox(
-        c,
-        "Noise schedule (true R(t))",
-        list(SCHEDULES),
-        defaults.noise_schedule,
-        NOISE,
-        help="how the true measurement-noise σ varies over the run",
-    )
-    ncls = SCHEDULES[noise]
-    c.caption(ncls.summary)
-    nparams: dict[str, Any] = {}
-    if has_widgets(ncls.Params):
-        with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
-            nparams = param_group("ns", noise, ncls.Params)
-
-    out = _selectbox(
-        c,
-        "Outlier model",
-        list(OUTLIERS),
-        defaults.outliers,
-        OUT,
-        help="how measurements are contaminated (ground-truth mask recorded)",
-    )
-    ocls = OUTLIERS[out]
-    c.caption(ocls.summary)
-    oparams: dict[str, Any] = {}
-    if has_widgets(ocls.Params):
-        with c.expander("Outlier parameters", expanded=True):
-            oparams = param_group("ol", out, ocls.Params, overrides=presets(scls, "ol", out))
-
-    skipped: dict[str, str] = {}
-    run_filters: list[str] = []
-    for k in chosen:
-        if k not in reg:
-            continue
-        why = filter_problem(k, scn)
-        if why:
-            skipped[k] = why
-        else:
-            run_filters.append(k)
-
-    fparams: dict[str, dict[str, Any]] = {}
-    tunable = [k for k in run_filters if has_widgets(reg[k].Params)]
-    if show_filter_tuning and tunable:
-        with c.expander("Filter tuning", expanded=False):
-            for k in tunable:
-                st.markdown(f"**{reg[k].label}** (`{k}`)")
-                vals = param_group("fp", k, reg[k].Params, overrides=presets(scls, "fp", k))
-                if vals:
-                    fparams[k] = vals
-
-    extra = st.session_state.get(EXTRA_KEY) or {}
+    scn = _scenario_select(c, defaults)
+    chosen = _filters_select(c, scn, defaults)
+    runs, seed = _runs_and_seed(c, scn, defaults, runs_max)
+    sparams = _scenario_params(c, scn)
+    noise, nparams = _noise_select(c, defaults)
+    out, oparams = _outliers_select(c, scn, defaults)
+    run_filters, skipped = _runnable(chosen, scn)
+    fparams = _filter_tuning(c, scn, run_filters) if show_filter_tuning else {}
+    extra = st.session_state.get(EXTRA_KEY) or {}  # uploaded settings that have no widget
     spec_d: dict[str, Any] = {
         "scenario": scn,
         "filters": tuple(run_filters),
@@ -423,9 +332,140 @@ def experiment_config(
         "scenario_params": {**extra.get("scenario_params", {}), **sparams},
         "filter_params": fparams,
     }
+    return _checked(spec_d, skipped)
+
+
+def _scenario_select(c: Any, defaults: PageDefaults) -> str:
+    """The scenario, with its name and paper below."""
+    scn = _selectbox(
+        c,
+        "Scenario",
+        scenario_keys(),
+        defaults.scenario,
+        SCN,
+        help="the simulated experiment (or real recording) every filter runs on",
+        on_change=_on_scenario_change,
+        args=(defaults,),
+    )
+    scls = scenario_registry()[scn]
+    c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
+    return scn
+
+
+def _filters_select(c: Any, scn: str, defaults: PageDefaults) -> list[str]:
+    """The filters (registry keys), with their names below."""
+    reg = registry()
+    chosen = c.multiselect(
+        "Filters",
+        filter_keys(),
+        default=default_filters(scn, defaults),
+        key=FLT,
+        bind=BIND,
+        help="registry keys; all selected filters see exactly the same measurements",
+    )
+    if chosen:
+        c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
+    return chosen
+
+
+def _runs_and_seed(c: Any, scn: str, defaults: PageDefaults, runs_max: int) -> tuple[int, int]:
+    """Monte Carlo runs and the seed, side by side."""
+    col1, col2 = c.columns(2)
+    runs = col1.number_input(
+        "Monte Carlo runs",
+        min_value=1,
+        max_value=int(runs_max),
+        value=min(default_runs(scn, defaults), int(runs_max)),
+        step=10,
+        key=RUNS,
+        bind=BIND,
+    )
+    seed = col2.number_input(
+        "Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed, step=1, key=SEED, bind=BIND
+    )
+    return int(runs), int(seed)
+
+
+def _scenario_params(c: Any, scn: str) -> dict[str, Any]:
+    """The scenario's parameters, in a closed expander (those that differ from the defaults)."""
+    scls = scenario_registry()[scn]
+    if not has_widgets(scls.Params):
+        return {}
+    with c.expander("Scenario parameters", expanded=False):
+        return param_group("sc", scn, scls.Params)
+
+
+def _noise_select(c: Any, defaults: PageDefaults) -> tuple[str, dict[str, Any]]:
+    """The noise schedule and its parameters (open unless the schedule is constant)."""
+    noise = _selectbox(
+        c,
+        "Noise schedule (true R(t))",
+        list(SCHEDULES),
+        defaults.noise_schedule,
+        NOISE,
+        help="how the true measurement-noise σ varies over the run",
+    )
+    ncls = SCHEDULES[noise]
+    c.caption(ncls.summary)
+    if not has_widgets(ncls.Params):
+        return noise, {}
+    with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
+        return noise, param_group("ns", noise, ncls.Params)
+
+
+def _outliers_select(c: Any, scn: str, defaults: PageDefaults) -> tuple[str, dict[str, Any]]:
+    """The outlier model and its parameters (the scenario's preset as their defaults)."""
+    out = _selectbox(
+        c,
+        "Outlier model",
+        list(OUTLIERS),
+        defaults.outliers,
+        OUT,
+        help="how measurements are contaminated (ground-truth mask recorded)",
+    )
+    ocls = OUTLIERS[out]
+    c.caption(ocls.summary)
+    if not has_widgets(ocls.Params):
+        return out, {}
+    over = presets(scenario_registry()[scn], "ol", out)
+    with c.expander("Outlier parameters", expanded=True):
+        return out, param_group("ol", out, ocls.Params, overrides=over)
+
+
+def _runnable(chosen: Sequence[str], scn: str) -> tuple[list[str], dict[str, str]]:
+    """The chosen filters that can run on ``scn``, and why each other one cannot."""
+    run_filters: list[str] = []
+    skipped: dict[str, str] = {}
+    for k in (k for k in chosen if k in registry()):
+        why = filter_problem(k, scn)
+        if why:
+            skipped[k] = why
+        else:
+            run_filters.append(k)
+    return run_filters, skipped
+
+
+def _filter_tuning(c: Any, scn: str, run_filters: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """Each filter's parameters in one closed expander (the scenario's presets as defaults)."""
+    reg, scls = registry(), scenario_registry()[scn]
+    tunable = [k for k in run_filters if has_widgets(reg[k].Params)]
+    if not tunable:
+        return {}
+    fparams: dict[str, dict[str, Any]] = {}
+    with c.expander("Filter tuning", expanded=False):
+        for k in tunable:
+            st.markdown(f"**{reg[k].label}** (`{k}`)")
+            vals = param_group("fp", k, reg[k].Params, overrides=presets(scls, "fp", k))
+            if vals:
+                fparams[k] = vals
+    return fparams
+
+
+def _checked(spec_d: dict[str, Any], skipped: dict[str, str]) -> Config:
+    """The spec the widgets read, planned once (or why it cannot run)."""
     try:
         spec = ExperimentSpec.from_dict(spec_d)
-        planned = plan(spec) if run_filters else None
+        planned = plan(spec) if spec.filters else None
     except NavlabError as exc:
         return Config(None, str(exc), skipped)
     if planned is None:
