@@ -87,11 +87,11 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
         contamination, scale = outlier_widgets("_own", "Synthetic outliers α")
         with st.expander("Geometry and timing"):
             sp["start"] = field_widget(P, "start", "rd_start", "Start")
-            m1, m2, m3 = st.columns(3)
+            m1, m2, m3 = st.columns(3, vertical_alignment="bottom")
             sp["mount_roll_deg"] = field_widget(P, "mount_roll_deg", "rd_mroll", "IMU roll°", container=m1)
             sp["mount_pitch_deg"] = field_widget(P, "mount_pitch_deg", "rd_mpitch", "pitch°", container=m2)
             sp["mount_yaw_deg"] = field_widget(P, "mount_yaw_deg", "rd_myaw", "yaw°", container=m3)
-            l1, l2, l3 = st.columns(3)
+            l1, l2, l3 = st.columns(3, vertical_alignment="bottom")
             sp["lever_right_m"] = field_widget(P, "lever_right_m", "rd_lr", "antenna right m", container=l1)
             sp["lever_forward_m"] = field_widget(P, "lever_forward_m", "rd_lf", "forward m", container=l2)
             sp["lever_up_m"] = field_widget(P, "lever_up_m", "rd_lu", "up m", container=l3)
@@ -104,7 +104,7 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     elif is_drive:
         sp["sigma_m"] = field_widget(P, "sigma_m", "rd_sigma", "GNSS σ (m)")
         contamination, scale = outlier_widgets("", "Outlier ratio α")
-        o1, o2 = st.columns(2)
+        o1, o2 = st.columns(2, vertical_alignment="bottom")  # a label that wraps keeps the boxes level
         sp["outage_start_s"] = field_widget(P, "outage_start_s", "rd_out0", "Outage start (s)", container=o1)
         sp["outage_len_s"] = field_widget(P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2)
     else:
