@@ -105,8 +105,12 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
         sp["sigma_m"] = field_widget(P, "sigma_m", "rd_sigma", "GNSS σ (m)")
         contamination, scale = outlier_widgets("", "Outlier ratio α")
         o1, o2 = st.columns(2, vertical_alignment="bottom")  # a label that wraps keeps the boxes level
-        sp["outage_start_s"] = field_widget(P, "outage_start_s", "rd_out0", "Outage start (s)", container=o1)
-        sp["outage_len_s"] = field_widget(P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2)
+        sp["outage_start_s"] = field_widget(
+            P, "outage_start_s", "rd_out0", "Outage start (s)", container=o1, step=1.0
+        )
+        sp["outage_len_s"] = field_widget(
+            P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2, step=1.0
+        )
     else:
         sp["variance_model"] = field_widget(P, "variance_model", "rd_varmodel", "Variance model")
         contamination, scale = outlier_widgets("_sl", "Extra injected outliers α")
