@@ -39,7 +39,7 @@ COPY app.py ./
 
 # compile navlab's numba kernels now (a few seconds each), not on the app's first click; the cache
 # lives outside the read-only code folder and stays writable for uid 1000 (a new CPU recompiles)
-RUN python -m navlab.jit && chown -R 1000:1000 /opt/numba-cache
+RUN python -m navlab.warmup && chown -R 1000:1000 /opt/numba-cache
 
 USER 1000:1000
 EXPOSE 8501

@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 
 from navlab import jit
 from navlab.experiment import ExperimentSpec, plan, run_experiment
+from navlab.warmup import warm
 
 # (paper, experiments per reproduction, spec) at 20 seeds x the reproduction's default runs
 CASES = {
@@ -80,7 +81,7 @@ def main() -> None:
     ap.add_argument("--only", choices=sorted(CASES))
     ap.add_argument("--scale", type=float, default=1.0)
     a = ap.parse_args()
-    jit.warm()
+    warm()
     print(f"numba: {'on' if jit.enabled() else 'off'}; one experiment per paper, wall seconds")
     for key, (paper, times, spec) in CASES.items():
         if a.only and key != a.only:

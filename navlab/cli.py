@@ -166,9 +166,9 @@ def _run(a: argparse.Namespace) -> int:
 
         _write(headline(res, compare_to=a.compare_to).text(), a.out)
     else:
-        from navlab.metrics import summarize
+        from navlab.tables import summary_rows
 
-        _emit(summarize(res, compare_to=a.compare_to), a.format, a.out)
+        _emit(summary_rows(res, compare_to=a.compare_to), a.format, a.out)
     if a.save_spec:
         try:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")

@@ -25,7 +25,7 @@ from navlab.errors import NavlabError
 from navlab.filters.base import Filter, get_filter_class, make_filter
 from navlab.linalg import Array, diag, quad
 from navlab.metrics import NEES_BOUND, divergence_bound, timed_from
-from navlab.noise import OUTLIERS, make_outliers, make_schedule
+from navlab.noise import OUTLIERS, SCHEDULES, make_outliers, make_schedule
 from navlab.params import MAX_EPOCHS, SEED_MAX
 from navlab.scenarios.base import Scenario, ScenarioData, concat_runs, get_scenario_class
 
@@ -143,6 +143,102 @@ def _check_int(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
+# --------------------------------------------------------------------------- parameters
+
+#: The parameter groups of an experiment, by the short kind the app's widget keys use.
+KINDS = {"sc": "scenario_params", "ns": "noise_params", "ol": "outlier_params", "fp": "filter_params"}
+
+
+def presets(scenario: type[Scenario], kind: str, owner: str) -> dict[str, Any]:
+    """The scenario's own defaults for outlier model or filter ``owner`` (``kind`` "ol" / "fp"),
+    over the class's defaults (e.g. cv2d's isolated-outlier preset, smartLoc's per-channel χ²).
+    """
+    table = {"ol": scenario.outlier_defaults, "fp": scenario.filter_defaults}.get(kind, {})
+    return dict(table.get(owner, {}))
+
+
+@dataclass(frozen=True)
+class ParamGroup:
+    """The parameters of one part of an experiment, resolved in one place.
+
+    A value is the first of: the spec's setting (``values``), the scenario's preset
+    (``presets``), the class's default (its ``Params`` dataclass).
+    """
+
+    kind: str  # "sc" scenario, "ns" noise schedule, "ol" outlier model, "fp" filter
+    owner: str  # its registry key
+    cls: type  # the registered class (cls.Params holds the defaults)
+    presets: dict[str, Any]
+    values: dict[str, Any]
+
+    @property
+    def Params(self) -> type:
+        return self.cls.Params
+
+    def defaults(self) -> dict[str, Any]:
+        """Every parameter's value before the spec: the scenario's preset, else the class's."""
+        return {f.name: self.presets.get(f.name, f.default) for f in dataclasses.fields(self.Params)}
+
+    def settings(self) -> dict[str, Any]:
+        """What the object is built from (over its class's defaults): presets, then the spec."""
+        return {**self.presets, **self.values}
+
+
+def scenario_group(spec: ExperimentSpec) -> ParamGroup:
+    """The scenario's parameters: ``scenario_params``, with ``epochs`` over them."""
+    sp = dict(spec.scenario_params)
+    if spec.epochs is not None:
+        sp["epochs"] = spec.epochs
+    return ParamGroup("sc", spec.scenario, get_scenario_class(spec.scenario), {}, sp)
+
+
+def schedule_group(spec: ExperimentSpec) -> ParamGroup:
+    """The noise schedule's parameters: ``noise_params``."""
+    cls = SCHEDULES.lookup(spec.noise_schedule)
+    return ParamGroup("ns", spec.noise_schedule, cls, {}, dict(spec.noise_params))
+
+
+def outlier_group(spec: ExperimentSpec) -> ParamGroup:
+    """The outlier model's parameters: the scenario's preset, then the ``contamination`` and
+    ``outlier_scale`` shortcuts, then ``outlier_params``. NavlabError for an unknown model or a
+    shortcut the model does not have.
+    """
+    if spec.outliers not in OUTLIERS:
+        raise NavlabError(f"unknown outlier model '{spec.outliers}'; known: {', '.join(OUTLIERS)}")
+    cls = OUTLIERS[spec.outliers]
+    fields = {f.name for f in dataclasses.fields(cls.Params)}
+    op: dict[str, Any] = {}
+    for name, value in (("contamination", spec.contamination), ("scale", spec.outlier_scale)):
+        if value is not None:
+            if name not in fields:
+                raise NavlabError(
+                    f"outlier model '{spec.outliers}' has no {name}; "
+                    f"use --outliers mixture for a contamination ratio"
+                )
+            op[name] = value
+    op.update(spec.outlier_params)
+    scen = get_scenario_class(spec.scenario)
+    return ParamGroup("ol", spec.outliers, cls, presets(scen, "ol", spec.outliers), op)
+
+
+def filter_group(spec: ExperimentSpec, key: str) -> ParamGroup:
+    """Filter ``key``'s parameters: the scenario's preset, then ``filter_params[key]``."""
+    scen = get_scenario_class(spec.scenario)
+    cls = get_filter_class(key)
+    return ParamGroup("fp", key, cls, presets(scen, "fp", key), dict(spec.filter_params.get(key, {})))
+
+
+def param_groups(spec: ExperimentSpec) -> list[ParamGroup]:
+    """Every parameter group of ``spec``: scenario, noise schedule, outlier model, each filter."""
+    groups = [scenario_group(spec), schedule_group(spec), outlier_group(spec)]
+    return groups + [filter_group(spec, k) for k in spec.filters]
+
+
+def as_plan(spec: ExperimentSpec | Plan, max_runs: int = MAX_RUNS) -> Plan:
+    """``spec`` planned, or the plan given (so a caller that planned passes the plan on)."""
+    return spec if isinstance(spec, Plan) else plan(spec, max_runs)
+
+
 def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
     """Validate every part of ``spec`` before any computation; NavlabError says what to change."""
     big = isinstance(spec.runs, int) and not isinstance(spec.runs, bool) and spec.runs > MAX_RUNS
@@ -154,12 +250,11 @@ def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
         )
     _check_int("runs", spec.runs, 1, max_runs)
     _check_int("seed", spec.seed, 0, SEED_MAX)
-    scen_cls = get_scenario_class(spec.scenario)
-    sp = dict(spec.scenario_params)
     if spec.epochs is not None:
+        get_scenario_class(spec.scenario)  # an unknown scenario is named before its epochs
         _check_int("epochs", spec.epochs, 2, MAX_EPOCHS)
-        sp["epochs"] = int(spec.epochs)
-    scenario = scen_cls(sp)
+    sc = scenario_group(spec)
+    scenario = sc.cls(sc.settings())
     if not spec.filters:
         raise NavlabError("choose at least one filter")
     if len(set(spec.filters)) != len(spec.filters):
@@ -169,28 +264,14 @@ def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
         raise NavlabError(f"filter_params names filter(s) not in the run: {', '.join(unknown_fp)}")
     filters = []
     for key in spec.filters:
-        cls = get_filter_class(key)
-        if cls.family == "oracle" and not scen_cls.simulated:
+        fg = filter_group(spec, key)
+        if fg.cls.family == "oracle" and not sc.cls.simulated:
             raise NavlabError(
                 f"'{key}' needs simulator ground truth; scenario '{spec.scenario}' is real data"
             )
-        fp = {**scen_cls.filter_defaults.get(key, {}), **spec.filter_params.get(key, {})}
-        filters.append(make_filter(key, fp))
-    schedule = make_schedule(spec.noise_schedule, spec.noise_params)
-    if spec.outliers not in OUTLIERS:
-        raise NavlabError(f"unknown outlier model '{spec.outliers}'; known: {', '.join(OUTLIERS)}")
-    op = dict(scen_cls.outlier_defaults.get(spec.outliers, {}))
-    fields = {f.name for f in dataclasses.fields(OUTLIERS[spec.outliers].Params)}
-    for name, value in (("contamination", spec.contamination), ("scale", spec.outlier_scale)):
-        if value is not None:
-            if name not in fields:
-                raise NavlabError(
-                    f"outlier model '{spec.outliers}' has no {name}; "
-                    f"use --outliers mixture for a contamination ratio"
-                )
-            op[name] = value
-    op.update(spec.outlier_params)
-    outliers = make_outliers(spec.outliers, op)
+        filters.append(make_filter(key, fg.settings()))
+    schedule = make_schedule(spec.noise_schedule, schedule_group(spec).settings())
+    outliers = make_outliers(spec.outliers, outlier_group(spec).settings())
     return Plan(spec, scenario, schedule, outliers, tuple(filters))
 
 
@@ -568,7 +649,7 @@ def iter_chunks(
 
 
 def iter_experiment(
-    spec: ExperimentSpec,
+    spec: ExperimentSpec | Plan,
     chunk_runs: int | None = None,
     *,
     policy: ChunkPolicy | None = None,
@@ -580,9 +661,10 @@ def iter_experiment(
     accumulated :class:`Results` after each chunk; resumable from partial results ``start``.
 
     Refused before any computation (NavlabError) when the run would not fit the memory budget
-    (:mod:`navlab.memory`).
+    (:mod:`navlab.memory`). ``spec`` may be its :class:`Plan` (a caller that planned passes it on).
     """
-    p = plan(spec)
+    p = as_plan(spec)
+    spec = p.spec
     size = run_size(p)
     alt = size.summary(summary_chunk(size, budget), False)
     memory.check(size, size.full(), budget, as_summary=alt)

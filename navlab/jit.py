@@ -16,8 +16,8 @@ a batch). For those, navlab keeps two paths:
 The compiled path is used when numba imports; ``NAVLAB_NUMBA=0`` (or numba missing or broken)
 selects the numpy paths. Compiled kernels are cached on disk (numba's ``cache=True``: next to the
 sources, or in ``NUMBA_CACHE_DIR`` where the code folder is read-only, as in the Docker image).
-The first compile of every kernel costs a few seconds once per machine; :func:`warm` pays it
-up front (the Docker image runs it at build time, so the app's first click does not).
+The first compile of every kernel costs a few seconds once per machine; :func:`navlab.warmup.warm`
+pays it up front (the Docker image runs it at build time, so the app's first click does not).
 """
 
 from __future__ import annotations
@@ -25,14 +25,13 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
-import time
 import types
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Kernel", "RunStep", "carray", "enabled", "numpy_paths", "warm"]
+__all__ = ["Kernel", "RunStep", "carray", "enabled", "numpy_paths"]
 
 
 _OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
@@ -219,62 +218,7 @@ def numpy_paths() -> Iterator[None]:
         _force_numpy = before
 
 
-def warm() -> dict[str, float]:
-    """Compile (or load from the cache) every kernel navlab uses, on tiny inputs.
+if __name__ == "__main__":  # python -m navlab.jit: kept as a name for python -m navlab.warmup
+    import runpy  # by name, not an import: the kernels' layer knows nothing of what they serve
 
-    Returns the seconds each took (empty without numba). ``python -m navlab.jit`` prints them.
-    """
-    if not enabled():
-        return {}
-    from navlab.ins import earth, strapdown
-    from navlab.scenarios import base
-
-    times = {}
-    t0 = time.perf_counter()
-    s = strapdown.init_state(0.7, -1.9, 1600.0, np.zeros(3), np.eye(3), B=2)
-    t = np.array([0.0, 0.01, 0.02])
-    strapdown.propagate_block(s, t, np.tile([0.0, 0.0, 9.8], (3, 1)), np.zeros((3, 3)), t_end_s=0.03)
-    times["strapdown.propagate_block"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    e = np.zeros((1, 250, 15))  # long enough a recursion for the compiled path
-    base.propagate(np.zeros(15), np.eye(15), e, np.eye(15), e)
-    times["scenarios.base.propagate"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    earth.dcm_to_rotvec(earth.rotvec_to_dcm(np.zeros((2, 3))))
-    times["earth rotation conversions"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    _warm_filters()
-    times["filter kernels (solve, quadratic form, Joseph, VB, clamp)"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    _warm_ins_model()
-    times["ins.lc model f, h, H"] = time.perf_counter() - t0
-    return times
-
-
-def _warm_filters() -> None:
-    """The filter kernels, through the filters themselves (the signatures the runs use)."""
-    from navlab.experiment import ExperimentSpec, run_experiment
-
-    filters = ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf", "svd-ukf")
-    run_experiment(ExperimentSpec(scenario="gps-ins-rtk", filters=filters, runs=2, epochs=10))
-
-
-def _warm_ins_model() -> None:
-    """The INS model's kernels on a still, level IMU block (the real model needs a recording)."""
-    from navlab.ins import lc
-
-    x, C, f_b = np.zeros((2, 15)), np.eye(3), np.tile([0.0, 0.0, 9.8], (3, 1))
-    origin = np.array([0.7, -1.9, 1600.0, 6.4e6, 4.9e6])
-    lc._F_RUNS.get()(x, np.empty((2, 15)), C, C, f_b, np.zeros((3, 3)), np.full(3, 0.01), origin)
-    h, H = np.empty((2, 5)), np.empty((2, 5, 15))
-    lc._HH_RUNS.get()(x, C, np.zeros(3), np.eye(3), np.ones(5), True, h, H)
-
-
-if __name__ == "__main__":  # python -m navlab.jit: compile (or load) every kernel, print the times
-    from navlab import jit as _jit  # the module the kernels use, not this __main__ copy
-
-    took = _jit.warm()
-    if not took:
-        print("numba not available (or NAVLAB_NUMBA=0): navlab uses its numpy paths")
-    for name, sec in took.items():
-        print(f"{name}: {sec:.2f} s")
+    runpy.run_module("navlab.warmup", run_name="__main__", alter_sys=True)

@@ -656,27 +656,24 @@ def _consistency_curves(res: Results, key: str, runs: Array) -> dict[str, Array]
     return out
 
 
-def summarize(res: Results, compare_to: str | None = None, metrics: list[str] | None = None) -> pd.DataFrame:
+def summarize(res: Results, metrics: list[str] | None = None) -> pd.DataFrame:
     """Tidy table: one row per filter and metric (:data:`COLUMNS`) with the intervals of
-    ``metrics`` (default: every metric), and the paired ``_diff`` rows of :func:`compare`
-    appended when ``compare_to`` names a reference filter.
+    ``metrics`` (default: every metric). :func:`navlab.tables.summary_rows` appends the paired
+    rows against a reference filter.
     """
-    df = summary(res).rows(metrics)
-    if compare_to is None:
-        return df
-    return pd.concat([df, compare(res, compare_to)], ignore_index=True)
+    return summary(res).rows(metrics)
 
 
 # --------------------------------------------------------------------------- paired comparison
 
 
 def compare(
-    res: Results, ref: str, metrics: list[str] | None = None, among: Sequence[str] | None = None
+    res: Results, ref: str, metrics: Sequence[str], among: Sequence[str] | None = None
 ) -> pd.DataFrame:
     """Paired differences of every other filter (of ``among``, default all) against ``ref``
     (rows ``<metric>_diff``; Holm's correction is across those filters).
 
-    For each filter A ≠ ref and headline metric: Δ = metric(A) − metric(ref) over the runs both
+    For each filter A ≠ ref and metric of ``metrics``: Δ = metric(A) − metric(ref) over the runs both
     are judged on (the common runs when both are reliable, so Δ is the difference of the table's
     values), its 95 % interval and p-value (paired bootstrap over runs, or the delta method at
     ≥ 1000 runs), Holm-adjusted across the other filters (``p_holm``), and a verdict: ``better`` /
@@ -690,7 +687,6 @@ def compare(
         )
     sm = summary(res)
     jd = sm.judgement
-    metrics = metrics or headline_metrics(res)
     rows: list[dict] = []
     for metric in metrics:
         part: list[dict] = []
@@ -733,74 +729,6 @@ def verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[st
     if p < S.ALPHA and r["value"] * d > 0:
         return "worse", ""
     return "indistinguishable", "indistinguishable at this run count"
-
-
-def headline_metrics(res: Results) -> list[str]:
-    """The metrics a comparison reports: the headline error groups' RMSEs, scenario metrics,
-    consistency, R̂ error and detection rates (those that exist in this experiment).
-    """
-    from navlab.scenarios.base import scenario_registry
-
-    data = res.data
-    groups = list(data.groups) if data.has_truth else []
-    try:
-        head = [g for g in scenario_registry()[res.spec.scenario].headline if g in groups]
-    except KeyError:
-        head = []
-    head = head or groups
-    wanted = [f"rmse_{g}" for g in head] + [f"mean_rmse_{g}" for g in head]
-    wanted += list(data.extras.get("metrics", {}))
-    wanted += list(QUALITY_METRICS)
-    sm = summary(res)
-    present = {m for k in res.runs for m in sm.metrics_of(k)}
-    return [m for m in wanted if m in present]
-
-
-FLAG_METRICS = ("detected_pct", "false_alarm_pct")  # rates of the filters' outlier decisions
-
-
-def best_candidates(res: Results, metric: str) -> list[str]:
-    """The filters "best" on ``metric`` is chosen among: never the oracle (it is told which
-    measurements are outliers and the true R: the accuracy floor, not a contender), and for the
-    outlier-flag rates (:data:`FLAG_METRICS`) only the filters that flagged a measurement as an
-    outlier (codes 1–5) in the analysis window (one that never flags "wins" false alarms by
-    doing nothing).
-    """
-    from navlab.filters import registry
-
-    reg = registry()
-    sm = summary(res)
-    keys = [k for k in res.runs if not (k in reg and reg[k].family == "oracle")]
-    if metric in FLAG_METRICS:
-        flagged = lambda k: float(np.sum(sm.stats[k].sums["detected"] + sm.stats[k].sums["false_alarm"]))  # noqa: E731
-        keys = [k for k in keys if flagged(k) > 0]
-    return keys
-
-
-def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
-    """The filter better than every other candidate (:func:`best_candidates`: the non-oracle
-    filters; for the flag rates those that flag outliers) on ``metric`` after Holm's correction,
-    or None.
-
-    The candidate is the reliable filter with the best point estimate; it is "best" only if the
-    paired test (:func:`compare`, Holm across the other candidates) says it is better than each
-    other candidate. Returns (key or None, the comparison rows against the candidate).
-    """
-    sm = summary(res)
-    d = direction(metric) or 1
-    among = best_candidates(res, metric)
-    values = {
-        k: sm.metrics_of(k)[metric][0].point()
-        for k in among
-        if sm.judgement.reliable[k] and metric in sm.metrics_of(k)
-    }
-    values = {k: v for k, v in values.items() if np.isfinite(v)}
-    if len(among) < 2 or not values:
-        return None, pd.DataFrame(columns=COLUMNS + DIFF_COLUMNS)
-    cand = min(values, key=lambda k: d * values[k])
-    rows = compare(res, cand, [metric], among)
-    ok = len(rows) == len(among) - 1 and (rows["verdict"] == "worse").all()
-    return (cand if ok else None), rows
 
 
 def headline_table(res: Results) -> pd.DataFrame:

@@ -26,12 +26,9 @@ import pandas as pd
 
 from navlab import tasks as T
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, plan
-from navlab.filters import registry
+from navlab.experiment import ExperimentSpec, param_groups, plan
 from navlab.metrics import QUALITY_METRICS, summarize
-from navlab.noise import OUTLIERS, SCHEDULES
 from navlab.params import describe
-from navlab.scenarios import scenario_registry
 
 MAX_POINTS = 15  # per axis
 CLI_GROUP = {"ol": "outliers", "ns": "noise", "sc": "scenario"}  # --set group of each kind
@@ -70,32 +67,19 @@ def _words(help_: str, name: str) -> str:
 
 def sweepables(spec: ExperimentSpec) -> list[Sweepable]:
     """Numeric parameters of the spec's outlier model, noise schedule, scenario and filters."""
-    sreg, freg = scenario_registry(), registry()
-    scls = sreg[spec.scenario]
-    groups: list[tuple[str, str, type, dict[str, Any], str]] = [
-        (
-            "ol",
-            spec.outliers,
-            OUTLIERS[spec.outliers].Params,
-            scls.outlier_defaults.get(spec.outliers, {}),
-            f"outlier model {spec.outliers}",
-        ),
-        (
-            "ns",
-            spec.noise_schedule,
-            SCHEDULES[spec.noise_schedule].Params,
-            {},
-            f"noise schedule {spec.noise_schedule}",
-        ),
-        ("sc", spec.scenario, scls.Params, {}, f"scenario {spec.scenario}"),
-    ]
-    groups += [
-        ("fp", k, freg[k].Params, scls.filter_defaults.get(k, {}), freg[k].label) for k in spec.filters
-    ]
+    where = {
+        "ol": f"outlier model {spec.outliers}",
+        "ns": f"noise schedule {spec.noise_schedule}",
+        "sc": f"scenario {spec.scenario}",
+    }
+    order = [*where, "fp"]  # the outlier model's parameters first
+    groups = sorted(param_groups(spec), key=lambda g: order.index(g.kind))
     out = []
-    for kind, owner, Params, over, where in groups:
-        for p in describe(Params):
-            d = over.get(p["name"], p["default"])
+    for g in groups:
+        kind, owner = g.kind, g.owner
+        place, defaults = where.get(kind) or g.cls.label, g.defaults()
+        for p in describe(g.Params):
+            d = defaults[p["name"]]
             if not p.get("ui", True) or isinstance(d, bool) or not isinstance(d, (int, float)):
                 continue
             out.append(
@@ -104,7 +88,7 @@ def sweepables(spec: ExperimentSpec) -> list[Sweepable]:
                     kind=kind,
                     owner=owner,
                     name=p["name"],
-                    label=f"{_words(p.get('help', ''), p['name'])} — {where}",
+                    label=f"{_words(p.get('help', ''), p['name'])} — {place}",
                     default=float(d),
                     lo=p.get("lo"),
                     hi=p.get("hi"),

@@ -16,6 +16,8 @@ import pandas as pd
 
 from navlab import metrics as M
 from navlab import stats as S
+from navlab.filters import registry
+from navlab.scenarios.base import scenario_registry
 
 if TYPE_CHECKING:
     from navlab.experiment import Results
@@ -147,8 +149,6 @@ class Table:
 
 def headline_metrics(res: Results) -> list[str]:
     """The columns of the headline table (those that exist in this experiment)."""
-    from navlab.scenarios.base import scenario_registry
-
     data = res.data
     try:
         head = scenario_registry()[res.spec.scenario].headline
@@ -161,6 +161,88 @@ def headline_metrics(res: Results) -> list[str]:
     sm = M.summary(res)
     present = {m for k in res.runs for m in sm.metrics_of(k)} | set(data.extras.get("metrics", {}))
     return [c for c in cols if c in present]
+
+
+# --------------------------------------------------------------------------- display choices
+# which metrics a comparison reports and which filters may be called "best": choices of the
+# display (they read the scenario's headline groups and the filter registry), not of the metrics
+
+
+def comparison_metrics(res: Results) -> list[str]:
+    """The metrics a comparison reports: the headline error groups' RMSEs, scenario metrics,
+    consistency, R̂ error and detection rates (those that exist in this experiment).
+    """
+    data = res.data
+    groups = list(data.groups) if data.has_truth else []
+    try:
+        head = [g for g in scenario_registry()[res.spec.scenario].headline if g in groups]
+    except KeyError:
+        head = []
+    head = head or groups
+    wanted = [f"rmse_{g}" for g in head] + [f"mean_rmse_{g}" for g in head]
+    wanted += list(data.extras.get("metrics", {}))
+    wanted += list(M.QUALITY_METRICS)
+    sm = M.summary(res)
+    present = {m for k in res.runs for m in sm.metrics_of(k)}
+    return [m for m in wanted if m in present]
+
+
+FLAG_METRICS = ("detected_pct", "false_alarm_pct")  # rates of the filters' outlier decisions
+
+
+def best_candidates(res: Results, metric: str) -> list[str]:
+    """The filters "best" on ``metric`` is chosen among: never the oracle (it is told which
+    measurements are outliers and the true R: the accuracy floor, not a contender), and for the
+    outlier-flag rates (:data:`FLAG_METRICS`) only the filters that flagged a measurement as an
+    outlier (codes 1–5) in the analysis window (one that never flags "wins" false alarms by
+    doing nothing).
+    """
+    reg = registry()
+    sm = M.summary(res)
+    keys = [k for k in res.runs if not (k in reg and reg[k].family == "oracle")]
+    if metric in FLAG_METRICS:
+        flagged = lambda k: float(np.sum(sm.stats[k].sums["detected"] + sm.stats[k].sums["false_alarm"]))  # noqa: E731
+        keys = [k for k in keys if flagged(k) > 0]
+    return keys
+
+
+def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
+    """The filter better than every other candidate (:func:`best_candidates`: the non-oracle
+    filters; for the flag rates those that flag outliers) on ``metric`` after Holm's correction,
+    or None.
+
+    The candidate is the reliable filter with the best point estimate; it is "best" only if the
+    paired test (:func:`navlab.metrics.compare`, Holm across the other candidates) says it is
+    better than each other candidate. Returns (key or None, the comparison rows against the candidate).
+    """
+    sm = M.summary(res)
+    d = M.direction(metric) or 1
+    among = best_candidates(res, metric)
+    values = {
+        k: sm.metrics_of(k)[metric][0].point()
+        for k in among
+        if sm.judgement.reliable[k] and metric in sm.metrics_of(k)
+    }
+    values = {k: v for k, v in values.items() if np.isfinite(v)}
+    if len(among) < 2 or not values:
+        return None, pd.DataFrame(columns=M.COLUMNS + M.DIFF_COLUMNS)
+    cand = min(values, key=lambda k: d * values[k])
+    rows = M.compare(res, cand, [metric], among)
+    ok = len(rows) == len(among) - 1 and (rows["verdict"] == "worse").all()
+    return (cand if ok else None), rows
+
+
+def summary_rows(res: Results, compare_to: str | None = None) -> pd.DataFrame:
+    """The tidy table of :func:`navlab.metrics.summarize` (every metric of every filter), with the
+    paired ``_diff`` rows against ``compare_to`` on the :func:`comparison_metrics` appended.
+    """
+    df = M.summarize(res)
+    if compare_to is None:
+        return df
+    return pd.concat([df, M.compare(res, compare_to, comparison_metrics(res))], ignore_index=True)
+
+
+# --------------------------------------------------------------------------- the headline table
 
 
 def headline(
@@ -176,7 +258,7 @@ def headline(
     a link to the Learn page instead).
 
     ``best``: find, per metric that has a direction (errors, detection rates), the filter that
-    the paired test says is better than EVERY other candidate (:func:`navlab.metrics.best_filter`,
+    the paired test says is better than EVERY other candidate (:func:`best_filter`,
     Holm-corrected; the candidates are the non-oracle filters, and on the outlier-flag rates only
     those that flag outliers): ``Table.best`` maps the column to that row; a column where no
     filter is better than all others (a point-estimate winner the test does not back) has no
@@ -223,7 +305,7 @@ def headline(
         for m in metrics:
             if M.direction(m) == 0:
                 continue
-            key, _ = M.best_filter(res, m)
+            key, _ = best_filter(res, m)
             if key is not None:
                 winners[metric_name(m, data)] = res.runs[key].label
     notes += footnotes(res, sm, explanations, df)

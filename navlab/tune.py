@@ -49,11 +49,12 @@ from navlab import metrics as M
 from navlab import stats as S
 from navlab import tasks as T
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, plan
+from navlab.experiment import ExperimentSpec, filter_group, plan
 from navlab.filters import registry
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
 from navlab.stats import holm
+from navlab.tables import best_filter, comparison_metrics
 
 REAL_SPLIT = ((0.0, 0.5), (0.5, 1.0))  # real recordings: tune on the first half, report on the second
 BOUNDARY = 0.05  # a tuned value this close to an end of its range (search scale) is "on the boundary"
@@ -133,8 +134,7 @@ def space(spec: ExperimentSpec, key: str, ranges: dict[str, tuple[float, float]]
     or added by ``ranges`` {"FILTER.NAME": (lo, hi)}); defaults are the spec's values.
     """
     cls = registry()[key]
-    scls = scenario_registry()[spec.scenario]
-    base = {**scls.filter_defaults.get(key, {}), **spec.filter_params.get(key, {})}
+    base = filter_group(spec, key).settings()
     ranges = {k: v for k, v in (ranges or {}).items() if k.split(".", 1)[0] == key}
     known = {p["name"]: p for p in describe(cls.Params)}
     for name in ranges:
@@ -726,7 +726,7 @@ def rows(r: TuneResult) -> pd.DataFrame:
     """
     st = r.setup
     res = r.test
-    head = M.headline_metrics(res)
+    head = comparison_metrics(res)
     metric_df = M.summarize(res, metrics=head)
     variant_col = np.where(metric_df["filter"].str.endswith(TEST_SUFFIX), "tuned", "default")
     metric_df["filter"] = metric_df["filter"].str.replace(TEST_SUFFIX, "", regex=False)
@@ -751,7 +751,7 @@ def rows(r: TuneResult) -> pd.DataFrame:
     vs = pd.DataFrame()
     tres = tuned_only(r)
     if len(tres.stats) > 1 and metric in M.summary(tres).metrics_of(next(iter(tres.stats))):
-        best, vs = M.best_filter(tres, metric)
+        best, vs = best_filter(tres, metric)
         vs = vs.copy()
         vs.insert(0, "kind", "vs_tuned")
         vs.insert(2, "variant", "tuned")

@@ -6,8 +6,9 @@ from navlab.ui import single
 from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download, run_on_open
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import CompareView, headline_groups, run_downloads, show_stored
-from navlab.ui.widgets import PageDefaults, sidebar_experiment
+from navlab.ui.widgets import PageDefaults
 
 PAGE = "compare"
 
@@ -19,7 +20,8 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), PAGE)
+experiment = sidebar_experiment(PageDefaults(), PAGE)  # planned once, run as it is
+spec = experiment.spec
 
 # Run, Stop and the progress on one line, above the charts
 c1, c2, c3 = st.columns([1, 1, 6], vertical_alignment="center")
@@ -47,7 +49,7 @@ view = CompareView(PAGE)
 if run_requested(PAGE, spec):
     view.live = True
     res = run_live(
-        spec,
+        experiment,
         PAGE,
         view.render,
         first_chunk=None if live else spec.runs,

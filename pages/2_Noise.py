@@ -5,8 +5,9 @@ import streamlit as st
 from navlab.ui.frame import frame, plural
 from navlab.ui.runner import request_run, run_live, run_requested
 from navlab.ui.share import config_download
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import NoiseView, noise_preset_button, show_stored
-from navlab.ui.widgets import PageDefaults, sidebar_experiment
+from navlab.ui.widgets import PageDefaults
 
 PAGE = "noise"
 
@@ -18,7 +19,8 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "noise")
+experiment = sidebar_experiment(PageDefaults(), "noise")  # planned once, run as it is
+spec = experiment.spec
 
 c1, c2, c3, c4 = st.columns([1, 2, 2, 3])
 if c1.button("Run", type="primary", key="run_noise"):
@@ -32,6 +34,6 @@ c4.caption(
 
 view = NoiseView(PAGE)
 if run_requested(PAGE, spec):
-    run_live(spec, PAGE, view.render)
+    run_live(experiment, PAGE, view.render)
 else:
     show_stored(view, spec)

@@ -9,8 +9,9 @@ from navlab.ui import figures as F
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame, plural
 from navlab.ui.share import config_download, csv_download
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND, PageDefaults, sidebar_experiment
+from navlab.ui.widgets import BIND, PageDefaults
 
 PAGE, RESULT_KEY = "sweep", "_sweep_result"
 
@@ -22,7 +23,7 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "sweep", header="Base experiment")
+spec = sidebar_experiment(PageDefaults(), "sweep", header="Base experiment").spec
 
 params = {s.id: s for s in U.sweepables(spec)}
 if not params:

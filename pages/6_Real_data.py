@@ -4,7 +4,8 @@ import streamlit as st
 
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
-from navlab.params import MAX_EPOCHS, SEED_MAX
+from navlab.noise import OUTLIERS
+from navlab.params import SEED_MAX
 from navlab.scenarios.base import get_scenario_class
 from navlab.stats import MIN_RUNS
 from navlab.ui import realdata as R
@@ -12,7 +13,7 @@ from navlab.ui.frame import frame, plural
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND, link_notice
+from navlab.ui.widgets import BIND, field_widget, link_notice
 
 frame(
     "Real data",
@@ -35,14 +36,33 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     filters = st.multiselect("Filters", options, default=defaults, key=f"rd_flt_{scen}", bind=BIND)
     st.caption(" · ".join(f"`{k}` {registry()[k].label}" for k in filters))
     is_drive = scen == "drive0708"
-    epochs = st.number_input(
+    # every parameter widget takes its bounds, choices and help from the scenario's Params (or
+    # the mixture outlier model's, with the scenario's preset as default): none is restated here
+    P, mixture = get_scenario_class(scen).Params, OUTLIERS["mixture"].Params
+    odef = R.outlier_defaults(scen)
+
+    def outlier_widgets(tag: str, label: str) -> tuple[float, float]:
+        """The injected outliers' ratio α and size κ."""
+        alpha = field_widget(
+            mixture,
+            "contamination",
+            f"rd_alpha{tag}",
+            label,
+            default=odef["contamination"],
+            style="slider",
+            step=0.01,
+        )
+        return alpha, field_widget(
+            mixture, "scale", f"rd_kappa{tag}", "Outlier size κ (σ)", default=odef["scale"]
+        )
+
+    epochs = field_widget(
+        P,
+        "epochs",
+        f"rd_ep_{scen}",
         "Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
-        0,
-        MAX_EPOCHS,
-        120 if is_drive else 300,
+        default=120 if is_drive else 300,
         step=10,
-        key=f"rd_ep_{scen}",
-        bind=BIND,
     )
     runs = st.number_input(
         "Noise/outlier injections (runs)",
@@ -56,49 +76,44 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
     seed = st.number_input("Seed", 0, SEED_MAX, 1, key="rd_seed", bind=BIND)
     sp = {}
     if rec == "upload":  # your own drive: the data as recorded; synthetic noise/outliers are options
-        sp["use_receiver_sigmas"] = st.toggle(
-            "R from the receiver's σ (sigma_* columns)", True, key="rd_rxsig", bind=BIND
+        sp["use_receiver_sigmas"] = field_widget(
+            P, "use_receiver_sigmas", "rd_rxsig", "R from the receiver's σ (sigma_* columns)", style="toggle"
         )
-        sp["sigma_m"] = st.number_input(
-            "GNSS σ without receiver σ (m)", 0.01, 100.0, 3.0, key="rd_sigma_own", bind=BIND
-        )
+        sp["sigma_m"] = field_widget(P, "sigma_m", "rd_sigma_own", "GNSS σ without receiver σ (m)")
         st.caption("Synthetic noise and outliers are off for your own data (options, to stress-test):")
-        sp["add_noise"] = st.toggle("Add synthetic noise of that σ", False, key="rd_addnoise", bind=BIND)
-        contamination = st.slider("Synthetic outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_own", bind=BIND)
-        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_own", bind=BIND)
+        sp["add_noise"] = field_widget(
+            P, "add_noise", "rd_addnoise", "Add synthetic noise of that σ", style="toggle"
+        )
+        contamination, scale = outlier_widgets("_own", "Synthetic outliers α")
         with st.expander("Geometry and timing"):
-            sp["start"] = st.selectbox("Start", ["auto", "static", "moving"], key="rd_start", bind=BIND)
-            m1, m2, m3 = st.columns(3)
-            sp["mount_roll_deg"] = m1.number_input("IMU roll°", -180.0, 180.0, 0.0, key="rd_mroll", bind=BIND)
-            sp["mount_pitch_deg"] = m2.number_input("pitch°", -90.0, 90.0, 0.0, key="rd_mpitch", bind=BIND)
-            sp["mount_yaw_deg"] = m3.number_input("yaw°", -180.0, 180.0, 0.0, key="rd_myaw", bind=BIND)
-            l1, l2, l3 = st.columns(3)
-            sp["lever_right_m"] = l1.number_input(
-                "antenna right m", -100.0, 100.0, 0.0, key="rd_lr", bind=BIND
+            sp["start"] = field_widget(P, "start", "rd_start", "Start")
+            m1, m2, m3 = st.columns(3, vertical_alignment="bottom")
+            sp["mount_roll_deg"] = field_widget(P, "mount_roll_deg", "rd_mroll", "IMU roll°", container=m1)
+            sp["mount_pitch_deg"] = field_widget(P, "mount_pitch_deg", "rd_mpitch", "pitch°", container=m2)
+            sp["mount_yaw_deg"] = field_widget(P, "mount_yaw_deg", "rd_myaw", "yaw°", container=m3)
+            l1, l2, l3 = st.columns(3, vertical_alignment="bottom")
+            sp["lever_right_m"] = field_widget(P, "lever_right_m", "rd_lr", "antenna right m", container=l1)
+            sp["lever_forward_m"] = field_widget(P, "lever_forward_m", "rd_lf", "forward m", container=l2)
+            sp["lever_up_m"] = field_widget(P, "lever_up_m", "rd_lu", "up m", container=l3)
+            sp["gnss_time_offset_s"] = field_widget(
+                P, "gnss_time_offset_s", "rd_toff", "GNSS time offset (s)", step=0.01
             )
-            sp["lever_forward_m"] = l2.number_input("forward m", -100.0, 100.0, 0.0, key="rd_lf", bind=BIND)
-            sp["lever_up_m"] = l3.number_input("up m", -100.0, 100.0, 0.0, key="rd_lu", bind=BIND)
-            sp["gnss_time_offset_s"] = st.number_input(
-                "GNSS time offset (s)", -10.0, 10.0, 0.0, 0.01, key="rd_toff", bind=BIND
-            )
-            sp["gnss_rate_hz"] = st.number_input(
-                "GNSS epochs per second at most (0: as recorded)", 0.0, 100.0, 0.0, key="rd_grate", bind=BIND
+            sp["gnss_rate_hz"] = field_widget(
+                P, "gnss_rate_hz", "rd_grate", "GNSS epochs per second at most (0: as recorded)"
             )
     elif is_drive:
-        sp["sigma_m"] = st.number_input("GNSS σ (m)", 0.1, 100.0, 3.0, key="rd_sigma", bind=BIND)
-        contamination = st.slider("Outlier ratio α", 0.0, 0.5, 0.1, 0.01, key="rd_alpha", bind=BIND)
-        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa", bind=BIND)
-        o1, o2 = st.columns(2)
-        sp["outage_start_s"] = o1.number_input("Outage start (s)", 0.0, 1e4, 0.0, key="rd_out0", bind=BIND)
-        sp["outage_len_s"] = o2.number_input("Outage length (s)", 0.0, 1e4, 0.0, key="rd_outlen", bind=BIND)
+        sp["sigma_m"] = field_widget(P, "sigma_m", "rd_sigma", "GNSS σ (m)")
+        contamination, scale = outlier_widgets("", "Outlier ratio α")
+        o1, o2 = st.columns(2, vertical_alignment="bottom")  # a label that wraps keeps the boxes level
+        sp["outage_start_s"] = field_widget(
+            P, "outage_start_s", "rd_out0", "Outage start (s)", container=o1, step=1.0
+        )
+        sp["outage_len_s"] = field_widget(
+            P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2, step=1.0
+        )
     else:
-        sp["variance_model"] = st.selectbox(
-            "Variance model", ["cn0-elevation", "file"], key="rd_varmodel", bind=BIND
-        )
-        contamination = st.slider(
-            "Extra injected outliers α", 0.0, 0.5, 0.0, 0.01, key="rd_alpha_sl", bind=BIND
-        )
-        scale = st.number_input("Outlier size κ (σ)", 1.0, 100.0, 10.0, key="rd_kappa_sl", bind=BIND)
+        sp["variance_model"] = field_widget(P, "variance_model", "rd_varmodel", "Variance model")
+        contamination, scale = outlier_widgets("_sl", "Extra injected outliers α")
 
 upload_error = None
 if rec == "upload":

@@ -12,8 +12,9 @@ from navlab.ui import figures as F
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame
 from navlab.ui.share import csv_download
+from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import chart
-from navlab.ui.widgets import BIND, PageDefaults, sidebar_experiment, spec_to_state
+from navlab.ui.widgets import BIND, PageDefaults, spec_to_state
 
 PAGE, RESULT_KEY, GOTO_KEY = "tune", "_tune_result", "_tune_goto_compare"
 
@@ -32,7 +33,7 @@ frame(
     experiment=True,
 )
 
-spec = sidebar_experiment(PageDefaults(), "tune", header="Experiment (test runs)")
+spec = sidebar_experiment(PageDefaults(), "tune", header="Experiment (test runs)").spec
 
 c1, c2, c3, c4 = st.columns([1, 1, 2, 1])
 budget = int(

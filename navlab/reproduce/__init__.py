@@ -9,10 +9,6 @@ CLI and the app see a new one without touching a list.
 
 from __future__ import annotations
 
-from navlab.registry import Registry
-from navlab.reproduce.engine import DEFAULT_SEEDS, Outcome, Reproduction
+from navlab.reproduce.engine import DEFAULT_SEEDS, REPRODUCTIONS, Outcome, Reproduction, register
 
 __all__ = ["DEFAULT_SEEDS", "REPRODUCTIONS", "Outcome", "Reproduction", "register"]
-
-REPRODUCTIONS: Registry[Reproduction] = Registry("reproduction", package="navlab.reproduce")
-register = REPRODUCTIONS.register

@@ -55,6 +55,7 @@ from navlab import stats as S
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, fixed_chunks, iter_chunks, plan, run_size
 from navlab.metrics import judge, sq_error
+from navlab.registry import Registry
 from navlab.store import Store, key_of
 
 Array = np.ndarray
@@ -334,6 +335,12 @@ class Reproduction:
         )
 
 
+#: Every registered reproduction, by key: each module of navlab.reproduce registers its own
+#: (imported on first use, so the CLI and the app see a new one without touching a list).
+REPRODUCTIONS: Registry[Reproduction] = Registry("reproduction", package="navlab.reproduce")
+register = REPRODUCTIONS.register
+
+
 @dataclass(eq=False)
 class Measured:
     """Per-run features of every (filter, quantity) of one experiment over all S·N runs."""
@@ -529,8 +536,6 @@ def _decode(head: dict[str, Any], arrays: dict[str, Array]) -> _Block:
 
 def _block_task(key: str, spec: ExperimentSpec, start: int, stop: int) -> _Block:
     """A worker process's task: a block of runs of the registered reproduction ``key``."""
-    from navlab.reproduce import REPRODUCTIONS
-
     return _measure_block(REPRODUCTIONS[key], spec, start, stop)
 
 
@@ -538,8 +543,6 @@ def _registered(rep: Reproduction) -> bool:
     """Whether a worker rebuilds ``rep``'s quantities and curves from the registry by its key
     (an ad-hoc reproduction's functions cannot be sent to another process).
     """
-    from navlab.reproduce import REPRODUCTIONS
-
     reg = REPRODUCTIONS.get(rep.key)
     return reg is not None and reg.quantities is rep.quantities and reg.curves is rep.curves
 

@@ -19,9 +19,19 @@ import plotly.graph_objects as go
 from navlab.data.checks import Finding, run_messages
 from navlab.data.loaders import RTKX_SOURCE, SMARTLOC_SOURCE, load_generic
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan
+from navlab.experiment import (
+    ExperimentSpec,
+    FilterRun,
+    ParamGroup,
+    Results,
+    iter_experiment,
+    plan,
+    presets,
+)
 from navlab.filters.base import FLAG_NAMES, registry
 from navlab.metrics import summarize
+from navlab.noise import OUTLIERS
+from navlab.scenarios.base import get_scenario_class
 from navlab.ui.colors import TRUTH_COLOR, filter_colors
 from navlab.ui.figures import readable, title_layout, truth_line, value_range, y_range_layout
 from navlab.ui.uploads import SessionUploads, sweep
@@ -79,6 +89,14 @@ def link_problems(query: Mapping[str, Sequence[str]]) -> list[str]:
             if why:
                 out.append(f"`{key}={raw}`: {why}")
     return out
+
+
+def outlier_defaults(scenario: str) -> dict[str, Any]:
+    """The mixture outlier model's parameters before the page changes them: the model's defaults
+    with the scenario's preset over them (the one resolution, navlab.experiment.ParamGroup).
+    """
+    scls = get_scenario_class(scenario)
+    return ParamGroup("ol", "mixture", OUTLIERS["mixture"], presets(scls, "ol", "mixture"), {}).defaults()
 
 
 def scenario_of(recording: str) -> str:

@@ -33,7 +33,16 @@ import streamlit as st
 
 from navlab import memory
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, FilterRun, Results, iter_experiment, plan, run_size
+from navlab.experiment import (
+    ExperimentSpec,
+    FilterRun,
+    Plan,
+    Results,
+    as_plan,
+    iter_experiment,
+    plan,
+    run_size,
+)
 
 log = logging.getLogger(__name__)
 PARTIAL_KEY = "_navlab_partial"  # session: {page: (spec_json, Results)}
@@ -326,7 +335,7 @@ def stream_policy(spec: ExperimentSpec, K: int, first_chunk: int | None = None, 
 
 
 def iter_chunks(
-    spec: ExperimentSpec,
+    spec: ExperimentSpec | Plan,
     start: Results | None = None,
     first_chunk: int | None = None,
     on_epoch: Callable[[float], None] | None = None,
@@ -336,10 +345,12 @@ def iter_chunks(
     :func:`stream_policy`, resumable from partial results ``start``, learning each filter's cost
     after every chunk. ``on_epoch(runs_done)`` reports progress within a chunk.
     ``Results.elapsed_s`` is the compute time (simulation + filtering) summed over chunks.
+    ``spec`` may be its :class:`~navlab.experiment.Plan` (planned once, passed on).
     """
-    K = plan(spec).scenario.epochs
-    policy = stream_policy(spec, K, first_chunk, costs)
-    for res in iter_experiment(spec, policy=policy, start=start, on_epoch=on_epoch):
+    p = as_plan(spec)
+    spec = p.spec
+    policy = stream_policy(spec, p.scenario.epochs, first_chunk, costs)
+    for res in iter_experiment(p, policy=policy, start=start, on_epoch=on_epoch):
         ch = res.last
         learn_cost(spec.scenario, ch.data.B, ch.data.K, ch.runs)
         yield res
@@ -382,7 +393,7 @@ def show_error(exc: BaseException) -> None:
 
 
 def run_live(
-    spec: ExperimentSpec,
+    spec: ExperimentSpec | Plan,
     page: str,
     render: Callable[[Results], None] | None = None,
     *,
@@ -401,10 +412,13 @@ def run_live(
     A rerun the user asks for while a chunk computes (Stop, a view control) waits until that
     chunk is finished: the chunk in flight is kept with the others in the session, then the rerun
     happens, and Run (or the same page again) resumes from there. Returns None after a failure
-    (already shown as an error).
+    (already shown as an error). ``spec`` may be its :class:`~navlab.experiment.Plan` (the
+    sidebar's, planned once and passed on).
     """
     from streamlit.runtime.scriptrunner_utils.exceptions import RerunException
 
+    planned = spec if isinstance(spec, Plan) else None
+    spec = spec.spec if isinstance(spec, Plan) else spec
     key = spec.to_json()
     store = result_store()
     res = store.get(key)
@@ -460,11 +474,12 @@ def run_live(
             guarded(prog.progress, prog_value[0], text=f"{runs_done:.0f}/{spec.runs} runs…")
 
     try:
-        size = run_size(plan(spec))
+        p = planned or plan(spec)
+        size = run_size(p)
         need = size.full()
         memory.check(size, need)  # this run alone (the message says what to change)
         with ledger().reserve(need):  # and all sessions' runs together
-            for res in iter_chunks(spec, start, first_chunk, tick):
+            for res in iter_chunks(p, start, first_chunk, tick):
                 partials[page] = (key, res)  # no session_state access: that can raise a rerun
                 if pending:
                     break

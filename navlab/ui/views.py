@@ -482,7 +482,6 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
     """A finished run's downloads on one line: the metric table and the RMSE per epoch (CSV), and
     a notebook and a script that re-run the experiment and redraw the page's figures.
     """
-    from navlab.metrics import summarize
     from navlab.notebook import default_figures, notebook, script
     from navlab.ui.share import csv_download, text_download
 
@@ -490,7 +489,7 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
     figs = default_figures(group, view.channel or 0)
     cols = st.columns([2, 2, 2, 2, 1])
     csv_download(
-        lambda: summarize(res, compare_to=view.ref),
+        lambda: tables.summary_rows(res, compare_to=view.ref),
         "Metrics (CSV)",
         "navlab-metrics.csv",
         f"dl_metrics_{page}",

@@ -28,7 +28,6 @@ with the reason (:func:`url_problems`) instead of silently falling back to the d
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -37,7 +36,17 @@ from typing import Any
 import streamlit as st
 
 from navlab.errors import NavlabError
-from navlab.experiment import MAX_RUNS, SEED_MAX, ExperimentSpec, plan
+from navlab.experiment import (
+    KINDS,
+    MAX_RUNS,
+    SEED_MAX,
+    ExperimentSpec,
+    Plan,
+    as_plan,
+    param_groups,
+    plan,
+    presets,
+)
 from navlab.filters import registry
 from navlab.noise import OUTLIERS, SCHEDULES
 from navlab.params import describe
@@ -117,13 +126,6 @@ def default_runs(scn: str, defaults: PageDefaults) -> int:
     return int(max(1, min(UI_MAX_RUNS, n)))
 
 
-def outlier_param_default(scn: str, model: str, name: str, class_default: Any) -> Any:
-    """The scenario's override of an outlier-model default (e.g. cv2d's isolated preset)."""
-    over = scenario_registry()[scn].outlier_defaults.get(model, {})
-    v = over.get(name, class_default)
-    return tuple(v) if isinstance(v, list) else v
-
-
 # --------------------------------------------------------------------------- generic widget
 
 
@@ -135,56 +137,62 @@ def _float_step(default: float, lo: float | None, hi: float | None) -> float:
     return 0.1
 
 
-def param_widget(p: dict[str, Any], key: str, default: Any, container: Any = None) -> Any:
+def param_widget(
+    p: dict[str, Any],
+    key: str,
+    default: Any,
+    container: Any = None,
+    *,
+    label: str | None = None,
+    style: str | None = None,
+    step: float | None = None,
+) -> Any:
     """One bound widget for a parameter described by :func:`navlab.params.describe`.
 
     Returns the widget's value, or ``default`` for parameters that have no widget (tuples,
     ``ui=False``). Ranges come from the parameter's ``lo``/``hi``, so impossible values cannot
-    be entered.
+    be entered. ``label`` replaces the parameter's name; ``style`` "toggle" draws a switch for a
+    true/false parameter, "slider" a slider for a number; ``step`` replaces the number's step.
     """
     c = container if container is not None else st
     if not p.get("ui", True) or isinstance(default, tuple):
         return default
-    label = p["name"].replace("_", " ")
-    help_ = p.get("help") or None
+    label = label or p["name"].replace("_", " ")
+    common = {"key": key, "help": p.get("help") or None, "bind": BIND}
     lo, hi = p.get("lo"), p.get("hi")
     if isinstance(default, bool):
-        return c.checkbox(label, value=default, key=key, help=help_, bind=BIND)
+        return (c.toggle if style == "toggle" else c.checkbox)(label, value=default, **common)
     if isinstance(default, int):
-        return int(
-            c.number_input(
-                label,
-                value=int(default),
-                step=1,
-                key=key,
-                help=help_,
-                bind=BIND,
-                min_value=None if lo is None else math.ceil(lo),
-                max_value=None if hi is None else math.floor(hi),
-            )
-        )
+        lo_i, hi_i = None if lo is None else math.ceil(lo), None if hi is None else math.floor(hi)
+        bounds = {"min_value": lo_i, "max_value": hi_i}
+        return int(c.number_input(label, value=int(default), step=step or 1, **bounds, **common))
     if isinstance(default, float):
+        lo_f, hi_f = None if lo is None else float(lo), None if hi is None else float(hi)
+        step = step or _float_step(default, lo, hi)
+        if style == "slider":
+            return float(c.slider(label, lo_f, hi_f, float(default), step, **common))
         return float(
             c.number_input(
-                label,
-                value=float(default),
-                step=_float_step(default, lo, hi),
-                format="%g",
-                key=key,
-                help=help_,
-                bind=BIND,
-                min_value=None if lo is None else float(lo),
-                max_value=None if hi is None else float(hi),
+                label, value=float(default), step=step, format="%g", min_value=lo_f, max_value=hi_f, **common
             )
         )
     choices = p.get("choices")
     if choices:
         opts = list(choices)
-        idx = opts.index(default) if default in opts else 0
-        return c.selectbox(label, opts, index=idx, key=key, help=help_, bind=BIND)
+        return c.selectbox(label, opts, index=opts.index(default) if default in opts else 0, **common)
     if isinstance(default, str):
-        return c.text_input(label, value=default, key=key, help=help_, bind=BIND)
+        return c.text_input(label, value=default, **common)
     return default
+
+
+def field_widget(Params: type, name: str, key: str, label: str, *, default: Any = None, **kw: Any) -> Any:
+    """A bound widget for field ``name`` of the parameter dataclass ``Params``: its bounds,
+    choices and help come from the field's :func:`navlab.params.param` (a page never restates
+    them); ``default`` (None: the field's) is the page's starting value. ``kw``: as
+    :func:`param_widget` (``container``, ``style``, ``step``).
+    """
+    p = next(d for d in describe(Params) if d["name"] == name)
+    return param_widget(p, key, p["default"] if default is None else default, label=label, **kw)
 
 
 def param_group(
@@ -264,6 +272,7 @@ class Config:
     spec: ExperimentSpec | None
     error: str | None = None
     skipped: dict[str, str] = field(default_factory=dict)  # filter key -> reason
+    plan: Plan | None = None  # the spec, planned (validated) once: passed on to the run
 
 
 def _selectbox(c: Any, label: str, options: list[str], default: str, key: str, **kw: Any) -> str:
@@ -283,8 +292,8 @@ def _on_scenario_change(defaults: PageDefaults) -> None:
     # parameters some scenario presets (outlier model, filter) restart from the new scenario's
     # value; everything else the user set is kept
     for scls in scenario_registry().values():
-        for kind, presets in (("ol", scls.outlier_defaults), ("fp", scls.filter_defaults)):
-            for owner, values in presets.items():
+        for kind, table in (("ol", scls.outlier_defaults), ("fp", scls.filter_defaults)):
+            for owner, values in table.items():
                 for name in values:
                     st.session_state.pop(pkey(kind, owner, name), None)
 
@@ -302,107 +311,15 @@ def experiment_config(
     ``Config.skipped`` with the reason; an invalid combination gives ``Config.error``.
     """
     c = container if container is not None else st.sidebar
-    reg, sreg = registry(), scenario_registry()
-    skeys = scenario_keys()
-    scn = _selectbox(
-        c,
-        "Scenario",
-        skeys,
-        defaults.scenario,
-        SCN,
-        help="the simulated experiment (or real recording) every filter runs on",
-        on_change=_on_scenario_change,
-        args=(defaults,),
-    )
-    scls = sreg[scn]
-    c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
-
-    chosen = c.multiselect(
-        "Filters",
-        filter_keys(),
-        default=default_filters(scn, defaults),
-        key=FLT,
-        bind=BIND,
-        help="registry keys; all selected filters see exactly the same measurements",
-    )
-    if chosen:
-        c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
-    col1, col2 = c.columns(2)
-    runs = int(
-        col1.number_input(
-            "Monte Carlo runs",
-            min_value=1,
-            max_value=int(runs_max),
-            value=min(default_runs(scn, defaults), int(runs_max)),
-            step=10,
-            key=RUNS,
-            bind=BIND,
-        )
-    )
-    seed = int(
-        col2.number_input(
-            "Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed, step=1, key=SEED, bind=BIND
-        )
-    )
-
-    sparams: dict[str, Any] = {}
-    if has_widgets(scls.Params):
-        with c.expander("Scenario parameters", expanded=False):
-            sparams = param_group("sc", scn, scls.Params)
-
-    noise = _selectbox(
-        c,
-        "Noise schedule (true R(t))",
-        list(SCHEDULES),
-        defaults.noise_schedule,
-        NOISE,
-        help="how the true measurement-noise σ varies over the run",
-    )
-    ncls = SCHEDULES[noise]
-    c.caption(ncls.summary)
-    nparams: dict[str, Any] = {}
-    if has_widgets(ncls.Params):
-        with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
-            nparams = param_group("ns", noise, ncls.Params)
-
-    out = _selectbox(
-        c,
-        "Outlier model",
-        list(OUTLIERS),
-        defaults.outliers,
-        OUT,
-        help="how measurements are contaminated (ground-truth mask recorded)",
-    )
-    ocls = OUTLIERS[out]
-    c.caption(ocls.summary)
-    oparams: dict[str, Any] = {}
-    if has_widgets(ocls.Params):
-        over = scls.outlier_defaults.get(out, {})
-        with c.expander("Outlier parameters", expanded=True):
-            oparams = param_group("ol", out, ocls.Params, overrides=over)
-
-    skipped: dict[str, str] = {}
-    run_filters: list[str] = []
-    for k in chosen:
-        if k not in reg:
-            continue
-        why = filter_problem(k, scn)
-        if why:
-            skipped[k] = why
-        else:
-            run_filters.append(k)
-
-    fparams: dict[str, dict[str, Any]] = {}
-    tunable = [k for k in run_filters if has_widgets(reg[k].Params)]
-    if show_filter_tuning and tunable:
-        with c.expander("Filter tuning", expanded=False):
-            for k in tunable:
-                st.markdown(f"**{reg[k].label}** (`{k}`)")
-                vals = param_group("fp", k, reg[k].Params, overrides=scls.filter_defaults.get(k))
-                if vals:
-                    fparams[k] = vals
-
-    extra = st.session_state.get(EXTRA_KEY) or {}
+    scn = _scenario_select(c, defaults)
+    chosen = _filters_select(c, scn, defaults)
+    runs, seed = _runs_and_seed(c, scn, defaults, runs_max)
+    sparams = _scenario_params(c, scn)
+    noise, nparams = _noise_select(c, defaults)
+    out, oparams = _outliers_select(c, scn, defaults)
+    run_filters, skipped = _runnable(chosen, scn)
+    fparams = _filter_tuning(c, scn, run_filters) if show_filter_tuning else {}
+    extra = st.session_state.get(EXTRA_KEY) or {}  # uploaded settings that have no widget
     spec_d: dict[str, Any] = {
         "scenario": scn,
         "filters": tuple(run_filters),
@@ -415,16 +332,146 @@ def experiment_config(
         "scenario_params": {**extra.get("scenario_params", {}), **sparams},
         "filter_params": fparams,
     }
+    return _checked(spec_d, skipped)
+
+
+def _scenario_select(c: Any, defaults: PageDefaults) -> str:
+    """The scenario, with its name and paper below."""
+    scn = _selectbox(
+        c,
+        "Scenario",
+        scenario_keys(),
+        defaults.scenario,
+        SCN,
+        help="the simulated experiment (or real recording) every filter runs on",
+        on_change=_on_scenario_change,
+        args=(defaults,),
+    )
+    scls = scenario_registry()[scn]
+    c.caption(f"**{scls.label}**" + (f" — {scls.paper}" if scls.paper else ""))
+    return scn
+
+
+def _filters_select(c: Any, scn: str, defaults: PageDefaults) -> list[str]:
+    """The filters (registry keys), with their names below."""
+    reg = registry()
+    chosen = c.multiselect(
+        "Filters",
+        filter_keys(),
+        default=default_filters(scn, defaults),
+        key=FLT,
+        bind=BIND,
+        help="registry keys; all selected filters see exactly the same measurements",
+    )
+    if chosen:
+        c.caption(" · ".join(f"`{k}` {reg[k].label}" for k in chosen if k in reg))
+    return chosen
+
+
+def _runs_and_seed(c: Any, scn: str, defaults: PageDefaults, runs_max: int) -> tuple[int, int]:
+    """Monte Carlo runs and the seed, side by side."""
+    col1, col2 = c.columns(2)
+    runs = col1.number_input(
+        "Monte Carlo runs",
+        min_value=1,
+        max_value=int(runs_max),
+        value=min(default_runs(scn, defaults), int(runs_max)),
+        step=10,
+        key=RUNS,
+        bind=BIND,
+    )
+    seed = col2.number_input(
+        "Seed", min_value=0, max_value=SEED_MAX, value=defaults.seed, step=1, key=SEED, bind=BIND
+    )
+    return int(runs), int(seed)
+
+
+def _scenario_params(c: Any, scn: str) -> dict[str, Any]:
+    """The scenario's parameters, in a closed expander (those that differ from the defaults)."""
+    scls = scenario_registry()[scn]
+    if not has_widgets(scls.Params):
+        return {}
+    with c.expander("Scenario parameters", expanded=False):
+        return param_group("sc", scn, scls.Params)
+
+
+def _noise_select(c: Any, defaults: PageDefaults) -> tuple[str, dict[str, Any]]:
+    """The noise schedule and its parameters (open unless the schedule is constant)."""
+    noise = _selectbox(
+        c,
+        "Noise schedule (true R(t))",
+        list(SCHEDULES),
+        defaults.noise_schedule,
+        NOISE,
+        help="how the true measurement-noise σ varies over the run",
+    )
+    ncls = SCHEDULES[noise]
+    c.caption(ncls.summary)
+    if not has_widgets(ncls.Params):
+        return noise, {}
+    with c.expander("Noise-schedule parameters", expanded=noise != "constant"):
+        return noise, param_group("ns", noise, ncls.Params)
+
+
+def _outliers_select(c: Any, scn: str, defaults: PageDefaults) -> tuple[str, dict[str, Any]]:
+    """The outlier model and its parameters (the scenario's preset as their defaults)."""
+    out = _selectbox(
+        c,
+        "Outlier model",
+        list(OUTLIERS),
+        defaults.outliers,
+        OUT,
+        help="how measurements are contaminated (ground-truth mask recorded)",
+    )
+    ocls = OUTLIERS[out]
+    c.caption(ocls.summary)
+    if not has_widgets(ocls.Params):
+        return out, {}
+    over = presets(scenario_registry()[scn], "ol", out)
+    with c.expander("Outlier parameters", expanded=True):
+        return out, param_group("ol", out, ocls.Params, overrides=over)
+
+
+def _runnable(chosen: Sequence[str], scn: str) -> tuple[list[str], dict[str, str]]:
+    """The chosen filters that can run on ``scn``, and why each other one cannot."""
+    run_filters: list[str] = []
+    skipped: dict[str, str] = {}
+    for k in (k for k in chosen if k in registry()):
+        why = filter_problem(k, scn)
+        if why:
+            skipped[k] = why
+        else:
+            run_filters.append(k)
+    return run_filters, skipped
+
+
+def _filter_tuning(c: Any, scn: str, run_filters: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """Each filter's parameters in one closed expander (the scenario's presets as defaults)."""
+    reg, scls = registry(), scenario_registry()[scn]
+    tunable = [k for k in run_filters if has_widgets(reg[k].Params)]
+    if not tunable:
+        return {}
+    fparams: dict[str, dict[str, Any]] = {}
+    with c.expander("Filter tuning", expanded=False):
+        for k in tunable:
+            st.markdown(f"**{reg[k].label}** (`{k}`)")
+            vals = param_group("fp", k, reg[k].Params, overrides=presets(scls, "fp", k))
+            if vals:
+                fparams[k] = vals
+    return fparams
+
+
+def _checked(spec_d: dict[str, Any], skipped: dict[str, str]) -> Config:
+    """The spec the widgets read, planned once (or why it cannot run)."""
     try:
         spec = ExperimentSpec.from_dict(spec_d)
-        if run_filters:
-            plan(spec)
+        planned = plan(spec) if spec.filters else None
     except NavlabError as exc:
         return Config(None, str(exc), skipped)
-    if not run_filters:
+    if planned is None:
         msg = "choose at least one filter" if not skipped else "none of the chosen filters can run here"
         return Config(None, msg, skipped)
-    return Config(spec, None, skipped)
+    return Config(spec, None, skipped, planned)
 
 
 # --------------------------------------------------------------------------- spec -> widgets
@@ -436,9 +483,8 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     Returns the settings that have no widget (kept for this session in :data:`EXTRA_KEY`, but not
     in the URL). Raises NavlabError when the spec names something unknown.
     """
-    p = plan(spec)  # validates every key and value first
+    plan(spec)  # validates every key and value first
     ss = st.session_state
-    scls = type(p.scenario)
     ss[SCN] = spec.scenario
     ss[FLT] = list(spec.filters)
     ss[RUNS] = int(spec.runs)
@@ -447,53 +493,17 @@ def spec_to_state(spec: ExperimentSpec) -> list[str]:
     ss[OUT] = spec.outliers
     extra: dict[str, dict[str, Any]] = {}
     no_widget: list[str] = []
-
-    def put(
-        kind: str,
-        owner: str,
-        Params: type,
-        values: dict[str, Any],
-        section: str,
-        overrides: dict[str, Any] | None = None,
-    ) -> None:
-        for d in describe(Params):
-            name = d["name"]
-            default = (overrides or {}).get(name, d["default"])
-            v = values.get(name, default)
+    for g in param_groups(spec):
+        section = KINDS[g.kind] + (f".{g.owner}" if g.kind == "fp" else "")
+        values = {**g.defaults(), **g.values}
+        for d in describe(g.Params):
+            name, v = d["name"], values[d["name"]]
             if not d.get("ui", True) or isinstance(d["default"], tuple):
-                if name in values:
+                if name in g.values:
                     extra.setdefault(section, {})[name] = v
                     no_widget.append(f"{section}.{name}")
                 continue
-            ss[pkey(kind, owner, name)] = list(v) if isinstance(v, tuple) else v
-
-    sp = dict(spec.scenario_params)
-    if spec.epochs is not None:
-        sp["epochs"] = spec.epochs
-    put("sc", spec.scenario, scls.Params, sp, "scenario_params")
-    put("ns", spec.noise_schedule, type(p.schedule).Params, spec.noise_params, "noise_params")
-    op = dict(spec.outlier_params)
-    if spec.contamination is not None:
-        op["contamination"] = spec.contamination
-    if spec.outlier_scale is not None:
-        op["scale"] = spec.outlier_scale
-    put(
-        "ol",
-        spec.outliers,
-        type(p.outliers).Params,
-        op,
-        "outlier_params",
-        scls.outlier_defaults.get(spec.outliers, {}),
-    )
-    for f in p.filters:
-        put(
-            "fp",
-            f.key,
-            type(f).Params,
-            spec.filter_params.get(f.key, {}),
-            f"filter_params.{f.key}",
-            scls.filter_defaults.get(f.key, {}),
-        )
+            ss[pkey(g.kind, g.owner, name)] = list(v) if isinstance(v, tuple) else v
     ss[EXTRA_KEY] = {k: v for k, v in extra.items() if not k.startswith("filter_params")}
     return no_widget
 
@@ -528,14 +538,13 @@ def _widget_params(cls: Any) -> dict[str, dict[str, Any]]:
     }
 
 
-def spec_query(spec: ExperimentSpec) -> dict[str, str | list[str]]:
+def spec_query(spec: ExperimentSpec | Plan) -> dict[str, str | list[str]]:
     """The URL query of ``spec`` on any run page: the values that differ from the shared defaults
     (the widgets' keys; settings without a widget are not in a URL). Raises NavlabError for a spec
-    naming something unknown.
+    naming something unknown. ``spec`` may be its plan (then it is not planned again).
     """
-    plan(spec)  # validates every key and value first
+    spec = as_plan(spec).spec  # validates every key and value first
     d = PageDefaults()
-    scls = scenario_registry()[spec.scenario]
     q: dict[str, str | list[str]] = {}
     if spec.scenario != d.scenario:
         q[SCN] = spec.scenario
@@ -549,28 +558,11 @@ def spec_query(spec: ExperimentSpec) -> dict[str, str | list[str]]:
         q[NOISE] = spec.noise_schedule
     if spec.outliers != d.outliers:
         q[OUT] = spec.outliers
-    sp = dict(spec.scenario_params)
-    if spec.epochs is not None:
-        sp["epochs"] = spec.epochs
-    op = dict(spec.outlier_params)
-    if spec.contamination is not None:
-        op["contamination"] = spec.contamination
-    if spec.outlier_scale is not None:
-        op["scale"] = spec.outlier_scale
-    groups: list[tuple[str, str, Any, dict[str, Any], dict[str, Any]]] = [
-        ("sc", spec.scenario, scls, sp, {}),
-        ("ns", spec.noise_schedule, SCHEDULES[spec.noise_schedule], dict(spec.noise_params), {}),
-        ("ol", spec.outliers, OUTLIERS[spec.outliers], op, scls.outlier_defaults.get(spec.outliers, {})),
-    ]
-    groups += [
-        ("fp", k, registry()[k], dict(spec.filter_params.get(k, {})), scls.filter_defaults.get(k, {}))
-        for k in spec.filters
-    ]
-    for kind, owner, cls, values, over in groups:
-        params = _widget_params(cls)
-        for name, v in values.items():
-            if name in params and v != over.get(name, params[name]["default"]):
-                q[pkey(kind, owner, name)] = url_value(v)
+    for g in param_groups(spec):
+        params, defaults = _widget_params(g.cls), g.defaults()
+        for name, v in g.values.items():
+            if name in params and v != defaults[name]:
+                q[pkey(g.kind, g.owner, name)] = url_value(v)
     return q
 
 
@@ -674,7 +666,7 @@ def url_problems(query: Mapping[str, Sequence[str]], runs_max: int = UI_MAX_RUNS
     return msgs
 
 
-def _link_query() -> dict[str, list[str]]:
+def link_query() -> dict[str, list[str]]:
     qp = st.query_params
     return {k: qp.get_all(k) for k in qp}
 
@@ -694,46 +686,3 @@ def link_notice(page: str, spec: ExperimentSpec | None, problems: list[str]) -> 
         + "\n".join(f"- {m}" for m in msgs),
         icon=":material/link_off:",
     )
-
-
-def sidebar_experiment(defaults: PageDefaults, page: str, header: str = "Experiment") -> ExperimentSpec:
-    """The sidebar every run page shares: experiment widgets, config upload, skipped filters.
-
-    Every run page passes the same :class:`PageDefaults` (so a link is the same experiment on
-    every page). Link values the widgets reject are named in a notice; the page links (drawn by
-    :func:`navlab.ui.frame.frame`) carry this experiment to the next page. Stops the page with the
-    message when the configuration is invalid.
-    """
-    from navlab.ui.frame import arrived_from_another_page, fill_nav
-    from navlab.ui.share import UPLOAD_MSG_KEY, config_upload  # share imports this module
-
-    carried = st.session_state.get(CARRY_SPEC_KEY)
-    if carried and arrived_from_another_page():
-        # Streamlit drops a link's parameters that are bound to the previous page's widgets on a
-        # page change (1.67: populate_from_query_string keeps only the new page's bindings), so
-        # the experiment the link carried is written into the widgets from the session instead
-        with contextlib.suppress(NavlabError):  # a registry changed under the session: defaults
-            spec_to_state(ExperimentSpec.from_json(carried))
-            # ... and into the address bar (the old page's bindings are gone, so it may be set)
-            for key, value in (st.session_state.get(CARRY_KEY) or {}).items():
-                with contextlib.suppress(st.errors.StreamlitAPIException):
-                    st.query_params[key] = value
-    problems = url_problems(_link_query())
-    with st.sidebar:
-        st.header(header)
-    cfg = experiment_config(defaults)
-    # open while it has an upload's message to show (the widgets above it may have changed with
-    # the upload, and a changed sidebar redraws the expander closed)
-    with st.sidebar.expander("Load / save configuration", expanded=UPLOAD_MSG_KEY in st.session_state):
-        config_upload(key=f"up_cfg_{page}")
-    if cfg.spec is not None:
-        st.session_state[CARRY_KEY] = spec_query(cfg.spec)
-        st.session_state[CARRY_SPEC_KEY] = cfg.spec.to_json()
-    fill_nav()
-    link_notice(page, cfg.spec, problems)
-    for key, why in cfg.skipped.items():
-        st.warning(f"`{key}` is left out: it {why}.")
-    if cfg.error:
-        st.error(cfg.error)
-        st.stop()
-    return cfg.spec

@@ -185,7 +185,7 @@ def test_numba_kernels_are_compiled_at_build_time_into_a_writable_cache(instruct
     assert m, "NUMBA_CACHE_DIR is not set"
     cache = m.group(1)
     assert not cache.startswith("/app"), "the cache must not be inside the read-only code folder"
-    warm = _index(instructions, lambda i: i["instruction"] == "RUN" and "navlab.jit" in i["value"])
+    warm = _index(instructions, lambda i: i["instruction"] == "RUN" and "navlab.warmup" in i["value"])
     code = _index(
         instructions, lambda i: i["instruction"] == "COPY" and shlex.split(i["value"])[0] == "navlab/"
     )

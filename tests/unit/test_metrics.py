@@ -14,7 +14,8 @@ from navlab import metrics as M
 from navlab import tables
 from navlab.experiment import ExperimentSpec, Results, plan, run_experiment, run_filters
 from navlab.filters.kalman import KF
-from navlab.metrics import best_filter, compare, summarize, summary
+from navlab.metrics import compare, summarize, summary
+from navlab.tables import best_candidates, best_filter, comparison_metrics
 
 
 class Pushed(KF):
@@ -144,7 +145,7 @@ def test_numerical_fixes_are_not_false_alarms():
 
 def test_paired_comparison_and_best_are_made_by_the_test():
     res = run_experiment(ExperimentSpec(filters=("kf", "oracle-kf", "chi2-kf"), runs=40, epochs=60))
-    c = compare(res, "kf")
+    c = compare(res, "kf", comparison_metrics(res))
     r = c[(c["filter"] == "oracle-kf") & (c.metric == "rmse_pos_diff")].iloc[0]
     assert r.verdict == "better" and r.ci_hi < 0 and r.p_holm < 0.05 and r.vs == "kf"
     # Δ is the difference of the two table values (same runs)
@@ -179,16 +180,16 @@ def test_the_oracle_is_never_the_best(flagging):
     df = summarize(flagging)
     rmse = {k: value(df, k, "rmse_pos").value for k in flagging.runs}
     assert min(rmse, key=rmse.get) == "oracle-kf"  # the floor: told the outliers and R
-    assert "oracle-kf" not in M.best_candidates(flagging, "rmse_pos")
+    assert "oracle-kf" not in best_candidates(flagging, "rmse_pos")
     assert best_filter(flagging, "rmse_pos")[0] != "oracle-kf"
 
 
 def test_flag_rates_are_won_only_by_filters_that_flag(flagging):
     df = summarize(flagging)
     assert value(df, "kf", "false_alarm_pct").value == 0  # it never flags: no false alarm
-    assert M.best_candidates(flagging, "false_alarm_pct") == ["chi2-kf", "huber-kf"]
-    assert M.best_candidates(flagging, "detected_pct") == ["chi2-kf", "huber-kf"]
-    assert M.best_candidates(flagging, "rmse_pos") == ["kf", "chi2-kf", "huber-kf"]
+    assert best_candidates(flagging, "false_alarm_pct") == ["chi2-kf", "huber-kf"]
+    assert best_candidates(flagging, "detected_pct") == ["chi2-kf", "huber-kf"]
+    assert best_candidates(flagging, "rmse_pos") == ["kf", "chi2-kf", "huber-kf"]
     fa = {k: value(df, k, "false_alarm_pct").value for k in ("chi2-kf", "huber-kf")}
     assert fa["chi2-kf"] < fa["huber-kf"]
     key, rows = best_filter(flagging, "false_alarm_pct")
