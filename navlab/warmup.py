@@ -52,7 +52,7 @@ def _warm_filters() -> None:
     """The filter kernels, through the filters themselves (the signatures the runs use)."""
     from navlab.experiment import ExperimentSpec, run_experiment
 
-    filters = ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf", "svd-ukf")
+    filters = ("kf", "chi2-kf", "vb-akf", "hakf", "student-t-kf", "sage-husa", "irakf", "svd-ukf")
     run_experiment(ExperimentSpec(scenario="gps-ins-rtk", filters=filters, runs=2, epochs=10))
 
 

@@ -179,6 +179,7 @@ def test_warm_compiles_every_kernel():
         linalg._QUAD,
         linalg._JOSEPH,
         huber_vb.VB_ITERATIONS,
+        huber_vb.STUDENT_T_ITERATIONS,
         kernels._INSIDE,
         lc._F_RUNS,
         lc._HH_RUNS,
