@@ -22,8 +22,8 @@ doi:10.3969/j.issn.1000-386x.2024.06.041.
 
 from __future__ import annotations
 
-from navlab.filters.base import Filter, KFLimit, KFState, Model, SideInfo, StepOut, Teaching, register
-from navlab.filters.kalman import _flags, kf_update, measurement_prediction
+from navlab.filters.base import KFLimit, KFState, Model, Teaching, register
+from navlab.filters.kalman import KalmanUpdate
 from navlab.linalg import Array, mT, sym
 
 
@@ -40,8 +40,12 @@ def ekf_predict(model: Model, x: Array, P: Array, k: int) -> tuple[Array, Array]
 
 
 @register
-class EKF(Filter):
-    """Extended Kalman filter with the nominal Q and R, Joseph-form update (ALGORITHMS.md §1.2)."""
+class EKF(KalmanUpdate):
+    """Extended Kalman filter with the nominal Q and R, Joseph-form update (ALGORITHMS.md §1.2).
+
+    Its update is the KF's (:class:`~navlab.filters.kalman.KalmanUpdate`): (9) H = ∂h/∂x at x⁻,
+    ν = z − h(x⁻), S = H P⁻ Hᵀ + R; (9)–(11) K = P⁻ Hᵀ S⁻¹, x⁺ = x⁻ + K ν, Joseph form.
+    """
 
     key = "ekf"
     label = "EKF"
@@ -72,13 +76,6 @@ class EKF(Filter):
     def predict(self, model: Model, state: KFState, k: int) -> KFState:
         x, P = ekf_predict(model, state.x, state.P, k)
         return state._replace(x=x, P=P)
-
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        # (9) H = ∂h/∂x at x⁻, ν = z − h(x⁻), S = H P⁻ Hᵀ + R
-        mk = measurement_prediction(model, state.x, state.P, k, z, model.R0)
-        # (9)–(11) K = P⁻ Hᵀ S⁻¹, x⁺ = x⁻ + K ν, Joseph form (§0.2 rule 2)
-        x, P, S, _, fixed = kf_update(state.x, state.P, mk.U, mk.M, mk.nu, mk.R)
-        return KFState(x, P), StepOut(x=x, P=P, innov=mk.nu, S=S, R_used=mk.R, flags=_flags(z, fixed))
 
 
 __all__ = ["EKF", "ekf_predict"]

@@ -52,17 +52,13 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.filters.base import (
     DOWNWEIGHTED,
-    Filter,
     KFLimit,
     KFState,
     Model,
-    SideInfo,
-    StepOut,
     Teaching,
-    flag_fix,
     register,
 )
-from navlab.filters.kalman import kf_update, measurement_prediction
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior, kf_update
 from navlab.jit import Kernel, RunStep
 from navlab.linalg import (
     CHOLESKY_LOWER,
@@ -222,8 +218,9 @@ STUDENT_T_ITERATIONS = RunStep(
 )
 
 
-def _flags(down: Array, fixed: Array) -> Array:
-    return flag_fix(np.where(down, DOWNWEIGHTED, 0).astype(np.int8), fixed)
+def _down(down: Array) -> Array:
+    """Flag 1 (down-weighted) on the channels ``down`` (B, m)."""
+    return np.where(down, DOWNWEIGHTED, 0).astype(np.int8)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -249,7 +246,7 @@ class HuberParams:
 
 
 @register
-class HuberKF(Filter):
+class HuberKF(KalmanUpdate):
     """Huber robust KF by channel-wise re-weighted R (HKF; ALGORITHMS.md §2, S0 eqs. 7–10).
 
     Per pass: e = L⁻¹ ν (R0 = L Lᵀ), w_j = ψ_H(e_j)/e_j, R̃ = L Ψ⁻¹ Lᵀ (the consistent form of
@@ -290,16 +287,18 @@ class HuberKF(Filter):
         ),
     )
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x0, P0 = state.x, state.P
+    def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
+        """(7)–(10) Huber weights of the normalised residual, R̃ = L Ψ⁻¹ Lᵀ (``irls_iters`` passes)."""
+        p, mk = self.params, pr.mk
         R0 = np.asarray(model.R0, dtype=float)
         r0 = np.diagonal(R0)
         diagonal = bool(np.all(np.diag(r0) == R0))
         L = np.diag(np.sqrt(r0)) if diagonal else np.linalg.cholesky(R0)  # R0 = L Lᵀ
-        mk = measurement_prediction(model, x0, P0, k, z, R0)
-        r = mk.nu  # the residual the weights come from (the prior innovation on pass 1)
-        for _ in range(p.irls_iters):
+        r, Rt = mk.nu, mk.R  # the residual the weights come from (the prior innovation on pass 1)
+        for it in range(p.irls_iters):
+            if it > 0:  # IRLS: the residual of the posterior of the previous pass
+                x, *_ = kf_update(pr.x, pr.P, mk.U, mk.M, mk.nu, Rt)
+                r = np.where(mk.ok, z - model.h(x, pr.k), 0.0)
             # (16) e = R^{-1/2}(z − H x); option "S": ν̃_i = r_i / sqrt(S_ii), S from R0
             if p.normalize == "S":
                 e = r / np.sqrt(diag(mk.M) + r0)
@@ -311,20 +310,8 @@ class HuberKF(Filter):
             # (10) R̃ = L Ψ⁻¹ Lᵀ (for diagonal R0: R0_jj / w_j)
             Rt = diag_embed(r0 / w) if diagonal else (L / w[:, None, :]) @ L.T
             Rt = mask_missing(z, mk.nu, Rt).R
-            x, P, S, _, fixed = kf_update(x0, P0, mk.U, mk.M, mk.nu, Rt)  # KF update with R̃
-            if p.irls_iters > 1:
-                r = np.where(mk.ok, z - model.h(x, k), 0.0)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=Rt,
-            weights=w,
-            flags=_flags(w < 1.0, fixed),
-            stats={"huber_passes": np.full(z.shape[0], float(p.irls_iters))},
-        )
-        return KFState(x, P), out
+        passes = np.full(z.shape[0], float(p.irls_iters))
+        return Noise(Rt, weights=w, flags=_down(w < 1.0), stats={"huber_passes": passes})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -367,7 +354,7 @@ class VBParams:
     )
 
 
-class _VBBase(Filter):
+class _VBBase(KalmanUpdate):
     """Shared machinery of ``vb-akf`` and ``hakf`` (S0 eqs. 11–21 with/without the Huber lines)."""
 
     estimates_R = True
@@ -393,32 +380,24 @@ class _VBBase(Filter):
         rho = self.params.rho
         return st._replace(alpha=rho * st.alpha, beta=rho * st.beta)  # (13)–(14) α⁻, β⁻
 
-    def update(self, model: Model, state: VBState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x0, P0 = state.x, state.P
+    def noise(self, model: Model, state: VBState, pr: Prior, z: Array) -> Noise:
+        """(15)–(21) the VB iterations of every run; the R in the gain is the last R̃."""
+        p, mk = self.params, pr.mk
         B = z.shape[0]
-        mk = measurement_prediction(model, x0, P0, k, z, np.asarray(model.R0, dtype=float))
-        ok, nu = mk.ok, mk.nu
-        alpha = state.alpha + 0.5 * ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
+        alpha = state.alpha + 0.5 * mk.ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
         flag = float(getattr(p, "gamma", 1.0)), bool(getattr(p, "irls", False))
         opts = (self.huber, *flag, bool(getattr(p, "robust_beta", False)), p.adapt, p.iters, p.tol)
-        runs = (batched(mk.M, B), nu, ok, alpha, state.beta)
-        beta, Rt_last, w_last, iters, delta, fixed = VB_ITERATIONS(runs, opts)
-        R_used = mask_missing(z, nu, diag_embed(Rt_last)).R  # the R in the last gain, R̃^(N−1)
-        x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu, R_used)  # (18)–(20) in state space
-        R_hat = diag_embed(beta / alpha)  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=nu,
-            S=S,
-            R_used=R_used,
-            R_hat=R_hat,
-            weights=w_last,
-            flags=_flags(w_last < 1.0, fixed | fix),
+        runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta)
+        beta, Rt, w, iters, delta, fixed = VB_ITERATIONS(runs, opts)
+        return Noise(
+            mask_missing(z, mk.nu, diag_embed(Rt)).R,  # the R in the last gain, R̃^(N−1)
+            R_hat=diag_embed(beta / alpha),  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
+            weights=w,
+            flags=_down(w < 1.0),
+            fixed=fixed,
             stats={"vb_iters": iters, "vb_delta": delta, "alpha": alpha.copy()},
+            state={"alpha": alpha, "beta": beta},
         )
-        return VBState(x, P, alpha, beta), out
 
 
 @register
@@ -542,7 +521,7 @@ def whiten(R: Array, M: Array, nu: Array) -> tuple[Array, Array]:
 
 
 @register
-class StudentTKF(Filter):
+class StudentTKF(KalmanUpdate):
     """VB Student-t KF: R_eff = R0/λ̄ with λ̄ = (ν+m)/(ν + tr(D R0⁻¹)) iterated (§1.6).
 
     D = (z − H x⁺)(z − H x⁺)ᵀ + H P⁺ Hᵀ; λ̄ ≪ 1 marks an outlier epoch (whole-vector scaling).
@@ -574,27 +553,14 @@ class StudentTKF(Filter):
         ),
     )
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x0, P0 = state.x, state.P
+    def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
+        """The λ̄ iterations of every run; the R in the gain is R_eff = R0/λ̄."""
+        p, mk = self.params, pr.mk
         B, m = z.shape
-        R0 = np.asarray(model.R0, dtype=float)
-        mk = measurement_prediction(model, x0, P0, k, z, R0)
         dof_m = np.count_nonzero(mk.ok, axis=1).astype(float)
         Mw, nuw = whiten(mk.R, mk.M, mk.nu)  # by R0 = L Lᵀ: R_eff = I/λ̄ is diagonal
         lam, fixed = STUDENT_T_ITERATIONS((batched(Mw, B), nuw, dof_m), (p.dof, p.iters))
-        Reff = mk.R / lam[:, None, None]  # R_eff = R0/λ̄
-        x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, mk.nu, Reff)
         w = np.where(mk.ok, lam[:, None], 1.0) * np.ones((B, m))
         down = (lam < p.flag_below)[:, None] & mk.ok
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=bcast(Reff, (B, m, m)),
-            weights=w,
-            flags=_flags(down, fixed | fix),
-            stats={"lambda": lam},
-        )
-        return KFState(x, P), out
+        Reff = bcast(mk.R / lam[:, None, None], (B, m, m))  # R_eff = R0/λ̄
+        return Noise(Reff, weights=w, flags=_down(down), fixed=fixed, stats={"lambda": lam})

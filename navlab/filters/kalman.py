@@ -27,7 +27,8 @@ Navigation*, Wiley 2001 (ch. 5: consistency; NIS gating).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -98,8 +99,86 @@ def _flags(z: Array, fixed: Array) -> Array:
     return flag_fix(np.zeros(z.shape, dtype=np.int8), fixed)
 
 
+class Prior(NamedTuple):
+    """The prior the update starts from (x⁻, P⁻) at epoch k and its masked innovation products."""
+
+    x: Array
+    P: Array
+    mk: Masked
+    k: int
+
+
+@dataclass
+class Noise:
+    """What a filter's noise/weight step decides: the R in the gain and what it reports.
+
+    R : the (masked) measurement-noise covariance of the gain, (m, m) or (B, m, m).
+    R_hat : the filter's estimate of R (None: it does not estimate one).
+    weights : (B, m) per-channel weights; a weight of 0 rejects the channel (its gain column is 0).
+    flags : (B, m) per-channel codes of §0.3 (None: all accepted).
+    fixed : () or (B,) True where this step needed a numerical repair (flag 9).
+    stats : per-run diagnostics for :class:`~navlab.filters.base.StepOut`.
+    state : new values of the filter's own state fields (the VB α, β …).
+    """
+
+    R: Array
+    R_hat: Array | None = None
+    weights: Array | None = None
+    flags: Array | None = None
+    fixed: Array | bool = False
+    stats: dict[str, Array] = field(default_factory=dict)
+    state: dict[str, Array] = field(default_factory=dict)
+
+
+class KalmanUpdate(Filter):
+    """A filter whose measurement update is the KF's, in named steps (§1.1's numbering).
+
+    ``update`` runs ``innovation`` (3: ν, U = P⁻Hᵀ, M = H P⁻ Hᵀ), ``noise`` (the R in the gain:
+    the step a robust or adaptive filter overrides, e.g. Huber weights or VB iterations), ``gain``
+    (4: K = P⁻ Hᵀ S⁻¹, zero columns for rejected channels) and the posterior (5–6: x⁺ = x⁻ + K ν,
+    Joseph-form P⁺). A filter overrides only the steps its paper changes.
+    """
+
+    def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo):
+        pr = self.innovation(model, state, k, z, side)  # 3  ν = z − h(x⁻), U = P⁻Hᵀ, M = H P⁻ Hᵀ
+        nz = self.noise(model, state, pr, z)  # the R in the gain (and the weights, R̂ …)
+        S = sym(pr.mk.M + nz.R)  # 3  S = H P⁻ Hᵀ + R
+        K, fixed = self.gain(pr.mk, S, nz)  # 4  K = P⁻ Hᵀ S⁻¹
+        x = pr.x + mv(K, pr.mk.nu)  # 5  x⁺ = x⁻ + K ν
+        P = joseph_from_gain(pr.P, K, pr.mk.U, S)  # 6  P⁺ = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ
+        flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
+        flag_fix(flags, nz.fixed | fixed)
+        out = StepOut(
+            x=x,
+            P=P,
+            innov=pr.mk.nu,
+            S=S,
+            R_used=nz.R,
+            R_hat=nz.R_hat,
+            weights=nz.weights,
+            flags=flags,
+            stats=nz.stats,
+        )
+        return state._replace(x=x, P=P, **nz.state), out
+
+    def innovation(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> Prior:
+        """3  The prior and its innovation products (the nominal R0 masked with them)."""
+        return Prior(state.x, state.P, measurement_prediction(model, state.x, state.P, k, z, model.R0), k)
+
+    def noise(self, model: Model, state: Any, pr: Prior, z: Array) -> Noise:
+        """The R in the gain: the nominal R0 (the KF)."""
+        return Noise(pr.mk.R)
+
+    def gain(self, mk: Masked, S: Array, nz: Noise) -> tuple[Array, Array]:
+        """4  K = P⁻ Hᵀ S⁻¹, with a zero column for every rejected channel (weight 0)."""
+        K, fixed = kf_gain(mk.U, S)
+        if nz.weights is not None and not np.all(nz.weights):
+            K = bcast(K, (*nz.weights.shape[:1], *K.shape[-2:])) * (nz.weights != 0)[:, None, :]
+        return K, fixed
+
+
 @register
-class KF(Filter):
+class KF(KalmanUpdate):
     """Standard Kalman filter with the nominal Q and R, Joseph-form update (ALGORITHMS.md §1.1)."""
 
     key = "kf"
@@ -129,11 +208,6 @@ class KF(Filter):
         ),
     )
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        mk = measurement_prediction(model, state.x, state.P, k, z, model.R0)  # (3)
-        x, P, S, _, fixed = kf_update(state.x, state.P, mk.U, mk.M, mk.nu, mk.R)  # (3)–(6)
-        return KFState(x, P), StepOut(x=x, P=P, innov=mk.nu, S=S, R_used=mk.R, flags=_flags(z, fixed))
-
 
 @dataclass(frozen=True)
 class OracleParams:
@@ -147,7 +221,7 @@ class OracleParams:
 
 
 @register
-class OracleKF(Filter):
+class OracleKF(KalmanUpdate):
     """The KF that knows the true R(t), the outlier epochs and means, and any Q anomaly (§1.4).
 
     It is the exact MMSE filter of the simulated model: the floor every robust or adaptive filter
@@ -182,15 +256,15 @@ class OracleKF(Filter):
         ),
     )
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        P_prior = state.P if side.Q_extra is None else state.P + side.Q_extra  # (§1.4 step 1)
+    def innovation(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo) -> Prior:
+        P = state.P if side.Q_extra is None else state.P + side.Q_extra  # (§1.4 step 1)
         # (§1.4 step 2) z' = z − b_true, R_used = R_true (or: drop the contaminated channels)
         z = np.where(side.outlier, np.nan, z) if self.params.mode == "skip" else z - side.bias
         R = side.R_true[..., :, None] * np.eye(z.shape[-1])
-        mk = measurement_prediction(model, state.x, P_prior, k, z, R)
-        x, P, S, _, fixed = kf_update(state.x, P_prior, mk.U, mk.M, mk.nu, mk.R)  # (§1.4 step 3)
-        out = StepOut(x=x, P=P, innov=mk.nu, S=S, R_used=mk.R, R_hat=mk.R, flags=_flags(z, fixed))
-        return KFState(x, P), out
+        return Prior(state.x, P, measurement_prediction(model, state.x, P, k, z, R), k)
+
+    def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
+        return Noise(pr.mk.R, R_hat=pr.mk.R)  # the true R, reported as its "estimate"
 
 
 @dataclass(frozen=True)
@@ -209,7 +283,7 @@ class Chi2Params:
 
 
 @register
-class Chi2KF(Filter):
+class Chi2KF(KalmanUpdate):
     """KF that skips measurements whose NIS exceeds the χ² gate (ALGORITHMS.md §1.5)."""
 
     key = "chi2-kf"
@@ -239,33 +313,21 @@ class Chi2KF(Filter):
         ),
     )
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x0, P0 = state.x, state.P
-        B = z.shape[0]
-        mk = measurement_prediction(model, x0, P0, k, z, model.R0)  # 1–3
-        S = sym(mk.M + mk.R)
-        K, fixed = kf_gain(mk.U, S)
+    def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
+        """The gate: weight 0 (gain column zeroed) for a rejected epoch or channel (flag 2)."""
+        p, mk = self.params, pr.mk
+        S = sym(mk.M + mk.R)  # S = H P⁻ Hᵀ + R0
         nis = quad(mk.nu, S)  # γ = νᵀ S⁻¹ ν
-        flags = np.zeros(z.shape, dtype=np.int8)
-        if p.per_channel:  # option: reject channel i where |ν̃_i| > c_gate (zero its gain column)
+        if p.per_channel:  # option: reject channel i where |ν̃_i| > c_gate
             reject = (np.abs(mk.nu) > p.c_gate * np.sqrt(diag(S))) & mk.ok
-            K = bcast(K, (B, *K.shape[-2:])) * ~reject[:, None, :]
-            flags[reject] = REJECTED
-            x = x0 + mv(K, mk.nu)
-            P = joseph_from_gain(P0, K, mk.U, S)  # Joseph: the gain is no longer optimal
-            weights = (~reject).astype(float)
-        else:  # 4  γ > χ²_{1−α}(m): x⁺ = x⁻, P⁺ = P⁻ (epoch rejected), else the KF update
+        else:  # 4  γ > χ²_{1−α}(m): x⁺ = x⁻, P⁺ = P⁻ (the epoch rejected), else the KF update
             dof = mk.ok.sum(axis=1)
-            reject = (nis > chi2_threshold(p.alpha, dof, z.shape[-1])) & (dof > 0)
-            x1 = x0 + mv(K, mk.nu)
-            P1 = joseph_from_gain(P0, K, mk.U, S)
-            x = np.where(reject[:, None], x0, x1)
-            P = np.where(reject[:, None, None], P0, P1) if reject.any() else P1
-            flags[reject[:, None] & mk.ok] = REJECTED
-            weights = np.where(reject[:, None], 0.0, 1.0) * np.ones(z.shape)
-        flag_fix(flags, fixed)
-        out = StepOut(
-            x=x, P=P, innov=mk.nu, S=S, R_used=mk.R, weights=weights, flags=flags, stats={"nis": nis}
+            epoch = (nis > chi2_threshold(p.alpha, dof, z.shape[-1])) & (dof > 0)
+            reject = epoch[:, None] & mk.ok
+        weights = (
+            np.where(epoch[:, None], 0.0, 1.0) * np.ones(z.shape)
+            if not p.per_channel
+            else (~reject).astype(float)
         )
-        return KFState(x, P), out
+        flags = np.where(reject, REJECTED, 0).astype(np.int8)
+        return Noise(mk.R, weights=weights, flags=flags, stats={"nis": nis})
