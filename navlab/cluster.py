@@ -340,7 +340,7 @@ _SEEN: set[Any] = set()  # filters whose first task this process has run (its ke
 
 class _Estimate:
     """Seconds per task from the tasks run in this process; the first task of each filter in the
-    process is left out (it loads the filter's compiled kernels: ≈ 1 s against 0.03 s).
+    process is left out (it loads the filter's compiled kernels, many times a task's cost).
     """
 
     def __init__(self) -> None:

@@ -328,7 +328,7 @@ def _stack(arrays: Sequence[Any], shape: tuple[int, ...]) -> Array:
     """The per-epoch arrays stacked and broadcast to (L, *shape) (a read-only view may result).
 
     The usual case — every epoch's array has the same shape, e.g. a P shared by all runs — is one
-    np.stack and one broadcast of the result (broadcast_to costs ≈ 10 µs of Python per call).
+    np.stack and one broadcast of the result (one broadcast_to, not one per epoch).
     """
     try:
         st = np.stack(arrays)

@@ -1,7 +1,7 @@
 """Optional compiled kernels: numba where it is installed and imports, numpy everywhere else.
 
 A few loops of navlab are pure Python-call overhead when batched with numpy over a handful of
-runs (the strapdown mechanisation: ≈ 50 µs per batched IMU sample whatever the batch; the INS
+runs (the strapdown mechanisation: the same cost per batched IMU sample whatever the batch; the INS
 model's f, h, H; the small solves, quadratic forms, Joseph form, VB iterations and the Sage–Husa
 clamp's test of the filters, where numpy needs several calls per epoch) or must
 add numbers in one fixed order per run (the simulated truth: the same bits for run r alone or in
@@ -42,7 +42,7 @@ _force_numpy = False
 
 
 def _load_numba() -> Any:
-    """numba, imported on first use (≈ 0.5 s: a process that never runs a kernel never pays it).
+    """numba, imported on first use (a process that never runs a kernel never pays its import).
 
     None when disabled, missing or broken (e.g. llvmlite built for another numpy).
     """
@@ -197,7 +197,7 @@ def carray(a: Any) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == _F8:
         flags = a.flags
         if flags.c_contiguous and flags.writeable:
-            return a  # the usual case: no call of np.require (≈ 3 µs)
+            return a  # the usual case: no call of np.require
     return np.require(a, dtype=np.float64, requirements=["C", "W"])
 
 

@@ -9,33 +9,31 @@ Why the kernels look the way they do: with B runs of tiny matrices, numpy's per-
 not arithmetic, is the cost (a stacked LAPACK call on 2×2 systems costs ≈ 10× its arithmetic), so
 a few kernels take a shorter road than the textbook formula. Each states the formula it equals
 (to round-off) and is tested against it (tests/contract/test_kernel_properties.py, hypothesis
-over B, n, m and missing-channel patterns). ``benchmarks/tricks.py`` measures what each shortcut
-is worth inside the filters; a shortcut stays only where it saves ≥ 10 % of some filter's time
-(the share quoted is the largest measured, on a shared 2-core machine):
+over B, n, m and missing-channel patterns). A shortcut stays only where it saves ≥ 10 % of some
+filter's time; ``python benchmarks/tricks.py --trick NAME`` re-measures it (its output, never this
+docstring, holds the figures):
 
-* :func:`selection`, :func:`PHt` — P Hᵀ and H P Hᵀ by indexing when H selects states (16 %,
-  chi2-kf on cv2d), H's structure cached by its content (26 %, kf);
-* :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3 (24 %,
-  rakf on cv2d);
-* :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S (18 %, kf);
-* :func:`bcast` — a broadcast view built directly (11 %, svd-ukf on cv2d);
-* :func:`select` — no ``np.where`` while the mask is everywhere true (31 %, hakf on cv2d);
-* :func:`chi2_threshold` — χ² quantiles from a cached table (43 %, chi2-kf);
-* :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape (27 %, chi2-kf on
-  cv2d): closed form for d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for d ≥ 4; the
-  method never depends on the batch, so a run's value is the same in any chunk.
+* :func:`selection`, :func:`PHt` — P Hᵀ and H P Hᵀ by indexing when H selects states
+  (``PHt-indexing``), H's structure cached by its content (``selection-cache``);
+* :func:`kf_gain` — K = U S⁻¹ from the closed-form inverse (:func:`inv_small`) for m ≤ 3
+  (``kf_gain-closed-form``);
+* :func:`joseph_from_gain` — the Joseph form by its exact expansion from U and S;
+* :func:`bcast` — a broadcast view built directly (``bcast-view``);
+* :func:`select` — no ``np.where`` while the mask is everywhere true (``select-none-masks``);
+* :func:`chi2_threshold` — χ² quantiles from a cached table;
+* :func:`quad` — the quadratic form vᵀ S⁻¹ v, one dispatcher for every shape
+  (``quad-shortcuts``): closed form for d ≤ 2, LDLᵀ with the batch axes last for d = 3, LU for
+  d ≥ 4; the method never depends on the batch, so a run's value is the same in any chunk.
 
 Compiled (navlab.jit, each kernel written for one run, its numpy path the reference, compared in
 tests/unit/test_jit_kernels.py): :func:`solve_sym` and :func:`quad` (d ≥ 4) by Cholesky, LU where
 S is not exactly symmetric and positive definite; :func:`joseph_from_gain` in one pass.
 
-Measured below 10 % and removed: F P Fᵀ and P Hᵀ as two GEMMs on the stacked rows for a shared F
-or H (7.5 %, −3 %), a hand-written forward substitution (4 %); F P Fᵀ + Q compiled for one run
-(slower than numpy's products at n = 15); P Fᵀ as one GEMM on the stacked rows of P in
-:func:`predict_cov` and M L likewise for the UKF's linear transform (``shared_left``): worth 21 %
-and 12 % on an earlier machine, ≤ 5.7 % and ≤ 0.4 % re-measured with ``benchmarks/tricks.py`` on
-an AMD EPYC (2026-12-02), where a row of a GEMM over the run axis also rounds differently by the
-size of the batch; a stacked product multiplies each run's matrices by themselves.
+Measured below 10 % and removed (the figures are in the commit history, not here): F P Fᵀ and
+P Hᵀ as two GEMMs on the stacked rows for a shared F or H; F P Fᵀ + Q compiled for one run; P Fᵀ
+as one GEMM on the stacked rows of P in :func:`predict_cov` and M L likewise for the UKF's linear
+transform (a row of a GEMM over the run axis also rounds differently by the size of the batch; a
+stacked product multiplies each run's matrices by themselves).
 """
 
 from __future__ import annotations

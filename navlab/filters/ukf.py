@@ -10,22 +10,22 @@ Batched: x (B, n), P (B, n, n), sigma points (B, 2n+1, n); ``f(·, k)`` and ``h(
 once per sigma point on a (B, n) batch, as the Model protocol allows. The step numbers of §1.3
 and §5 stand at the lines that implement them.
 
-Speed tricks kept (the share of the filter's time each saves in ``benchmarks/tricks.py``; the
-plain sigma-point transcription, one run, is :mod:`navlab.filters.reference.ukf`, and the
-contract tests compare every filter with it):
+Speed tricks kept (each re-measured by ``python benchmarks/tricks.py --trick NAME``; the plain
+sigma-point transcription, one run, is :mod:`navlab.filters.reference.ukf`, and the contract
+tests compare every filter with it):
 
 * for a model with ``linear = True`` the unscented transform is evaluated in closed form (the
-  moments of the symmetric sigma points of a linear map, :func:`ukf_time_update`; 92 % of
-  svd-ukf's time on gps-ins-rtk), with a Cholesky factor as the square root where P is positive
+  moments of the symmetric sigma points of a linear map, :func:`ukf_time_update`;
+  ``ukf-linear-closed-form``), with a Cholesky factor as the square root where P is positive
   definite (:func:`linear_sqrt`: any factor gives the same moments of a linear map; the SVD
-  repair where it is not; 61 % of mfukf's);
+  repair where it is not; ``ukf-linear-cholesky``);
 * the SVD "square root" of a symmetric P through ``eigh`` (:func:`svd_sqrt`: the same sigma
-  points as ``svd``, column order and signs aside; 34 % on gps-ins-pseudorange);
+  points as ``svd``, column order and signs aside; ``ukf-svd-by-eigh``);
 * MFUKF/NNMFUKF: the χ² test's solve also gives the unfaded gain, and only the runs whose
-  factors are not all 1 are solved again (:meth:`_FadingBase._fade`; 28 % of mfukf's).
+  factors are not all 1 are solved again (:meth:`_FadingBase._fade`; ``ukf-fade-subset``).
 
 Measured below 10 % and removed: a "P is PSD by construction" flag in the state that skipped the
-Cholesky factor (3 %), a cache of the channel-to-state map (5 %).
+Cholesky factor, a cache of the channel-to-state map.
 
 References
 ----------

@@ -575,7 +575,7 @@ def _compute(
     tick: Callable[[], None] | None,
 ) -> Iterator[tuple[int, _Block]]:
     """(index in ``tasks``, block) as each block finishes: in ``jobs`` worker processes when
-    there are several blocks and enough work to pay for starting them (≈ 2 s: each imports
+    there are several blocks and enough work to pay for starting them (each imports
     navlab), else in this process, one after the other.
 
     ``should_stop()`` is asked between blocks (in this process) or every :data:`POLL_S` while

@@ -148,8 +148,8 @@ class _Blocks:
 class RunStream:
     """One random stream of a batch of Monte Carlo runs; run r gets the same numbers in any batch.
 
-    The stream layout (replacing ALGORITHMS.md §0.2 rule 6's generator per run, which cost ≈ 22 µs
-    per run and per stream before any draw, most of a large Monte Carlo): run indices are grouped in
+    The stream layout (replacing ALGORITHMS.md §0.2 rule 6's generator per run, whose set-up per
+    run and per stream before any draw was most of a large Monte Carlo): run indices are grouped in
     fixed blocks of :data:`BLOCK_RUNS` (runs 0–63, 64–127, …); stream s of block b draws from its
     own generator ``Generator(PCG64(SeedSequence(seed, spawn_key=(s, b))))``. Every draw is made
     for the WHOLE block — shape ``(BLOCK_RUNS, *shape)``, run j of the block in row j — and the
@@ -159,7 +159,7 @@ class RunStream:
     (methods and per-run shapes) whatever the runs: shapes may depend on its parameters only.
 
     numpy's own samplers are used unchanged (ziggurat normals, chi-square), so each block costs
-    one generator (≈ 20 µs) instead of one per run, and draws run at numpy's full speed.
+    one generator instead of one per run, and draws run at numpy's full speed.
 
     Parameters
     ----------

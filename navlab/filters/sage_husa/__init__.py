@@ -19,11 +19,12 @@ RAE), pure functions that tests and the app call on their own. The KF update its
 :mod:`navlab.filters.kalman`'s; the plain one-run transcriptions the tests compare every filter
 with are in :mod:`navlab.filters.reference.sage_husa`.
 
-Speed tricks (``benchmarks/tricks.py``): the eigenvalue clamp of R̂ only on the runs whose
-eigenvalues are not certainly inside the bounds (:func:`.kernels.clamp_eig`; 50 % of sage-husa's
-time on cv2d, 26 % of rakf's), and the shared kernels of :mod:`navlab.linalg` (U = P⁻Hᵀ by
-indexing, the closed-form gain for m ≤ 3, the Joseph form from U and S). Measured below 10 % and
-removed: a cache of the clamp bounds (5 %), RAKF's hand-written forward substitution (4 %).
+Speed tricks (re-measured by ``python benchmarks/tricks.py --trick NAME``): the eigenvalue clamp
+of R̂ only on the runs whose eigenvalues are not certainly inside the bounds
+(:func:`.kernels.clamp_eig`; ``clamp-eig-inside``), and the shared kernels of
+:mod:`navlab.linalg` (U = P⁻Hᵀ by indexing, the closed-form gain for m ≤ 3, the Joseph form from
+U and S). Measured below 10 % and removed: a cache of the clamp bounds, RAKF's hand-written
+forward substitution.
 
 References
 ----------

@@ -5,9 +5,8 @@ Weight functions (S1 eq. 7, IGG-III), the fading-memory weight and the R̂ guard
 (gain-column zeroing, diagonal scaling, the residual window). Tests and the app call them on
 their own.
 
-Speed trick kept here (``benchmarks/tricks.py``: 50 % of sage-husa's time on cv2d, 26 % of
-rakf's): :func:`clamp_eig` runs the eigen-decomposition only for the runs whose eigenvalues are not
-certainly inside the bounds (:func:`eig_inside`); a run certainly inside is returned unchanged,
+Speed trick kept here (``python benchmarks/tricks.py --trick clamp-eig-inside``): :func:`clamp_eig`
+runs the eigen-decomposition only for the runs whose eigenvalues are not certainly inside the bounds (:func:`eig_inside`); a run certainly inside is returned unchanged,
 which is what the eigen-clamp would give back up to round-off.
 """
 
