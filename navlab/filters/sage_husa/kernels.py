@@ -6,8 +6,9 @@ Weight functions (S1 eq. 7, IGG-III), the fading-memory weight and the R̂ guard
 their own.
 
 Speed trick kept here (``python benchmarks/tricks.py --trick clamp-eig-inside``): :func:`clamp_eig`
-runs the eigen-decomposition only for the runs whose eigenvalues are not certainly inside the bounds (:func:`eig_inside`); a run certainly inside is returned unchanged,
-which is what the eigen-clamp would give back up to round-off.
+runs the eigen-decomposition only for the runs whose eigenvalues are not certainly inside the
+bounds (:func:`eig_inside`); a run certainly inside is returned unchanged, which is what the
+eigen-clamp would give back up to round-off.
 """
 
 from __future__ import annotations
