@@ -339,6 +339,91 @@ def single_run_figure(
     return fig
 
 
+def _veil_and_cursor(tk: float, t_end: float, pad: float) -> list[dict]:
+    """Layout shapes at time ``tk``: a white veil over the later epochs and an orange cursor line."""
+    return [
+        {
+            "type": "rect",
+            "xref": "x",
+            "yref": "paper",
+            "x0": tk + pad,
+            "x1": t_end + pad,
+            "y0": 0,
+            "y1": 1,
+            "fillcolor": "rgba(255,255,255,0.82)",
+            "line": {"width": 0},
+            "layer": "above",
+        },
+        {
+            "type": "line",
+            "xref": "x",
+            "yref": "paper",
+            "x0": tk,
+            "x1": tk,
+            "y0": 0,
+            "y1": 1,
+            "line": {"color": "#f0a500", "width": 2},
+        },
+    ]
+
+
+def _play_buttons(names: list[str]) -> dict:
+    """The ▶ play / ❚❚ pause buttons that animate the frames ``names``."""
+    return {
+        "type": "buttons",
+        "direction": "left",
+        "x": 0.0,
+        "xanchor": "left",
+        "y": 1.07,
+        "yanchor": "bottom",
+        "pad": {"t": 0, "r": 4},
+        "showactive": False,
+        "buttons": [
+            {
+                "label": "▶ play",
+                "method": "animate",
+                "args": [
+                    names,
+                    {
+                        "frame": {"duration": 120, "redraw": True},
+                        "fromcurrent": False,
+                        "mode": "immediate",
+                    },
+                ],
+            },
+            {
+                "label": "❚❚ pause",
+                "method": "animate",
+                "args": [[None], {"frame": {"duration": 0, "redraw": False}, "mode": "immediate"}],
+            },
+        ],
+    }
+
+
+def _time_slider(names: list[str]) -> dict:
+    """A slider with one step a frame, at the last one."""
+    return {
+        "active": len(names) - 1,
+        "x": 0.16,
+        "len": 0.84,
+        "y": 1.07,
+        "yanchor": "bottom",
+        "pad": {"t": 0, "b": 0},
+        "currentvalue": {"prefix": "epoch ", "font": {"size": 12}},
+        "steps": [
+            {
+                "label": name,
+                "method": "animate",
+                "args": [
+                    [name],
+                    {"frame": {"duration": 0, "redraw": True}, "mode": "immediate"},
+                ],
+            }
+            for name in names
+        ],
+    }
+
+
 def add_player(fig: go.Figure, t: np.ndarray) -> None:
     """A play button and a time slider: frames that move a cursor and lift a white veil off the
     epochs up to it (layout shapes only, so a frame is a few bytes and the data is sent once).
@@ -347,90 +432,15 @@ def add_player(fig: go.Figure, t: np.ndarray) -> None:
     steps = np.unique(np.linspace(1, K, min(MAX_FRAMES, K)).round().astype(int))
     t_end = float(t[-1])
     pad = 0.5 * float(np.median(np.diff(t))) if t.size > 1 else 0.5
-
-    def shapes(k: int) -> list[dict]:
-        tk = float(t[k])
-        return [
-            {
-                "type": "rect",
-                "xref": "x",
-                "yref": "paper",
-                "x0": tk + pad,
-                "x1": t_end + pad,
-                "y0": 0,
-                "y1": 1,
-                "fillcolor": "rgba(255,255,255,0.82)",
-                "line": {"width": 0},
-                "layer": "above",
-            },
-            {
-                "type": "line",
-                "xref": "x",
-                "yref": "paper",
-                "x0": tk,
-                "x1": tk,
-                "y0": 0,
-                "y1": 1,
-                "line": {"color": "#f0a500", "width": 2},
-            },
-        ]
-
-    fig.frames = [go.Frame(name=str(int(k)), layout={"shapes": shapes(int(k))}) for k in steps]
+    names = [str(int(k)) for k in steps]
+    fig.frames = [
+        go.Frame(name=str(int(k)), layout={"shapes": _veil_and_cursor(float(t[int(k)]), t_end, pad)})
+        for k in steps
+    ]
     fig.update_layout(
-        shapes=shapes(int(steps[-1])),
-        updatemenus=[
-            {
-                "type": "buttons",
-                "direction": "left",
-                "x": 0.0,
-                "xanchor": "left",
-                "y": 1.07,
-                "yanchor": "bottom",
-                "pad": {"t": 0, "r": 4},
-                "showactive": False,
-                "buttons": [
-                    {
-                        "label": "▶ play",
-                        "method": "animate",
-                        "args": [
-                            [str(int(k)) for k in steps],
-                            {
-                                "frame": {"duration": 120, "redraw": True},
-                                "fromcurrent": False,
-                                "mode": "immediate",
-                            },
-                        ],
-                    },
-                    {
-                        "label": "❚❚ pause",
-                        "method": "animate",
-                        "args": [[None], {"frame": {"duration": 0, "redraw": False}, "mode": "immediate"}],
-                    },
-                ],
-            }
-        ],
-        sliders=[
-            {
-                "active": len(steps) - 1,
-                "x": 0.16,
-                "len": 0.84,
-                "y": 1.07,
-                "yanchor": "bottom",
-                "pad": {"t": 0, "b": 0},
-                "currentvalue": {"prefix": "epoch ", "font": {"size": 12}},
-                "steps": [
-                    {
-                        "label": str(int(k)),
-                        "method": "animate",
-                        "args": [
-                            [str(int(k))],
-                            {"frame": {"duration": 0, "redraw": True}, "mode": "immediate"},
-                        ],
-                    }
-                    for k in steps
-                ],
-            }
-        ],
+        shapes=_veil_and_cursor(float(t[int(steps[-1])]), t_end, pad),
+        updatemenus=[_play_buttons(names)],
+        sliders=[_time_slider(names)],
     )
     # the title at the top of the figure, the controls between it and the first panel
     fig.update_layout(
