@@ -812,6 +812,58 @@ class ClosedLoopResult:
     P_diag: Array  # (B, K+1, 15)
 
 
+def _initial_ins_state(setup: DriveSetup, B: int) -> InsState:
+    """B copies of the setup's initial solution (x0, C0) at epoch 0."""
+    return init_state(
+        *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
+        setup.x0[3:6],
+        np.broadcast_to(setup.C0, (B, 3, 3)),
+        B=B,
+        bias_g_radps=setup.x0[9:12],
+        bias_a_mps2=setup.x0[12:15],
+        t_s=setup.t[0],
+    )
+
+
+def _ekf_predict(
+    setup: DriveSetup, k: int, s: InsState, P: Array, noise: ImuNoise, vib_g: float, gap_s: float
+):
+    """Mechanise through the block (t_{k−1}, t_k] and propagate P by the §8.0 error model, the
+    IMU noise raised by the block's vibration and bridged gap: (state, P, mean ENU specific force).
+    """
+    sl = setup.imu_slice(k)
+    s, blk = propagate_block(s, setup.t_imu[sl], setup.f_b[sl], setup.w_b[sl], t_end_s=setup.t[k])
+    F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
+    T = float(setup.t[k] - setup.t[k - 1])
+    Phi = expm_batched(F * T)
+    _, Qd = discretise(F, G, noise.Qc(vib_g) + gap_Qc(gap_s / T), T)
+    return s, Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd, blk.f_n_mean_mps2
+
+
+def _position_update(setup: DriveSetup, s: InsState, P: Array, zk: Array, R: Array, lever_b: Array):
+    """The error-state update with the antenna positions ``zk`` (B, 3) (NaN: no fix) and the
+    correction fed back into the solutions (Joseph form): (state, P).
+    """
+    B = zk.shape[0]
+    ok = np.isfinite(zk).all(axis=1)
+    if not ok.any():
+        return s, P
+    u = (s.C_bn @ lever_b)[:, [1, 0, 2]]  # antenna offset C_bn l^b, N E U
+    H = np.zeros((B, 3, 15))
+    H[:, :, 6:9] = np.eye(3)
+    H[:, :, 0:3] = skew(s.C_bn @ lever_b)[:, [1, 0, 2]]  # δ(C l) = (C l) × φ
+    p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m) + u
+    nu = np.where(ok[:, None], p_ins - np.nan_to_num(zk), 0.0)  # error-state innovation
+    Ht = H.swapaxes(-1, -2)
+    S = H @ P @ Ht + R
+    Kg = np.linalg.solve(S, (P @ Ht).swapaxes(-1, -2)).swapaxes(-1, -2)
+    Kg = Kg * ok[:, None, None]
+    dx = (Kg @ nu[:, :, None])[:, :, 0]
+    IKH = np.eye(15) - Kg @ H
+    P = IKH @ P @ IKH.swapaxes(-1, -2) + Kg @ R @ Kg.swapaxes(-1, -2)
+    return apply_correction(s, dx), P
+
+
 def run_closed_loop(
     setup: DriveSetup, z: Array | None, sigma_m: float | Array, noise: ImuNoise = ImuNoise()
 ) -> ClosedLoopResult:
@@ -826,32 +878,14 @@ def run_closed_loop(
     """
     K = setup.K
     B = 1 if z is None else z.shape[0]
-    s = init_state(
-        *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
-        setup.x0[3:6],
-        np.broadcast_to(setup.C0, (B, 3, 3)),
-        B=B,
-        bias_g_radps=setup.x0[9:12],
-        bias_a_mps2=setup.x0[12:15],
-        t_s=setup.t[0],
-    )
+    s = _initial_ins_state(setup, B)
     P = np.broadcast_to(setup.P0, (B, 15, 15)).copy()
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, float) ** 2, (3,)))
     vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
     gap = setup.gap_s if setup.gap_s is not None else np.zeros(K + 1)
     lever_b = setup.C_bv.T @ setup.lever_arm_v
-    out = {
-        k: np.full((B, K + 1, *shape), np.nan)
-        for k, shape in (
-            ("p", (3,)),
-            ("v", (3,)),
-            ("C", (3, 3)),
-            ("bg", (3,)),
-            ("ba", (3,)),
-            ("fn", (3,)),
-            ("Pd", (15,)),
-        )
-    }
+    shapes = {"p": (3,), "v": (3,), "C": (3, 3), "bg": (3,), "ba": (3,), "fn": (3,), "Pd": (15,)}
+    out = {k: np.full((B, K + 1, *shape), np.nan) for k, shape in shapes.items()}
 
     def record(k, s, P):
         out["p"][:, k] = setup.to_local(s.lat_rad, s.lon_rad, s.h_m)
@@ -863,32 +897,9 @@ def run_closed_loop(
 
     record(0, s, P)
     for k in range(1, K + 1):
-        sl = setup.imu_slice(k)
-        s, blk = propagate_block(s, setup.t_imu[sl], setup.f_b[sl], setup.w_b[sl], t_end_s=setup.t[k])
-        F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
-        T = float(setup.t[k] - setup.t[k - 1])
-        Phi = expm_batched(F * T)
-        _, Qd = discretise(F, G, noise.Qc(vib[k]) + gap_Qc(gap[k] / T), T)
-        P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd
-        out["fn"][:, k] = blk.f_n_mean_mps2
+        s, P, out["fn"][:, k] = _ekf_predict(setup, k, s, P, noise, vib[k], gap[k])
         if z is not None:
-            zk = z[:, k]
-            ok = np.isfinite(zk).all(axis=1)
-            if ok.any():
-                u = (s.C_bn @ lever_b)[:, [1, 0, 2]]  # antenna offset C_bn l^b, N E U
-                H = np.zeros((B, 3, 15))
-                H[:, :, 6:9] = np.eye(3)
-                H[:, :, 0:3] = skew(s.C_bn @ lever_b)[:, [1, 0, 2]]  # δ(C l) = (C l) × φ
-                p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m) + u
-                nu = np.where(ok[:, None], p_ins - np.nan_to_num(zk), 0.0)  # error-state innovation
-                Ht = H.swapaxes(-1, -2)
-                S = H @ P @ Ht + R
-                Kg = np.linalg.solve(S, (P @ Ht).swapaxes(-1, -2)).swapaxes(-1, -2)
-                Kg = Kg * ok[:, None, None]
-                dx = (Kg @ nu[:, :, None])[:, :, 0]
-                IKH = np.eye(15) - Kg @ H
-                P = IKH @ P @ IKH.swapaxes(-1, -2) + Kg @ R @ Kg.swapaxes(-1, -2)
-                s = apply_correction(s, dx)
+            s, P = _position_update(setup, s, P, z[:, k], R, lever_b)
         P = 0.5 * (P + P.swapaxes(-1, -2))
         record(k, s, P)
     return ClosedLoopResult(out["p"], out["v"], out["C"], out["bg"], out["ba"], out["fn"], out["Pd"])
