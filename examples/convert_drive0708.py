@@ -57,7 +57,7 @@ from navlab.ins.earth import G0_MPS2, dcm_to_euler, radii
 from navlab.ins.lc import velocity_lag_s
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument(
         "--data", default=None, help="folder holding rtkx_drive_0708/ (default: navlab's data root)"
@@ -71,18 +71,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigma-v", type=float, default=0.1, help="noise added to the velocities (m/s)")
     ap.add_argument("--seed", type=int, default=1, help="seed of that noise")
     ap.add_argument("--clean", action="store_true", help="write the 1 Hz RTK fixes without noise")
-    a = ap.parse_args(argv)
-    src = Path(a.data) if a.data else data_root()
-    src = src / RTKX_DIR if (src / RTKX_DIR).is_dir() else src
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    return ap
 
-    # --- GNSS solution (RTKLIB .pos): GPS time, ellipsoidal heights, velocities ENU
-    pos = read_rtklib_pos(src / "gnss_1934_sf.pos")
-    t0 = float(pos.t_gpst_s.iloc[0])
-    pos["t_s"] = pos.t_gpst_s - t0
 
-    # --- IMU: g and deg/s plus a millisecond counter (step 1 and 2)
+def read_imu(src: Path, t0: float):
+    """The IMU: g and deg/s plus a millisecond counter (steps 1 and 2): (t_s, f [m/s²], ω [rad/s])."""
     raw = np.loadtxt(src / "imu_1934.csv", delimiter=",")
     t_start, ticks = read_rtklib_tag(src / "imu_1934.csv.tag")
     ms = raw[:, 6]
@@ -90,26 +83,13 @@ def main(argv: list[str] | None = None) -> int:
     t_imu = t_start + (ms - ms[0]) / 1000.0 * scale + RTKX_IMU_TIME_OFFSET_S - t0
     f = raw[:, 0:3] * G0_MPS2  # g -> m/s² (specific force)
     w = np.radians(raw[:, 3:6])  # deg/s -> rad/s
+    return t_imu, f, w
 
-    # --- the cut: the first moment the car exceeds the cut speed (no static segment left)
-    speed = np.hypot(pos.ve_mps, pos.vn_mps).to_numpy()
-    t_cut = float(pos.t_s[np.argmax(speed > a.cut_speed)])
-    t_end = t_cut + a.seconds if a.seconds > 0 else np.inf
-    keep_i = (t_imu >= t_cut) & (t_imu <= t_end)
-    imu = pd.DataFrame(
-        np.column_stack([t_imu[keep_i], f[keep_i], w[keep_i]]),
-        columns=["t_s", "f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps"],
-    )
 
-    # --- truth: the RTK-fixed epochs (Q = 1) at 4 Hz, with their velocities
-    inside = (pos.t_s >= t_cut) & (pos.t_s <= t_end)
-    fixed = pos[inside & (pos.q == 1)]
-    truth = fixed[["t_s", "lat_deg", "lon_deg", "h_m", "vn_mps", "ve_mps", "vu_mps"]]
-
-    # --- gnss: the fixes at whole seconds (1 Hz), degraded to an ordinary receiver (step 5).
-    # RTKLIB's velocities lag its own positions (by the lag measured here, ≈ 0.12 s; a property of
-    # the solution file, no truth involved): read them at t + lag so that both are on one time base,
-    # as a receiver's Doppler velocities usually are.
+def velocity_lag(fixed: pd.DataFrame) -> float:
+    """How long RTKLIB's velocities lag its own positions (a property of the solution file, no
+    truth involved; ≈ 0.12 s).
+    """
     p_neu = np.c_[
         np.radians(fixed.lat_deg - fixed.lat_deg.iloc[0]) * 6.37e6,
         np.radians(fixed.lon_deg - fixed.lon_deg.iloc[0])
@@ -117,7 +97,15 @@ def main(argv: list[str] | None = None) -> int:
         * np.cos(np.radians(fixed.lat_deg.iloc[0])),
         fixed.h_m,
     ]
-    lag = velocity_lag_s(fixed.t_s.to_numpy(), p_neu, fixed[["ve_mps", "vn_mps", "vu_mps"]].to_numpy())
+    return velocity_lag_s(fixed.t_s.to_numpy(), p_neu, fixed[["ve_mps", "vn_mps", "vu_mps"]].to_numpy())
+
+
+def degraded_fixes(fixed: pd.DataFrame, lag: float, a: argparse.Namespace) -> pd.DataFrame:
+    """The fixes at whole seconds (1 Hz), degraded to an ordinary receiver (step 5).
+
+    The velocities are read at t + ``lag`` so that they and the positions are on one time base,
+    as a receiver's Doppler velocities usually are.
+    """
     whole = fixed[np.isclose(fixed.t_s % 1.0, 0.0, atol=1e-3) | np.isclose(fixed.t_s % 1.0, 1.0, atol=1e-3)]
     whole = whole.copy()
     for c in ("vn_mps", "ve_mps", "vu_mps"):
@@ -142,13 +130,12 @@ def main(argv: list[str] | None = None) -> int:
     if not a.clean:
         for c in ("sigma_n_m", "sigma_e_m", "sigma_u_m"):
             gnss[c] = s_p
+    return gnss
 
-    header = (
-        "# rtkx_drive_0708 (BSD-3-Clause, (c) 2025 rtklibexplorer), converted by "
-        "examples/convert_drive0708.py; "
-        f"t_s = GPS time - {t0:.3f} s; cut at {t_cut:.2f} s (first speed > {a.cut_speed:g} m/s)\n"
-    )
-    for name, df in (("imu.csv", imu), ("gnss.csv", gnss), ("truth.csv", truth)):
+
+def write_files(out: Path, src: Path, header: str, tables: dict[str, pd.DataFrame]) -> None:
+    """Each table as ``out/NAME`` below the provenance header, and the recording's licence beside them."""
+    for name, df in tables.items():
         with open(out / name, "w", encoding="utf-8") as fh:
             fh.write(header)
             df.to_csv(fh, index=False, float_format="%.10g")
@@ -156,12 +143,16 @@ def main(argv: list[str] | None = None) -> int:
     if lic.is_file():
         (out / "LICENSE").write_text(lic.read_text(encoding="utf-8"), encoding="utf-8")
 
-    # step 3: the mounting angles to give navlab (the IMU's attitude in the vehicle frame)
+
+def print_next_steps(out: Path, sizes: tuple[int, int, int], t_cut: float, lag: float) -> None:
+    """What was written, and the navlab command with the mounting angles (step 3: the IMU's
+    attitude in the vehicle frame).
+    """
     pitch, roll, yaw = (
         float(np.degrees(v)) for v in dcm_to_euler(body_to_vehicle(nominal=RTKX_NOMINAL_C_BV))
     )
     yaw = (yaw + 180.0) % 360.0 - 180.0
-    print(f"wrote {out}/imu.csv ({len(imu)} rows), gnss.csv ({len(gnss)}), truth.csv ({len(truth)})")
+    print(f"wrote {out}/imu.csv ({sizes[0]} rows), gnss.csv ({sizes[1]}), truth.csv ({sizes[2]})")
     print(f"cut at t_s = {t_cut:.2f} s; the first 30 s end at t_s = {t_cut + 30:.2f} s")
     print(f"RTKLIB velocities read {lag:.2f} s later (their lag behind the positions)")
     print(
@@ -169,6 +160,47 @@ def main(argv: list[str] | None = None) -> int:
         f"--set scenario.data_dir={out} --set scenario.mount_roll_deg={roll:.1f} "
         f"--set scenario.mount_pitch_deg={pitch:.1f} --set scenario.mount_yaw_deg={yaw:.1f}"
     )
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = _parser().parse_args(argv)
+    src = Path(a.data) if a.data else data_root()
+    src = src / RTKX_DIR if (src / RTKX_DIR).is_dir() else src
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    # --- GNSS solution (RTKLIB .pos): GPS time, ellipsoidal heights, velocities ENU
+    pos = read_rtklib_pos(src / "gnss_1934_sf.pos")
+    t0 = float(pos.t_gpst_s.iloc[0])
+    pos["t_s"] = pos.t_gpst_s - t0
+    t_imu, f, w = read_imu(src, t0)
+
+    # --- the cut: the first moment the car exceeds the cut speed (no static segment left)
+    speed = np.hypot(pos.ve_mps, pos.vn_mps).to_numpy()
+    t_cut = float(pos.t_s[np.argmax(speed > a.cut_speed)])
+    t_end = t_cut + a.seconds if a.seconds > 0 else np.inf
+    keep_i = (t_imu >= t_cut) & (t_imu <= t_end)
+    imu = pd.DataFrame(
+        np.column_stack([t_imu[keep_i], f[keep_i], w[keep_i]]),
+        columns=["t_s", "f_x_mps2", "f_y_mps2", "f_z_mps2", "w_x_radps", "w_y_radps", "w_z_radps"],
+    )
+
+    # --- truth: the RTK-fixed epochs (Q = 1) at 4 Hz, with their velocities
+    inside = (pos.t_s >= t_cut) & (pos.t_s <= t_end)
+    fixed = pos[inside & (pos.q == 1)]
+    truth = fixed[["t_s", "lat_deg", "lon_deg", "h_m", "vn_mps", "ve_mps", "vu_mps"]]
+
+    # --- gnss: the fixes at whole seconds, degraded to an ordinary receiver (step 5)
+    lag = velocity_lag(fixed)
+    gnss = degraded_fixes(fixed, lag, a)
+
+    header = (
+        "# rtkx_drive_0708 (BSD-3-Clause, (c) 2025 rtklibexplorer), converted by "
+        "examples/convert_drive0708.py; "
+        f"t_s = GPS time - {t0:.3f} s; cut at {t_cut:.2f} s (first speed > {a.cut_speed:g} m/s)\n"
+    )
+    write_files(out, src, header, {"imu.csv": imu, "gnss.csv": gnss, "truth.csv": truth})
+    print_next_steps(out, (len(imu), len(gnss), len(truth)), t_cut, lag)
     return 0
 
 

@@ -482,17 +482,15 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
-    p.add_argument(
-        "--debug", action="store_true", help="show tracebacks of internal errors (also after the subcommand)"
-    )
-    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
-
+def _add_list_command(sub: Any) -> None:
+    """The ``list`` subcommand."""
     pl = sub.add_parser("list", help="list filters, scenarios, schedules, outliers, reproductions")
     pl.add_argument("what", choices=["filters", "scenarios", "schedules", "outliers", "reproductions"])
     pl.add_argument("--format", choices=["table", "json", "csv"], default="table")
 
+
+def _add_run_command(sub: Any) -> None:
+    """The ``run`` subcommand: a Monte Carlo experiment and its metrics."""
     pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
     _experiment_options(pr)
     pr.add_argument(
@@ -518,6 +516,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pr.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
+
+def _add_reproduce_command(sub: Any) -> None:
+    """The ``reproduce`` subcommand: a paper's claims over many seeds."""
     pp = sub.add_parser("reproduce", help="judge a paper's claims over many Monte Carlo seeds")
     pp.add_argument("name", help="hakf, irakf, nnmfukf or vbekf")
     pp.add_argument(
@@ -544,6 +545,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     pp.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
+
+def _add_sweep_command(sub: Any) -> None:
+    """The ``sweep`` subcommand: one or two parameters swept."""
     ps = sub.add_parser("sweep", help="sweep one or two parameters: every point's metrics with intervals")
     _experiment_options(ps)
     ps.add_argument("--param", metavar="GROUP.NAME", help="parameter to sweep, as in --set")
@@ -553,6 +557,9 @@ def build_parser() -> argparse.ArgumentParser:
     ps.add_argument("--metric", help="metric of the table output (default: the headline RMSE)")
     _engine_options(ps)
 
+
+def _add_tune_command(sub: Any) -> None:
+    """The ``tune`` subcommand: every filter tuned on the same budget."""
     pt = sub.add_parser("tune", help="tune every filter on the same budget; default vs tuned on test seeds")
     _experiment_options(pt)
     pt.add_argument(
@@ -584,6 +591,21 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--outdir", help="write tuned-FILTER.json configurations, tune.csv and trials.csv here")
     _engine_options(pt)
 
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
+    p.add_argument(
+        "--debug", action="store_true", help="show tracebacks of internal errors (also after the subcommand)"
+    )
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+    for add in (
+        _add_list_command,
+        _add_run_command,
+        _add_reproduce_command,
+        _add_sweep_command,
+        _add_tune_command,
+    ):
+        add(sub)
     sub.add_parser(
         "app",
         help="start the Streamlit app (Streamlit's flags pass through, e.g. --server.port 8611)",

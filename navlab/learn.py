@@ -373,108 +373,149 @@ def step_through(key: str, spec: TinySpec | None = None, params: dict[str, Any] 
     return StepThrough(cls.key, cls.label, True, "", data, steps, states, extra, thr)
 
 
-def _run(flt: Filter, data: TinyData):
+def _state_rows(data: TinyData, k: int, x_prior, x_post, P_prior, P_post) -> list[dict[str, Any]]:
+    """One row a state at epoch ``k``: truth, prior and posterior estimate and variance, error."""
+    xt = data.x_true
+    return [
+        {
+            "epoch": k,
+            "state": data.state_names[i],
+            "truth": xt[k, i],
+            "prior": x_prior[i],
+            "posterior": x_post[i],
+            "P_prior": P_prior[i, i],
+            "P_post": P_post[i, i],
+            "error": x_post[i] - xt[k, i],
+        }
+        for i in range(data.model.n)
+    ]
+
+
+def _initial_state_rows(data: TinyData) -> list[dict[str, Any]]:
+    """The state rows of epoch 0: the prior x0, P0 as the posterior (no prior before it)."""
+    xt = data.x_true
+    return [
+        {
+            "epoch": 0,
+            "state": data.state_names[i],
+            "truth": xt[0, i],
+            "prior": np.nan,
+            "posterior": data.x0[i],
+            "P_prior": np.nan,
+            "P_post": data.P0[i, i],
+            "error": data.x0[i] - xt[0, i],
+        }
+        for i in range(data.model.n)
+    ]
+
+
+def _split_stats(stats: dict, m: int) -> tuple[dict[str, float], dict[str, Array], dict[str, Array]]:
+    """A filter's stats of one epoch (B = 1): scalars and per-channel (m,) arrays, prefixed
+    ``stat:``, and anything else as it is: (scalars, per channel, other).
+    """
+    scal: dict[str, float] = {}
+    perch: dict[str, Array] = {}
+    other: dict[str, Array] = {}
+    for name, v in stats.items():
+        a = np.asarray(v, dtype=float)
+        if a.ndim >= 1 and a.shape[0] == 1:
+            a = a[0]
+        if a.ndim == 0:
+            scal[f"stat:{name}"] = float(a)
+        elif a.shape == (m,):
+            perch[f"stat:{name}"] = a
+        else:
+            other[name] = a
+    return scal, perch, other
+
+
+def _nis_values(model, stats: dict, k: int, innov, S, x_prior, P_prior) -> tuple[float, float]:
+    """The NIS (the filter's own if it reports one; ``nis`` is taken out of ``stats``) and the NIS
+    with the nominal S₀ = H P⁻ Hᵀ + R₀ (a robust filter's own S is already inflated, which hides
+    the outlier from its own NIS).
+    """
+    if "nis" in stats:
+        nis = float(np.asarray(stats.pop("nis"), dtype=float).reshape(-1)[0])
+    else:
+        nis = float(quad(innov[None, :], S)[0])
+    Hk = np.asarray(model.H(x_prior[None, :], k), dtype=float)
+    S0 = Hk @ P_prior @ Hk.T + model.R0
+    return nis, float(quad(innov[None, :], S0)[0])
+
+
+def _channel_rows(
+    data: TinyData, k: int, out, innov: Array, S: Array, nis: tuple[float, float], stats: tuple
+) -> list[dict[str, Any]]:
+    """One row a channel at epoch ``k``: measurement, prediction, truth, innovation, NIS against
+    the χ² threshold, R (true, used, R̂), weight and flag, and the filter's stats.
+    """
     model, spec = data.model, data.spec
+    m = model.m
+    nis, nis_nom = nis
+    R_used = _mat(out.R_used, m)
+    R_hat = _mat(out.R_hat, m) if out.R_hat is not None else None
+    weights = _vec(out.weights, m, 1.0)
+    flags = _vec(out.flags, m, 0.0).astype(int)
+    dof = int(np.isfinite(data.z[k]).sum())
+    thr = float(chi2.ppf(1.0 - spec.alpha, max(dof, 1)))
+    scal, perch = stats
+    rows = []
+    for i in range(m):
+        row = {
+            "epoch": k,
+            "t": k * spec.dt,
+            "channel": data.channel_names[i],
+            "z": data.z[k, i],
+            "z_pred": data.z[k, i] - innov[i],
+            "truth": float(model.H_[i] @ data.x_true[k]),
+            "innov": innov[i],
+            "S": S[i, i],
+            "innov_norm": innov[i] / math.sqrt(S[i, i]) if S[i, i] > 0 else np.nan,
+            "nis": nis,
+            "nis_threshold": thr,
+            "nis_exceeds": bool(nis > thr),
+            "dof": dof,
+            "nis_nominal": nis_nom,
+            "nis_nominal_exceeds": bool(nis_nom > thr),
+            "R_true": data.R_true[k, i],
+            "R_used": R_used[i, i],
+            "R_hat": np.nan if R_hat is None else R_hat[i, i],
+            "weight": weights[i],
+            "flag": int(flags[i]),
+            "flag_name": FLAG_NAMES.get(int(flags[i]), str(int(flags[i]))),
+            "outlier": bool(data.outlier[k, i]),
+        }
+        row.update(scal)
+        row.update({name: float(v[i]) for name, v in perch.items()})
+        rows.append(row)
+    return rows
+
+
+def _run(flt: Filter, data: TinyData):
+    """Run ``flt`` over the tiny example (B = 1): (channel rows, state rows, other stats per epoch)."""
+    model = data.model
     n, m = model.n, model.m
     state = flt.init(model, data.x0[None, :], data.P0.copy())
     rows: list[dict[str, Any]] = []
-    srows: list[dict[str, Any]] = []
+    srows = _initial_state_rows(data)
     extra: dict[int, dict[str, Array]] = {}
-    xt = data.x_true
-    for i in range(n):
-        srows.append(
-            {
-                "epoch": 0,
-                "state": data.state_names[i],
-                "truth": xt[0, i],
-                "prior": np.nan,
-                "posterior": data.x0[i],
-                "P_prior": np.nan,
-                "P_post": data.P0[i, i],
-                "error": data.x0[i] - xt[0, i],
-            }
-        )
     for k in range(1, data.K + 1):
         st = flt.predict(model, state, k)
         x_prior = np.asarray(st.x, dtype=float).reshape(-1, n)[0].copy()
         P_prior = np.asarray(st.P, dtype=float)
         P_prior = (P_prior[0] if P_prior.ndim == 3 else P_prior).copy()
-        zk = data.z[None, k]
-        state, out = flt.update(model, st, k, zk, data.side(k))
+        state, out = flt.update(model, st, k, data.z[None, k], data.side(k))
         x_post = np.asarray(out.x, dtype=float).reshape(-1, n)[0]
         P_post = _mat(out.P, n)
         innov = _vec(out.innov, m, np.nan)
         S = _mat(out.S, m)
-        R_used = _mat(out.R_used, m)
-        R_hat = _mat(out.R_hat, m) if out.R_hat is not None else None
-        weights = _vec(out.weights, m, 1.0)
-        flags = _vec(out.flags, m, 0.0).astype(int)
-        ok = np.isfinite(data.z[k])
-        dof = int(ok.sum())
         stats = dict(out.stats or {})
-        if "nis" in stats:
-            nis = float(np.asarray(stats.pop("nis"), dtype=float).reshape(-1)[0])
-        else:
-            nis = float(quad(innov[None, :], S)[0])
-        thr = float(chi2.ppf(1.0 - spec.alpha, max(dof, 1)))
-        # the same innovation judged with the nominal S₀ = H P⁻ Hᵀ + R₀ (a robust filter's own S
-        # is already inflated, which hides the outlier from its own NIS)
-        Hk = np.asarray(model.H(x_prior[None, :], k), dtype=float)
-        S0 = Hk @ P_prior @ Hk.T + model.R0
-        nis_nom = float(quad(innov[None, :], S0)[0])
-        scal: dict[str, float] = {}
-        perch: dict[str, Array] = {}
-        for name, v in stats.items():
-            a = np.asarray(v, dtype=float)
-            if a.ndim >= 1 and a.shape[0] == 1:
-                a = a[0]
-            if a.ndim == 0:
-                scal[f"stat:{name}"] = float(a)
-            elif a.shape == (m,):
-                perch[f"stat:{name}"] = a
-            else:
-                extra.setdefault(k, {})[name] = a
-        for i in range(m):
-            row = {
-                "epoch": k,
-                "t": k * spec.dt,
-                "channel": data.channel_names[i],
-                "z": data.z[k, i],
-                "z_pred": data.z[k, i] - innov[i],
-                "truth": float(model.H_[i] @ xt[k]),
-                "innov": innov[i],
-                "S": S[i, i],
-                "innov_norm": innov[i] / math.sqrt(S[i, i]) if S[i, i] > 0 else np.nan,
-                "nis": nis,
-                "nis_threshold": thr,
-                "nis_exceeds": bool(nis > thr),
-                "dof": dof,
-                "nis_nominal": nis_nom,
-                "nis_nominal_exceeds": bool(nis_nom > thr),
-                "R_true": data.R_true[k, i],
-                "R_used": R_used[i, i],
-                "R_hat": np.nan if R_hat is None else R_hat[i, i],
-                "weight": weights[i],
-                "flag": int(flags[i]),
-                "flag_name": FLAG_NAMES.get(int(flags[i]), str(int(flags[i]))),
-                "outlier": bool(data.outlier[k, i]),
-            }
-            row.update(scal)
-            row.update({name: float(v[i]) for name, v in perch.items()})
-            rows.append(row)
-        for i in range(n):
-            srows.append(
-                {
-                    "epoch": k,
-                    "state": data.state_names[i],
-                    "truth": xt[k, i],
-                    "prior": x_prior[i],
-                    "posterior": x_post[i],
-                    "P_prior": P_prior[i, i],
-                    "P_post": P_post[i, i],
-                    "error": x_post[i] - xt[k, i],
-                }
-            )
+        nis = _nis_values(model, stats, k, innov, S, x_prior, P_prior)
+        scal, perch, other = _split_stats(stats, m)
+        if other:
+            extra.setdefault(k, {}).update(other)
+        rows += _channel_rows(data, k, out, innov, S, nis, (scal, perch))
+        srows += _state_rows(data, k, x_prior, x_post, P_prior, P_post)
     return rows, srows, extra
 
 

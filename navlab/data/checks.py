@@ -121,26 +121,45 @@ def time_offset_hint(
     return float(lags[int(np.argmin(cost))])
 
 
-def check_drive(rec: DriveRecording, setup: DriveSetup) -> list[Finding]:
-    """Plain-words checks of a drive (generic CSV) before the filters run; see the module doc."""
-    out: list[Finding] = []
-    imu, g = rec.imu, rec.gnss
-    ti = imu.t_s.to_numpy()
+def _rate_findings(ti: Array, tg: Array) -> list[Finding]:
+    """The IMU's and the GNSS's sample counts, rates and spans; a warning for a slow IMU."""
     dti = float(np.median(np.diff(ti)))
-    tg = g.t_s.to_numpy()
     dtg = float(np.median(np.diff(tg)))
-    out.append(
+    out = [
         Finding(
             "note",
             f"IMU: {len(ti)} samples at {1 / dti:.4g} Hz over {ti[-1] - ti[0]:.1f} s; GNSS: {len(tg)} "
             f"fixes at {1 / dtg:.3g} Hz over {tg[-1] - tg[0]:.1f} s",
         )
-    )
+    ]
     if 1 / dti < 20:
         out.append(
             Finding("warning", f"IMU rate {1 / dti:.3g} Hz is low for a strapdown INS (≥ 50 Hz usual)")
         )
-    # gravity in the vehicle frame: the mean specific force (at rest, or averaged over the drive)
+    return out
+
+
+def _level_finding(f_v: Array, mag: float, what: str) -> Finding:
+    """Gravity on +z: a note with the vehicle's pitch and roll, a warning when they exceed 8°."""
+    pitch = float(np.degrees(np.arcsin(np.clip(f_v[1] / mag, -1, 1))))
+    roll = float(np.degrees(np.arctan2(-f_v[0], f_v[2])))
+    if max(abs(pitch), abs(roll)) > 8.0:
+        return Finding(
+            "warning",
+            f"the IMU looks tilted in the vehicle frame (pitch {pitch:+.1f}°, roll {roll:+.1f}° {what}); "
+            "a car is level within a few degrees on average: set mount_pitch_deg / mount_roll_deg",
+        )
+    return Finding(
+        "note",
+        f"gravity: {mag:.3f} m/s² on +z {what} (vehicle pitch {pitch:+.1f}°, roll {roll:+.1f}°)",
+    )
+
+
+def _gravity_findings(imu, ti: Array, setup: DriveSetup) -> list[Finding]:
+    """Gravity in the vehicle frame (the mean specific force at rest, or averaged over the drive):
+    its magnitude (accelerometer scale), its axis and sign (mounting), the tilt.
+    """
+    out: list[Finding] = []
     f_b = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()
     static = ti < setup.t[0] if setup.start == "static" else np.ones(len(ti), bool)
     f_v = setup.C_bv @ f_b[static].mean(axis=0)
@@ -173,96 +192,94 @@ def check_drive(rec: DriveRecording, setup: DriveSetup) -> list[Finding]:
             )
         )
     else:
-        pitch = float(np.degrees(np.arcsin(np.clip(f_v[1] / mag, -1, 1))))
-        roll = float(np.degrees(np.arctan2(-f_v[0], f_v[2])))
-        level = (
-            Finding(
-                "warning",
-                f"the IMU looks tilted in the vehicle frame (pitch {pitch:+.1f}°, roll {roll:+.1f}° {what}); "
-                "a car is level within a few degrees on average: set mount_pitch_deg / mount_roll_deg",
-            )
-            if max(abs(pitch), abs(roll)) > 8.0
-            else Finding(
-                "note",
-                f"gravity: {mag:.3f} m/s² on +z {what} (vehicle pitch {pitch:+.1f}°, roll {roll:+.1f}°)",
-            )
-        )
-        out.append(level)
-    # gyro units and sign: heading change of the IMU against the GNSS course change
-    v_cols = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
-    measured = bool(np.isfinite(v_cols).all())
+        out.append(_level_finding(f_v, mag, what))
+    return out
+
+
+def _gnss_positions(g, setup: DriveSetup) -> Array:
+    """The fixes in the setup's local N, E, U [m]."""
+    return setup.to_local(
+        np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()), g.h_m.to_numpy()
+    )
+
+
+def _gnss_velocity(g, tg: Array, setup: DriveSetup) -> tuple[Array, bool]:
+    """ENU velocities of the fixes (the receiver's, else differenced fixes) and whether measured."""
     from navlab.ins.lc import differenced_velocity
 
-    if measured:
-        v_enu = v_cols
-    else:
-        p = setup.to_local(
-            np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()), g.h_m.to_numpy()
-        )
-        v_enu = differenced_velocity(tg, p[:, [1, 0, 2]], 5.0)
-    w_b = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()
-    w_up = w_b @ setup.C_bv[2]
-    slope, r, n = heading_change_slope(tg, v_enu, ti, w_up, 2.0 if measured else 5.0)
-    if n < 5 or abs(r) < 0.5:
-        out.append(
-            Finding(
-                "note",
-                "gyro units/sign: not checked (the vehicle hardly turns while moving, or its GNSS course "
-                "is too noisy to compare with)",
-            )
-        )
-    elif abs(slope - 1) < 0.25:
-        out.append(
-            Finding("note", f"gyro: the IMU's heading change follows the GNSS course (slope {slope:.2f})")
-        )
-    elif abs(slope + 1) < 0.25:
-        out.append(
-            Finding(
-                "warning",
-                "gyro sign: the IMU turns the other way than the GNSS course (slope "
-                f"{slope:.2f}): its z axis points down or w_z_radps is clockwise-positive; negate it",
-            )
-        )
-    elif abs(slope / np.degrees(1.0) - 1) < 0.25:
-        out.append(
-            Finding(
-                "warning",
-                f"gyro units: the IMU's heading change is {slope:.0f}× the GNSS course change: the rates are "
-                "in deg/s; give w_*_radps in rad/s (multiply deg/s by 0.0174533)",
-            )
-        )
-    else:
-        out.append(
-            Finding(
-                "warning",
-                f"gyro: the IMU's heading change is {slope:.2f}× the GNSS course change (expected 1): check "
-                "the gyro units, the axes (mounting) and that both files use one time base",
-            )
-        )
-    # GNSS time offset hint (needs the receiver's velocities)
-    if measured:
-        from navlab.ins.lc import velocity_lag_s
+    v_cols = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
+    if np.isfinite(v_cols).all():
+        return v_cols, True
+    return differenced_velocity(tg, _gnss_positions(g, setup)[:, [1, 0, 2]], 5.0), False
 
-        offset = float(getattr(setup, "gnss_time_offset_s", 0.0))
-        hint = time_offset_hint(tg + offset, v_enu, ti, w_up)
-        if np.isfinite(hint):
-            # a receiver's velocities may lag its positions (RTKLIB: ≈ 0.12 s); measurable only on
-            # precise fixes (σ < 0.2 m), else the velocities are taken as on the positions' time base
-            sig = g[["sigma_n_m", "sigma_e_m"]].to_numpy()
-            d_v = 0.0
-            if np.isfinite(sig).all() and np.nanmedian(sig) < 0.2:
-                p = setup.to_local(
-                    np.radians(g.lat_deg.to_numpy()), np.radians(g.lon_deg.to_numpy()), g.h_m.to_numpy()
-                )
-                d_v = velocity_lag_s(tg, p, v_enu)
-            total = offset + hint + d_v
-            text = (
-                f"GNSS time offset: the GNSS course best matches the IMU's yaw rate with gnss_time_offset_s "
-                f"≈ {total:+.2f} s (now {offset:+.2f} s"
-                + (f"; the receiver's velocities lag its positions by {d_v:.2f} s" if d_v else "")
-                + ")"
-            )
-            out.append(Finding("warning" if abs(total - offset) > 0.1 else "note", text))
+
+def _gyro_finding(slope: float, r: float, n: int) -> Finding:
+    """Gyro units and sign from the slope of the IMU's heading change against the GNSS course change."""
+    if n < 5 or abs(r) < 0.5:
+        return Finding(
+            "note",
+            "gyro units/sign: not checked (the vehicle hardly turns while moving, or its GNSS course "
+            "is too noisy to compare with)",
+        )
+    if abs(slope - 1) < 0.25:
+        return Finding("note", f"gyro: the IMU's heading change follows the GNSS course (slope {slope:.2f})")
+    if abs(slope + 1) < 0.25:
+        return Finding(
+            "warning",
+            "gyro sign: the IMU turns the other way than the GNSS course (slope "
+            f"{slope:.2f}): its z axis points down or w_z_radps is clockwise-positive; negate it",
+        )
+    if abs(slope / np.degrees(1.0) - 1) < 0.25:
+        return Finding(
+            "warning",
+            f"gyro units: the IMU's heading change is {slope:.0f}× the GNSS course change: the rates are "
+            "in deg/s; give w_*_radps in rad/s (multiply deg/s by 0.0174533)",
+        )
+    return Finding(
+        "warning",
+        f"gyro: the IMU's heading change is {slope:.2f}× the GNSS course change (expected 1): check "
+        "the gyro units, the axes (mounting) and that both files use one time base",
+    )
+
+
+def _time_offset_findings(
+    g, setup: DriveSetup, tg: Array, v_enu: Array, ti: Array, w_up: Array
+) -> list[Finding]:
+    """The GNSS time offset that best aligns the course with the yaw rate (receiver velocities only)."""
+    from navlab.ins.lc import velocity_lag_s
+
+    offset = float(getattr(setup, "gnss_time_offset_s", 0.0))
+    hint = time_offset_hint(tg + offset, v_enu, ti, w_up)
+    if not np.isfinite(hint):
+        return []
+    # a receiver's velocities may lag its positions (RTKLIB: ≈ 0.12 s); measurable only on
+    # precise fixes (σ < 0.2 m), else the velocities are taken as on the positions' time base
+    sig = g[["sigma_n_m", "sigma_e_m"]].to_numpy()
+    d_v = 0.0
+    if np.isfinite(sig).all() and np.nanmedian(sig) < 0.2:
+        d_v = velocity_lag_s(tg, _gnss_positions(g, setup), v_enu)
+    total = offset + hint + d_v
+    text = (
+        f"GNSS time offset: the GNSS course best matches the IMU's yaw rate with gnss_time_offset_s "
+        f"≈ {total:+.2f} s (now {offset:+.2f} s"
+        + (f"; the receiver's velocities lag its positions by {d_v:.2f} s" if d_v else "")
+        + ")"
+    )
+    return [Finding("warning" if abs(total - offset) > 0.1 else "note", text)]
+
+
+def check_drive(rec: DriveRecording, setup: DriveSetup) -> list[Finding]:
+    """Plain-words checks of a drive (generic CSV) before the filters run; see the module doc."""
+    imu, g = rec.imu, rec.gnss
+    ti = imu.t_s.to_numpy()
+    tg = g.t_s.to_numpy()
+    out = _rate_findings(ti, tg) + _gravity_findings(imu, ti, setup)
+    # gyro units and sign: heading change of the IMU against the GNSS course change
+    v_enu, measured = _gnss_velocity(g, tg, setup)
+    w_up = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy() @ setup.C_bv[2]
+    out.append(_gyro_finding(*heading_change_slope(tg, v_enu, ti, w_up, 2.0 if measured else 5.0)))
+    if measured:  # the GNSS time offset hint needs the receiver's velocities
+        out += _time_offset_findings(g, setup, tg, v_enu, ti, w_up)
     else:
         out.append(
             Finding("note", "GNSS time offset: no hint (gnss.csv has no vn_mps, ve_mps, vu_mps columns)")

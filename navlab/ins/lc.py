@@ -356,6 +356,356 @@ HEADING_SPEED_MPS = (2.0, 3.0)
 MIN_STATIC_S = 2.0
 
 
+def _local_metres(df, lat0: float, lon0: float, h0: float) -> Array:
+    """Positions N, E, U [m] of a lat/lon/h table relative to the origin (lat0, lon0 [rad], h0 [m])."""
+    R_Mh, R_Nh = radii(lat0, h0)
+    return np.stack(
+        [
+            (np.radians(df.lat_deg.to_numpy()) - lat0) * R_Mh,
+            (np.radians(df.lon_deg.to_numpy()) - lon0) * R_Nh * np.cos(lat0),
+            df.h_m.to_numpy() - h0,
+        ],
+        -1,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _GnssTrack:
+    """The recording's GNSS fixes in local metres, with ENU velocities for the start and the heading.
+
+    Attributes
+    ----------
+    t : (N,) fix times [s] (with the GNSS time offset).
+    p : (N, 3) positions N, E, U [m].
+    v_enu : (N, 3) velocities E, N, U [m/s]: measured, else differenced from positions.
+    speed : (N,) horizontal speed [m/s].
+    measured : the recording has its own velocities (for > 90 % of the fixes).
+    """
+
+    t: Array
+    p: Array
+    v_enu: Array
+    speed: Array
+    measured: bool
+
+
+def _gnss_track(
+    rec: DriveRecording, gnss_time_offset_s: float, origin: tuple[float, float, float]
+) -> _GnssTrack:
+    """The GNSS fixes of ``rec`` in local metres with velocities (differenced when not recorded)."""
+    g = rec.gnss
+    tg = g.t_s.to_numpy() + float(gnss_time_offset_s)
+    v_enu = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
+    p_g = _local_metres(g, *origin)
+    vel_measured = bool(np.isfinite(v_enu).all(axis=1).mean() > 0.9)
+    if not vel_measured:  # generic files without velocity: smoothed differences of positions
+        src_t = rec.truth.t_s.to_numpy() if rec.truth is not None else tg
+        src_p = _local_metres(rec.truth, *origin) if rec.truth is not None else p_g
+        win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
+        v_src = differenced_velocity(src_t, src_p[:, [1, 0, 2]], win)
+        v_enu = np.stack([np.interp(tg, src_t, v_src[:, i]) for i in range(3)], -1)
+    else:
+        v_enu = np.where(np.isfinite(v_enu), v_enu, 0.0)
+    return _GnssTrack(tg, p_g, v_enu, np.hypot(v_enu[:, 0], v_enu[:, 1]), vel_measured)
+
+
+def _bridged_imu(imu, notes: list[str]):
+    """IMU times, specific force and rate with time gaps bridged (a note says so): (t, f, w, gaps)."""
+    t_imu = imu.t_s.to_numpy()
+    f_b = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()
+    w_b = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()
+    t_imu, f_b, w_b, gaps = bridge_gaps(t_imu, f_b, w_b)
+    if gaps:
+        longest = max(gaps, key=lambda gl: gl[1])
+        notes.append(
+            f"IMU: {len(gaps)} time gap(s) bridged by linear interpolation (longest {longest[1]:.2f} s at "
+            f"t = {longest[0]:.2f} s); the INS coasts through them with raised process noise, so expect "
+            "larger errors there"
+            + ("; a gap this long is better cut out of the recording" if longest[1] > 10 else "")
+        )
+    return t_imu, f_b, w_b, gaps
+
+
+@dataclass(frozen=True)
+class _Start:
+    """How the filters start: ``moving`` (in motion, at ``t_first``) or static (aligned before ``t_move``).
+
+    ``t_begin``: first time with both GNSS and IMU; ``t_move``: when the vehicle starts moving.
+    """
+
+    moving: bool
+    t_begin: float
+    t_move: float
+    t_first: float | None = None
+
+
+def _choose_start(
+    track: _GnssTrack, t_imu: Array, start: str, static_margin_s: float, notes: list[str]
+) -> _Start:
+    """Static alignment or an in-motion start (see :func:`prepare_drive`), and their times."""
+    tg = track.t
+    t_begin = max(tg[0], t_imu[0])
+    try:
+        t_move = motion_start_time(
+            tg, track.v_enu, 0.3 if track.measured else 1.0, 1.0 if track.measured else 3.0
+        )
+    except NavlabError:  # never moves: align on the first seconds, filter the rest
+        t_move = float(min(tg[-1], t_begin + MIN_STATIC_S + static_margin_s))
+    static_ok = t_move - static_margin_s - t_begin >= MIN_STATIC_S
+    if start == "static" and not static_ok:
+        raise NavlabError(
+            f"no static segment: the vehicle already moves at {t_move - t_begin:.1f} s after the start; "
+            f"a static start needs {MIN_STATIC_S + static_margin_s:g} s at rest (start 'auto' or 'moving' "
+            "initialises in motion)"
+        )
+    if not (start == "moving" or (start == "auto" and not static_ok)):
+        return _Start(False, t_begin, t_move)
+    v_min = HEADING_SPEED_MPS[0] if track.measured else HEADING_SPEED_MPS[1]
+    cand = np.flatnonzero((track.speed >= v_min) & (tg >= t_imu[0] + 1.0))
+    if not cand.size:
+        raise NavlabError(
+            f"the vehicle never moves faster than {v_min:g} m/s after the IMU starts, and there is no "
+            "static segment to align on: navlab cannot initialise the INS on this recording"
+        )
+    t_first = float(tg[cand[0]])
+    if t_first - t_begin > 1.5:
+        notes.append(
+            f"start: no static segment; the first {t_first - t_begin:.1f} s (until the vehicle first "
+            f"moves faster than {v_min:g} m/s, so that the course gives the heading) are skipped"
+        )
+    return _Start(True, t_begin, t_move, t_first)
+
+
+def _thin_epochs(t_fix: Array, rate_hz: float) -> Array:
+    """The recorded epochs thinned to at most ``rate_hz`` per second (all of them for ``rate_hz`` ≤ 0)."""
+    if not (rate_hz and rate_hz > 0):
+        return t_fix
+    keep, last = [], -np.inf
+    for i, ti in enumerate(t_fix):
+        if ti - last >= 1.0 / rate_hz - 1e-6:
+            keep.append(i)
+            last = ti
+    return t_fix[keep]
+
+
+def _fill_gnss_gaps(t_fix: Array, notes: list[str]) -> Array:
+    """The epochs ``t_fix`` with epochs at the nominal interval inserted inside gaps (a note counts them)."""
+    nominal = float(np.median(np.diff(t_fix)))
+    parts = [t_fix[:1]]
+    for a, b in itertools.pairwise(t_fix):
+        if b - a > 1.5 * nominal:
+            parts.append(np.arange(a + nominal, b - 0.5 * nominal, nominal))
+        parts.append(np.array([b]))
+    t = np.concatenate(parts)
+    n_missing = len(t) - len(t_fix)
+    if n_missing:
+        notes.append(
+            f"GNSS: {n_missing} epoch(s) without a fix inside gaps of the recording (nominal interval "
+            f"{nominal:.3g} s); the filters predict through them"
+        )
+    return t
+
+
+def _recorded_epochs(
+    tg: Array,
+    t_imu_end: float,
+    st: _Start,
+    rate_hz: float,
+    epochs: int,
+    static_margin_s: float,
+    notes: list[str],
+) -> tuple[Array, Array]:
+    """Epoch times from the recorded GNSS epochs, and which of them have a fix: (t, fix_here)."""
+    t_fix = _thin_epochs(tg, rate_hz)
+    t_epoch0 = (
+        st.t_first
+        if st.moving
+        else float(t_fix[max(0, np.searchsorted(t_fix, st.t_move - static_margin_s, side="right") - 1)])
+    )
+    t_fix = t_fix[t_fix >= t_epoch0 - 1e-9]
+    t_fix = t_fix[t_fix <= t_imu_end]
+    if len(t_fix) < 3:
+        raise NavlabError("the drive is too short after its start: fewer than 3 GNSS epochs")
+    t = _fill_gnss_gaps(t_fix, notes)
+    if epochs:
+        t = t[: int(epochs) + 1]
+    return t, np.isin(np.round(t, 6), np.round(t_fix, 6))
+
+
+def _grid_epochs(
+    tg: Array, t_imu_end: float, st: _Start, rate_hz: float, epochs: int, static_margin_s: float
+) -> tuple[Array, Array]:
+    """Epoch times on a grid of ``rate_hz`` (every epoch aided): (t, fix_here)."""
+    if st.moving:
+        t_epoch0 = np.ceil(st.t_first * rate_hz - 1e-9) / rate_hz
+    else:
+        t_epoch0 = np.floor((st.t_move - static_margin_s) * rate_hz) / rate_hz
+        t_epoch0 = max(t_epoch0, np.ceil(st.t_begin * rate_hz) / rate_hz)
+    t_end = min(tg[-1], t_imu_end)
+    K_avail = int(np.floor((t_end - t_epoch0) * rate_hz + 1e-9))
+    if K_avail < 2:
+        raise NavlabError("the drive is too short after its start for a 1 Hz filter")
+    K = K_avail if not epochs else min(int(epochs), K_avail)
+    t = t_epoch0 + np.arange(K + 1) / rate_hz
+    return t, np.ones(len(t), bool)
+
+
+def _epoch_times(
+    tg: Array,
+    t_imu_end: float,
+    st: _Start,
+    rate_hz: float,
+    epochs: int,
+    static_margin_s: float,
+    recorded: bool,
+    notes: list[str],
+) -> tuple[Array, Array]:
+    """The aiding epochs, recorded or on a grid, and which of them have a fix: (t, fix_here)."""
+    if recorded:
+        t, fix_here = _recorded_epochs(tg, t_imu_end, st, rate_hz, epochs, static_margin_s, notes)
+    else:
+        t, fix_here = _grid_epochs(tg, t_imu_end, st, rate_hz, epochs, static_margin_s)
+    if len(t) - 1 < 2:
+        raise NavlabError("the drive is too short after its start: give more GNSS epochs")
+    return t, fix_here
+
+
+def _gnss_at_epochs(g, tg: Array, p_g: Array, t: Array, fix_here: Array) -> tuple[Array, Array | None]:
+    """The recording's fixes and their σ (None if not given for every fix) at the epochs."""
+    dtg = float(np.median(np.diff(tg)))
+    gnss_pos = interp_with_gaps(t, tg, p_g, max(1.5 * dtg, 1.0))
+    gnss_pos[~fix_here] = np.nan
+    sig_cols = g[["sigma_n_m", "sigma_e_m", "sigma_u_m"]].to_numpy()
+    gnss_sigma = (
+        interp_with_gaps(t, tg, sig_cols, max(1.5 * dtg, 1.0)) if np.isfinite(sig_cols).all() else None
+    )
+    return gnss_pos, gnss_sigma
+
+
+def _truth_at_epochs(truth, t: Array, origin: tuple[float, float, float]) -> tuple[Array, Array]:
+    """Reference positions N, E, U and velocities E, N, U at the epochs (NaN without a truth)."""
+    if truth is None:
+        return np.full((len(t), 3), np.nan), np.full((len(t), 3), np.nan)
+    tt = truth.t_s.to_numpy()
+    p_tt = _local_metres(truth, *origin)
+    p_true = interp_with_gaps(t, tt, p_tt, max(1.5 * float(np.median(np.diff(tt))), 1.0))
+    tcols = ("ve_mps", "vn_mps", "vu_mps")
+    if all(c in truth.columns for c in tcols):
+        # the receiver's velocities lag its positions (rtkx: 0.12 s, 0.1 m/s rms): the velocity
+        # truth is read at t + lag so that rmse_vel and NEES measure the filters, not the lag
+        vt = truth[list(tcols)].to_numpy()
+        lag = velocity_lag_s(tt, p_tt, vt)
+        t_v = np.minimum(t + lag, tt[-1])
+        v_true = np.stack([np.interp(t_v, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
+    else:
+        vt = differenced_velocity(tt, p_tt[:, [1, 0, 2]], 2.0 * float(np.median(np.diff(tt))))
+        v_true = np.stack([np.interp(t, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
+    return p_true, v_true
+
+
+def _align_in_motion(
+    track: _GnssTrack, t0: float, t_imu: Array, f_b: Array, w_b: Array, origin, heading_deg, C_bv: Array
+) -> AlignmentResult:
+    """Alignment at ``t0`` while moving: heading from the course, tilt from f minus the GNSS acceleration."""
+    tg, v_enu = track.t, track.v_enu
+    heading = (
+        course_heading(v_enu[np.searchsorted(tg, t0 - 1e-9)])
+        if heading_deg is None
+        else np.radians(heading_deg)
+    )
+    win = (t_imu >= t0 - 1.0) & (t_imu < t0)
+    v1 = np.stack([np.interp(t0, tg, v_enu[:, i]) for i in range(3)])
+    v0 = np.stack([np.interp(t0 - 1.0, tg, v_enu[:, i]) for i in range(3)])
+    a_n = (v1 - v0) / 1.0 if track.measured else np.zeros(3)
+    a_n[2] = 0.0  # a car: no sustained vertical acceleration
+    return align_moving(f_b[win], w_b[win], a_n, origin[0], origin[2], float(heading), C_bv=C_bv)
+
+
+def _align_at_rest(
+    track: _GnssTrack, st: _Start, t0: float, t_imu, f_b, w_b, origin, heading_deg, C_bv, notes: list[str]
+) -> tuple[AlignmentResult, bool]:
+    """Static alignment on the samples before ``t0``; the heading from the course once moving.
+
+    Returns the alignment and whether the heading is known (given, or from a course).
+    """
+    static = (t_imu < t0) & (t_imu >= t_imu[0])
+    if static.sum() < 100:
+        raise NavlabError(
+            f"only {static.sum()} IMU samples before the vehicle moves (at {st.t_move:.1f} s); "
+            "a static start needs the vehicle at rest for at least 2 s"
+        )
+    moving = np.flatnonzero((track.t > st.t_move) & (track.speed > (0.7 if track.measured else 2.0)))
+    if heading_deg is not None:
+        heading = np.radians(heading_deg)
+    elif moving.size:
+        heading = float(course_heading(track.v_enu[moving[0]]))
+    else:
+        heading = 0.0
+        notes.append("start: the vehicle never moves, so its heading is unknown (taken as north, σ 30°)")
+    al = align_static(f_b[static], w_b[static], origin[0], origin[2], heading, C_bv=C_bv)
+    return al, heading_deg is not None or bool(moving.size)
+
+
+def _block_vibration(t_imu: Array, w_b: Array, t: Array) -> Array:
+    """Gyro vibration per aiding block from the raw samples: rms raw std × √dt [rad/√s], (K+1,)."""
+    dt_raw = float(np.median(np.diff(t_imu)))
+    edges = np.searchsorted(t_imu, t)
+    vib_g = np.zeros(len(t))
+    for k in range(1, len(t)):
+        wk = w_b[edges[k - 1] : edges[k]]
+        if len(wk) > 2:
+            vib_g[k] = np.sqrt(np.mean(wk.var(axis=0)) * dt_raw)
+    return vib_g
+
+
+def _initial_in_motion(
+    track: _GnssTrack, t0: float, gnss_pos: Array, gnss_sigma: Array | None, p_true: Array
+) -> tuple[Array, Array]:
+    """x0, P0 of an in-motion start: position from the first fix, velocity from the GNSS, biases unknown."""
+    # position from the first fix (σ: the receiver's, else 3 m), velocity from the GNSS
+    p0 = gnss_pos[0] if np.isfinite(gnss_pos[0]).all() else np.nan_to_num(p_true[0])
+    sig_p = gnss_sigma[0] if gnss_sigma is not None and np.isfinite(gnss_sigma[0]).all() else np.full(3, 3.0)
+    v0_ = np.stack([np.interp(t0, track.t, track.v_enu[:, i]) for i in range(3)])
+    sig_v = 0.2 if track.measured else float(np.sqrt(2) * np.max(sig_p[:2]) / 5.0)
+    sp0 = max(float(np.hypot(v0_[0], v0_[1])), 0.1)
+    sig_head = np.degrees(np.hypot(np.arctan(sig_v / sp0), np.radians(2.0)))  # + side slip / mount yaw
+    sig_tilt = 1.5 if track.measured else 6.0  # deg: σ_a/g of the acceleration assumption
+    x0 = np.r_[np.zeros(3), v0_, p0, np.zeros(3), np.zeros(3)]
+    P0 = np.diag(
+        np.r_[
+            np.radians([sig_tilt, sig_tilt, sig_head]) ** 2,
+            [sig_v**2] * 3,
+            sig_p**2,
+            [np.radians(0.3) ** 2] * 3,  # gyro bias unknown: consumer MEMS turn-on bias ≲ 0.5 °/s
+            [0.15**2] * 3,  # accelerometer bias unknown: ≈ 15 mg
+        ]
+    )
+    return x0, P0
+
+
+def _initial_at_rest(
+    al: AlignmentResult, gnss_pos: Array, p_true: Array, vel_measured: bool, heading_known: bool
+) -> tuple[Array, Array]:
+    """x0, P0 of a static start: at rest, biases from the alignment."""
+    p0 = gnss_pos[0] if np.isnan(p_true[0]).any() else p_true[0]
+    # only the accelerometer bias along gravity is observable at rest: |f| − g along f
+    ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
+    x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
+    sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
+    if not heading_known:
+        sig_head = 30.0
+    P0 = np.diag(
+        np.r_[
+            np.radians([0.5, 0.5, sig_head]) ** 2,
+            [0.1**2] * 3,
+            [1.0**2] * 3,
+            [np.radians(0.05) ** 2] * 3,
+            [0.1**2] * 3,
+        ]
+    )
+    return x0, P0
+
+
 def prepare_drive(
     rec: DriveRecording,
     rate_hz: float = 1.0,
@@ -394,230 +744,28 @@ def prepare_drive(
         raise NavlabError(f"start must be 'auto', 'static' or 'moving', got {start!r}")
     notes: list[str] = []
     g = rec.gnss
-    imu = rec.imu
-    tg = g.t_s.to_numpy() + float(gnss_time_offset_s)
-    v_enu = g[["ve_mps", "vn_mps", "vu_mps"]].to_numpy()
-    lat0, lon0, h0 = np.radians(g.lat_deg.iloc[0]), np.radians(g.lon_deg.iloc[0]), float(g.h_m.iloc[0])
-    R_Mh, R_Nh = radii(lat0, h0)
-
-    def local(df):
-        return np.stack(
-            [
-                (np.radians(df.lat_deg.to_numpy()) - lat0) * R_Mh,
-                (np.radians(df.lon_deg.to_numpy()) - lon0) * R_Nh * np.cos(lat0),
-                df.h_m.to_numpy() - h0,
-            ],
-            -1,
-        )
-
-    p_g = local(g)
-    vel_measured = bool(np.isfinite(v_enu).all(axis=1).mean() > 0.9)
-    if not vel_measured:  # generic files without velocity: smoothed differences of positions
-        src_t = rec.truth.t_s.to_numpy() if rec.truth is not None else tg
-        src_p = local(rec.truth) if rec.truth is not None else p_g
-        win = 2.0 if rec.truth is not None else 5.0  # s: noisy fixes need a longer baseline
-        v_src = differenced_velocity(src_t, src_p[:, [1, 0, 2]], win)
-        v_enu = np.stack([np.interp(tg, src_t, v_src[:, i]) for i in range(3)], -1)
-    else:
-        v_enu = np.where(np.isfinite(v_enu), v_enu, 0.0)
-    speed = np.hypot(v_enu[:, 0], v_enu[:, 1])
-    t_imu = imu.t_s.to_numpy()
-    f_b = imu[["f_x_mps2", "f_y_mps2", "f_z_mps2"]].to_numpy()
-    w_b = imu[["w_x_radps", "w_y_radps", "w_z_radps"]].to_numpy()
-    t_imu, f_b, w_b, gaps = bridge_gaps(t_imu, f_b, w_b)
-    if gaps:
-        longest = max(gaps, key=lambda gl: gl[1])
-        notes.append(
-            f"IMU: {len(gaps)} time gap(s) bridged by linear interpolation (longest {longest[1]:.2f} s at "
-            f"t = {longest[0]:.2f} s); the INS coasts through them with raised process noise, so expect "
-            "larger errors there"
-            + ("; a gap this long is better cut out of the recording" if longest[1] > 10 else "")
-        )
-    t_begin = max(tg[0], t_imu[0])
-    try:
-        t_move = motion_start_time(tg, v_enu, 0.3 if vel_measured else 1.0, 1.0 if vel_measured else 3.0)
-    except NavlabError:  # never moves: align on the first seconds, filter the rest
-        t_move = float(min(tg[-1], t_begin + MIN_STATIC_S + static_margin_s))
-    static_ok = t_move - static_margin_s - t_begin >= MIN_STATIC_S
-    if start == "static" and not static_ok:
-        raise NavlabError(
-            f"no static segment: the vehicle already moves at {t_move - t_begin:.1f} s after the start; "
-            f"a static start needs {MIN_STATIC_S + static_margin_s:g} s at rest (start 'auto' or 'moving' "
-            "initialises in motion)"
-        )
-    moving_start = start == "moving" or (start == "auto" and not static_ok)
-    # ---- epoch 0 and the epoch times
-    if moving_start:
-        v_min = HEADING_SPEED_MPS[0] if vel_measured else HEADING_SPEED_MPS[1]
-        cand = np.flatnonzero((speed >= v_min) & (tg >= t_imu[0] + 1.0))
-        if not cand.size:
-            raise NavlabError(
-                f"the vehicle never moves faster than {v_min:g} m/s after the IMU starts, and there is no "
-                "static segment to align on: navlab cannot initialise the INS on this recording"
-            )
-        t_first = float(tg[cand[0]])
-        if t_first - t_begin > 1.5:
-            notes.append(
-                f"start: no static segment; the first {t_first - t_begin:.1f} s (until the vehicle first "
-                f"moves faster than {v_min:g} m/s, so that the course gives the heading) are skipped"
-            )
-    if recorded:
-        t_fix = tg
-        if rate_hz and rate_hz > 0:  # thin the recorded epochs to at most rate_hz
-            keep, last = [], -np.inf
-            for i, ti in enumerate(t_fix):
-                if ti - last >= 1.0 / rate_hz - 1e-6:
-                    keep.append(i)
-                    last = ti
-            t_fix = t_fix[keep]
-        t_epoch0 = (
-            t_first
-            if moving_start
-            else float(t_fix[max(0, np.searchsorted(t_fix, t_move - static_margin_s, side="right") - 1)])
-        )
-        t_fix = t_fix[t_fix >= t_epoch0 - 1e-9]
-        t_fix = t_fix[t_fix <= t_imu[-1]]
-        if len(t_fix) < 3:
-            raise NavlabError("the drive is too short after its start: fewer than 3 GNSS epochs")
-        nominal = float(np.median(np.diff(t_fix)))
-        parts = [t_fix[:1]]
-        for a, b in itertools.pairwise(t_fix):
-            if b - a > 1.5 * nominal:
-                parts.append(np.arange(a + nominal, b - 0.5 * nominal, nominal))
-            parts.append(np.array([b]))
-        t = np.concatenate(parts)
-        n_missing = len(t) - len(t_fix)
-        if n_missing:
-            notes.append(
-                f"GNSS: {n_missing} epoch(s) without a fix inside gaps of the recording (nominal interval "
-                f"{nominal:.3g} s); the filters predict through them"
-            )
-        if epochs:
-            t = t[: int(epochs) + 1]
-        fix_here = np.isin(np.round(t, 6), np.round(t_fix, 6))
-    else:
-        if moving_start:
-            t_epoch0 = np.ceil(t_first * rate_hz - 1e-9) / rate_hz
-        else:
-            t_epoch0 = np.floor((t_move - static_margin_s) * rate_hz) / rate_hz
-            t_epoch0 = max(t_epoch0, np.ceil(t_begin * rate_hz) / rate_hz)
-        t_end = min(tg[-1], t_imu[-1])
-        K_avail = int(np.floor((t_end - t_epoch0) * rate_hz + 1e-9))
-        if K_avail < 2:
-            raise NavlabError("the drive is too short after its start for a 1 Hz filter")
-        K = K_avail if not epochs else min(int(epochs), K_avail)
-        t = t_epoch0 + np.arange(K + 1) / rate_hz
-        fix_here = np.ones(len(t), bool)
-    K = len(t) - 1
-    if K < 2:
-        raise NavlabError("the drive is too short after its start: give more GNSS epochs")
-    setup_origin = dict(lat0_rad=lat0, lon0_rad=lon0, h0_m=h0)
-    dtg = float(np.median(np.diff(tg)))
-    gnss_pos = interp_with_gaps(t, tg, p_g, max(1.5 * dtg, 1.0))
-    gnss_pos[~fix_here] = np.nan
-    sig_cols = g[["sigma_n_m", "sigma_e_m", "sigma_u_m"]].to_numpy()
-    gnss_sigma = (
-        interp_with_gaps(t, tg, sig_cols, max(1.5 * dtg, 1.0)) if np.isfinite(sig_cols).all() else None
-    )
-    if rec.truth is not None:
-        tt = rec.truth.t_s.to_numpy()
-        p_true = interp_with_gaps(t, tt, local(rec.truth), max(1.5 * float(np.median(np.diff(tt))), 1.0))
-        tcols = ("ve_mps", "vn_mps", "vu_mps")
-        if all(c in rec.truth.columns for c in tcols):
-            # the receiver's velocities lag its positions (rtkx: 0.12 s, 0.1 m/s rms): the velocity
-            # truth is read at t + lag so that rmse_vel and NEES measure the filters, not the lag
-            vt = rec.truth[list(tcols)].to_numpy()
-            lag = velocity_lag_s(tt, local(rec.truth), vt)
-            t_v = np.minimum(t + lag, tt[-1])
-            v_true = np.stack([np.interp(t_v, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
-        else:
-            vt = differenced_velocity(tt, local(rec.truth)[:, [1, 0, 2]], 2.0 * float(np.median(np.diff(tt))))
-            v_true = np.stack([np.interp(t, tt, vt[:, i], left=np.nan, right=np.nan) for i in range(3)], -1)
-    else:
-        p_true = np.full((K + 1, 3), np.nan)
-        v_true = np.full((K + 1, 3), np.nan)
+    origin = (np.radians(g.lat_deg.iloc[0]), np.radians(g.lon_deg.iloc[0]), float(g.h_m.iloc[0]))
+    track = _gnss_track(rec, gnss_time_offset_s, origin)
+    t_imu, f_b, w_b, gaps = _bridged_imu(rec.imu, notes)
+    st = _choose_start(track, t_imu, start, static_margin_s, notes)
+    t, fix_here = _epoch_times(track.t, t_imu[-1], st, rate_hz, epochs, static_margin_s, recorded, notes)
+    gnss_pos, gnss_sigma = _gnss_at_epochs(g, track.t, track.p, t, fix_here)
+    p_true, v_true = _truth_at_epochs(rec.truth, t, origin)
     C_bv = np.asarray(rec.C_bv, float)
-    if moving_start:
-        heading = (
-            course_heading(v_enu[np.searchsorted(tg, t[0] - 1e-9)])
-            if heading_deg is None
-            else np.radians(heading_deg)
-        )
-        win = (t_imu >= t[0] - 1.0) & (t_imu < t[0])
-        v1 = np.stack([np.interp(t[0], tg, v_enu[:, i]) for i in range(3)])
-        v0 = np.stack([np.interp(t[0] - 1.0, tg, v_enu[:, i]) for i in range(3)])
-        a_n = (v1 - v0) / 1.0 if vel_measured else np.zeros(3)
-        a_n[2] = 0.0  # a car: no sustained vertical acceleration
-        al = align_moving(f_b[win], w_b[win], a_n, lat0, h0, float(heading), C_bv=C_bv)
+    if st.moving:
+        al = _align_in_motion(track, t[0], t_imu, f_b, w_b, origin, heading_deg, C_bv)
+        x0, P0 = _initial_in_motion(track, t[0], gnss_pos, gnss_sigma, p_true)
     else:
-        static = (t_imu < t[0]) & (t_imu >= t_imu[0])
-        if static.sum() < 100:
-            raise NavlabError(
-                f"only {static.sum()} IMU samples before the vehicle moves (at {t_move:.1f} s); "
-                "a static start needs the vehicle at rest for at least 2 s"
-            )
-        moving = np.flatnonzero((tg > t_move) & (speed > (0.7 if vel_measured else 2.0)))
-        if heading_deg is not None:
-            heading = np.radians(heading_deg)
-        elif moving.size:
-            heading = float(course_heading(v_enu[moving[0]]))
-        else:
-            heading = 0.0
-            notes.append("start: the vehicle never moves, so its heading is unknown (taken as north, σ 30°)")
-        al = align_static(f_b[static], w_b[static], lat0, h0, heading, C_bv=C_bv)
-    # vibration per aiding block, from the raw samples (before they are averaged)
-    dt_raw = float(np.median(np.diff(t_imu)))
-    edges = np.searchsorted(t_imu, t)
-    vib_g = np.zeros(K + 1)
-    for k in range(1, K + 1):
-        wk = w_b[edges[k - 1] : edges[k]]
-        if len(wk) > 2:
-            vib_g[k] = np.sqrt(np.mean(wk.var(axis=0)) * dt_raw)
-    gap_s = gap_time_per_block(t, gaps)
+        al, heading_known = _align_at_rest(track, st, t[0], t_imu, f_b, w_b, origin, heading_deg, C_bv, notes)
+        x0, P0 = _initial_at_rest(al, gnss_pos, p_true, track.measured, heading_known)
+    vib_g = _block_vibration(t_imu, w_b, t)  # from the raw samples, before they are averaged
     if imu_rate_hz:
         t_imu, f_b, w_b = downsample_imu(t_imu, f_b, w_b, float(t[0]), imu_rate_hz)
-    lever = np.asarray(lever_arm_v_m, float)
-    if moving_start:
-        # position from the first fix (σ: the receiver's, else 3 m), velocity from the GNSS
-        p0 = gnss_pos[0] if np.isfinite(gnss_pos[0]).all() else np.nan_to_num(p_true[0])
-        sig_p = (
-            gnss_sigma[0] if gnss_sigma is not None and np.isfinite(gnss_sigma[0]).all() else np.full(3, 3.0)
-        )
-        v0_ = np.stack([np.interp(t[0], tg, v_enu[:, i]) for i in range(3)])
-        sig_v = 0.2 if vel_measured else float(np.sqrt(2) * np.max(sig_p[:2]) / 5.0)
-        sp0 = max(float(np.hypot(v0_[0], v0_[1])), 0.1)
-        sig_head = np.degrees(np.hypot(np.arctan(sig_v / sp0), np.radians(2.0)))  # + side slip / mount yaw
-        sig_tilt = 1.5 if vel_measured else 6.0  # deg: σ_a/g of the acceleration assumption
-        x0 = np.r_[np.zeros(3), v0_, p0, np.zeros(3), np.zeros(3)]
-        P0 = np.diag(
-            np.r_[
-                np.radians([sig_tilt, sig_tilt, sig_head]) ** 2,
-                [sig_v**2] * 3,
-                sig_p**2,
-                [np.radians(0.3) ** 2] * 3,  # gyro bias unknown: consumer MEMS turn-on bias ≲ 0.5 °/s
-                [0.15**2] * 3,  # accelerometer bias unknown: ≈ 15 mg
-            ]
-        )
-    else:
-        p0 = gnss_pos[0] if np.isnan(p_true[0]).any() else p_true[0]
-        # only the accelerometer bias along gravity is observable at rest: |f| − g along f
-        ba0 = al.accel_norm_minus_gravity_mps2 * al.f_b_mean_mps2 / np.linalg.norm(al.f_b_mean_mps2)
-        x0 = np.r_[np.zeros(3), np.zeros(3), p0, al.gyro_bias_radps, ba0]
-        sig_head = 3.0 if vel_measured else 10.0  # deg: course from noisy fixes is rougher
-        if heading_deg is None and not moving.size:
-            sig_head = 30.0
-        P0 = np.diag(
-            np.r_[
-                np.radians([0.5, 0.5, sig_head]) ** 2,
-                [0.1**2] * 3,
-                [1.0**2] * 3,
-                [np.radians(0.05) ** 2] * 3,
-                [0.1**2] * 3,
-            ]
-        )
     return DriveSetup(
         t=t,
-        **setup_origin,
+        lat0_rad=origin[0],
+        lon0_rad=origin[1],
+        h0_m=origin[2],
         p_true=p_true,
         v_true=v_true,
         gnss_pos=gnss_pos,
@@ -631,9 +779,9 @@ def prepare_drive(
         C_bv=C_bv,
         vib_g=vib_g,
         gnss_sigma=gnss_sigma,
-        start="moving" if moving_start else "static",
-        lever_arm_v=lever,
-        gap_s=gap_s,
+        start="moving" if st.moving else "static",
+        lever_arm_v=np.asarray(lever_arm_v_m, float),
+        gap_s=gap_time_per_block(t, gaps),
         notes=tuple(notes),
         gnss_time_offset_s=float(gnss_time_offset_s),
     )
@@ -664,6 +812,58 @@ class ClosedLoopResult:
     P_diag: Array  # (B, K+1, 15)
 
 
+def _initial_ins_state(setup: DriveSetup, B: int) -> InsState:
+    """B copies of the setup's initial solution (x0, C0) at epoch 0."""
+    return init_state(
+        *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
+        setup.x0[3:6],
+        np.broadcast_to(setup.C0, (B, 3, 3)),
+        B=B,
+        bias_g_radps=setup.x0[9:12],
+        bias_a_mps2=setup.x0[12:15],
+        t_s=setup.t[0],
+    )
+
+
+def _ekf_predict(
+    setup: DriveSetup, k: int, s: InsState, P: Array, noise: ImuNoise, vib_g: float, gap_s: float
+):
+    """Mechanise through the block (t_{k−1}, t_k] and propagate P by the §8.0 error model, the
+    IMU noise raised by the block's vibration and bridged gap: (state, P, mean ENU specific force).
+    """
+    sl = setup.imu_slice(k)
+    s, blk = propagate_block(s, setup.t_imu[sl], setup.f_b[sl], setup.w_b[sl], t_end_s=setup.t[k])
+    F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
+    T = float(setup.t[k] - setup.t[k - 1])
+    Phi = expm_batched(F * T)
+    _, Qd = discretise(F, G, noise.Qc(vib_g) + gap_Qc(gap_s / T), T)
+    return s, Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd, blk.f_n_mean_mps2
+
+
+def _position_update(setup: DriveSetup, s: InsState, P: Array, zk: Array, R: Array, lever_b: Array):
+    """The error-state update with the antenna positions ``zk`` (B, 3) (NaN: no fix) and the
+    correction fed back into the solutions (Joseph form): (state, P).
+    """
+    B = zk.shape[0]
+    ok = np.isfinite(zk).all(axis=1)
+    if not ok.any():
+        return s, P
+    u = (s.C_bn @ lever_b)[:, [1, 0, 2]]  # antenna offset C_bn l^b, N E U
+    H = np.zeros((B, 3, 15))
+    H[:, :, 6:9] = np.eye(3)
+    H[:, :, 0:3] = skew(s.C_bn @ lever_b)[:, [1, 0, 2]]  # δ(C l) = (C l) × φ
+    p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m) + u
+    nu = np.where(ok[:, None], p_ins - np.nan_to_num(zk), 0.0)  # error-state innovation
+    Ht = H.swapaxes(-1, -2)
+    S = H @ P @ Ht + R
+    Kg = np.linalg.solve(S, (P @ Ht).swapaxes(-1, -2)).swapaxes(-1, -2)
+    Kg = Kg * ok[:, None, None]
+    dx = (Kg @ nu[:, :, None])[:, :, 0]
+    IKH = np.eye(15) - Kg @ H
+    P = IKH @ P @ IKH.swapaxes(-1, -2) + Kg @ R @ Kg.swapaxes(-1, -2)
+    return apply_correction(s, dx), P
+
+
 def run_closed_loop(
     setup: DriveSetup, z: Array | None, sigma_m: float | Array, noise: ImuNoise = ImuNoise()
 ) -> ClosedLoopResult:
@@ -678,32 +878,14 @@ def run_closed_loop(
     """
     K = setup.K
     B = 1 if z is None else z.shape[0]
-    s = init_state(
-        *setup.from_local(np.broadcast_to(setup.x0[6:9], (B, 3))),
-        setup.x0[3:6],
-        np.broadcast_to(setup.C0, (B, 3, 3)),
-        B=B,
-        bias_g_radps=setup.x0[9:12],
-        bias_a_mps2=setup.x0[12:15],
-        t_s=setup.t[0],
-    )
+    s = _initial_ins_state(setup, B)
     P = np.broadcast_to(setup.P0, (B, 15, 15)).copy()
     R = np.diag(np.broadcast_to(np.asarray(sigma_m, float) ** 2, (3,)))
     vib = setup.vib_g if setup.vib_g is not None else np.zeros(K + 1)
     gap = setup.gap_s if setup.gap_s is not None else np.zeros(K + 1)
     lever_b = setup.C_bv.T @ setup.lever_arm_v
-    out = {
-        k: np.full((B, K + 1, *shape), np.nan)
-        for k, shape in (
-            ("p", (3,)),
-            ("v", (3,)),
-            ("C", (3, 3)),
-            ("bg", (3,)),
-            ("ba", (3,)),
-            ("fn", (3,)),
-            ("Pd", (15,)),
-        )
-    }
+    shapes = {"p": (3,), "v": (3,), "C": (3, 3), "bg": (3,), "ba": (3,), "fn": (3,), "Pd": (15,)}
+    out = {k: np.full((B, K + 1, *shape), np.nan) for k, shape in shapes.items()}
 
     def record(k, s, P):
         out["p"][:, k] = setup.to_local(s.lat_rad, s.lon_rad, s.h_m)
@@ -715,32 +897,9 @@ def run_closed_loop(
 
     record(0, s, P)
     for k in range(1, K + 1):
-        sl = setup.imu_slice(k)
-        s, blk = propagate_block(s, setup.t_imu[sl], setup.f_b[sl], setup.w_b[sl], t_end_s=setup.t[k])
-        F, G = error_model_FG(s.lat_rad, s.h_m, s.v_enu_mps, blk.f_n_mean_mps2, s.C_bn)
-        T = float(setup.t[k] - setup.t[k - 1])
-        Phi = expm_batched(F * T)
-        _, Qd = discretise(F, G, noise.Qc(vib[k]) + gap_Qc(gap[k] / T), T)
-        P = Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd
-        out["fn"][:, k] = blk.f_n_mean_mps2
+        s, P, out["fn"][:, k] = _ekf_predict(setup, k, s, P, noise, vib[k], gap[k])
         if z is not None:
-            zk = z[:, k]
-            ok = np.isfinite(zk).all(axis=1)
-            if ok.any():
-                u = (s.C_bn @ lever_b)[:, [1, 0, 2]]  # antenna offset C_bn l^b, N E U
-                H = np.zeros((B, 3, 15))
-                H[:, :, 6:9] = np.eye(3)
-                H[:, :, 0:3] = skew(s.C_bn @ lever_b)[:, [1, 0, 2]]  # δ(C l) = (C l) × φ
-                p_ins = setup.to_local(s.lat_rad, s.lon_rad, s.h_m) + u
-                nu = np.where(ok[:, None], p_ins - np.nan_to_num(zk), 0.0)  # error-state innovation
-                Ht = H.swapaxes(-1, -2)
-                S = H @ P @ Ht + R
-                Kg = np.linalg.solve(S, (P @ Ht).swapaxes(-1, -2)).swapaxes(-1, -2)
-                Kg = Kg * ok[:, None, None]
-                dx = (Kg @ nu[:, :, None])[:, :, 0]
-                IKH = np.eye(15) - Kg @ H
-                P = IKH @ P @ IKH.swapaxes(-1, -2) + Kg @ R @ Kg.swapaxes(-1, -2)
-                s = apply_correction(s, dx)
+            s, P = _position_update(setup, s, P, z[:, k], R, lever_b)
         P = 0.5 * (P + P.swapaxes(-1, -2))
         record(k, s, P)
     return ClosedLoopResult(out["p"], out["v"], out["C"], out["bg"], out["ba"], out["fn"], out["Pd"])

@@ -410,6 +410,58 @@ def mechanise_step(state: InsState, f_b_mps2, w_b_radps, dt_s: float, return_fn:
     return (new, f_n) if return_fn else new
 
 
+def _holding_times(t: np.ndarray, t0_s: float, t_stop: float) -> np.ndarray:
+    """How long each sample is held: from max(its time, ``t0_s``) to the next sample or ``t_stop``."""
+    starts = np.concatenate([[t0_s], np.maximum(t[1:], t0_s)])
+    ends = np.minimum(np.concatenate([t[1:], [t_stop]]), t_stop)
+    return ends - starts
+
+
+def _propagate_compiled(
+    kernel, state: InsState, f_all, w_all, dts: np.ndarray, reorthonormalise: bool, Ts: float
+):
+    """The compiled path, one run at a time (navlab.jit): (lat, lon, h, v, C, Σf^n, f̄^b, ω̄^b)."""
+    B = state.B
+    lat, lon, h = (np.array(a, dtype=float, order="C") for a in (state.lat_rad, state.lon_rad, state.h_m))
+    v, C = np.array(state.v_enu_mps, dtype=float, order="C"), np.array(state.C_bn, dtype=float, order="C")
+    sums = np.zeros((B, 3, 3))  # Σ f^n dt, Σ f^b dt, Σ ω^b dt
+    c = carray
+    kernel(
+        lat,
+        lon,
+        h,
+        v,
+        C,
+        c(f_all),
+        c(w_all),
+        c(state.bias_a_mps2),
+        c(state.bias_g_radps),
+        c(dts),
+        reorthonormalise,
+        sums,
+    )
+    return lat, lon, h, v, C, sums[:, 0] / Ts, sums[:, 1] / Ts, sums[:, 2] / Ts
+
+
+def _propagate_numpy(state: InsState, f_all, w_all, dts: np.ndarray, reorthonormalise: bool, Ts: float):
+    """The numpy path, batched over the runs (the reference): as :func:`_propagate_compiled`."""
+    B, N = state.B, dts.shape[0]
+    f_all = np.broadcast_to(f_all - state.bias_a_mps2[:, None, :], (B, N, 3))
+    w_all = np.broadcast_to(w_all - state.bias_g_radps[:, None, :], (B, N, 3))
+    lat, lon, h, v, C = state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn
+    f_sum_n = np.zeros((B, 3))
+    for k in np.flatnonzero(dts > 0.0):
+        dt = float(dts[k])
+        lat, lon, h, v, C, f_n = _step(lat, lon, h, v, C, f_all[:, k], w_all[:, k], dt)
+        f_sum_n += f_n * dt
+    if reorthonormalise:
+        C = orthonormalize(C)
+    pos = np.clip(dts, 0.0, None)
+    f_mean_b = np.einsum("k,bki->bi", pos, f_all) / Ts
+    w_mean_b = np.einsum("k,bki->bi", pos, w_all) / Ts
+    return lat, lon, h, v, C, f_sum_n / Ts, f_mean_b, w_mean_b
+
+
 def propagate_block(
     state: InsState, t_imu_s, f_b_mps2, w_b_radps, t_end_s: float | None = None, reorthonormalise: bool = True
 ):
@@ -443,55 +495,24 @@ def propagate_block(
     t = np.asarray(t_imu_s, dtype=float)
     f_all = np.asarray(f_b_mps2, dtype=float)
     w_all = np.asarray(w_b_radps, dtype=float)
-    N = t.shape[0]
-    B = state.B
     if f_all.ndim == 2:
         f_all = f_all[None]
         w_all = w_all[None]
     t_stop = float(t[-1]) if t_end_s is None else float(t_end_s)
-    starts = np.concatenate([[state.t_s], np.maximum(t[1:], state.t_s)])
-    ends = np.minimum(np.concatenate([t[1:], [t_stop]]), t_stop)
-    dts = ends - starts
+    dts = _holding_times(t, state.t_s, t_stop)
     T = float(dts[dts > 0.0].sum())
     Ts = T if T > 0 else 1.0
     kernel = _MECHANISE.get()
-    if kernel is not None:  # compiled, one run at a time (navlab.jit)
-        lat, lon, h = (np.array(a, dtype=float, order="C") for a in (state.lat_rad, state.lon_rad, state.h_m))
-        v, C = np.array(state.v_enu_mps, dtype=float, order="C"), np.array(state.C_bn, dtype=float, order="C")
-        sums = np.zeros((B, 3, 3))  # Σ f^n dt, Σ f^b dt, Σ ω^b dt
-        c = carray
-        kernel(
-            lat,
-            lon,
-            h,
-            v,
-            C,
-            c(f_all),
-            c(w_all),
-            c(state.bias_a_mps2),
-            c(state.bias_g_radps),
-            c(dts),
-            reorthonormalise,
-            sums,
+    if kernel is not None:
+        lat, lon, h, v, C, f_sum_n, f_mean_b, w_mean_b = _propagate_compiled(
+            kernel, state, f_all, w_all, dts, reorthonormalise, Ts
         )
-        f_sum_n, f_mean_b, w_mean_b = sums[:, 0] / Ts, sums[:, 1] / Ts, sums[:, 2] / Ts
-    else:  # numpy, batched over the runs: the reference
-        f_all = np.broadcast_to(f_all - state.bias_a_mps2[:, None, :], (B, N, 3))
-        w_all = np.broadcast_to(w_all - state.bias_g_radps[:, None, :], (B, N, 3))
-        lat, lon, h, v, C = state.lat_rad, state.lon_rad, state.h_m, state.v_enu_mps, state.C_bn
-        f_sum_n = np.zeros((B, 3))
-        for k in np.flatnonzero(dts > 0.0):
-            dt = float(dts[k])
-            lat, lon, h, v, C, f_n = _step(lat, lon, h, v, C, f_all[:, k], w_all[:, k], dt)
-            f_sum_n += f_n * dt
-        if reorthonormalise:
-            C = orthonormalize(C)
-        pos = np.clip(dts, 0.0, None)
-        f_sum_n = f_sum_n / Ts
-        f_mean_b = np.einsum("k,bki->bi", pos, f_all) / Ts
-        w_mean_b = np.einsum("k,bki->bi", pos, w_all) / Ts
+    else:
+        lat, lon, h, v, C, f_sum_n, f_mean_b, w_mean_b = _propagate_numpy(
+            state, f_all, w_all, dts, reorthonormalise, Ts
+        )
     new = replace(state, lat_rad=lat, lon_rad=lon, h_m=h, v_enu_mps=v, C_bn=C, t_s=t_stop)
-    return new, ImuBlock(T, N, f_mean_b, w_mean_b, f_sum_n)
+    return new, ImuBlock(T, t.shape[0], f_mean_b, w_mean_b, f_sum_n)
 
 
 def apply_correction(state: InsState, dx, bias_feedback: bool = True) -> InsState:
@@ -538,6 +559,84 @@ def apply_correction(state: InsState, dx, bias_feedback: bool = True) -> InsStat
     )
 
 
+def _error_model_inputs(lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn):
+    """The inputs of :func:`error_model_FG` as float arrays broadcast to one batch size B."""
+    lat = np.atleast_1d(np.asarray(lat_rad, dtype=float))
+    h = np.broadcast_to(np.asarray(h_m, dtype=float), lat.shape)
+    v = np.asarray(v_enu_mps, dtype=float).reshape(-1, 3)
+    fn = np.asarray(f_n_mps2, dtype=float).reshape(-1, 3)
+    C = np.asarray(C_bn, dtype=float).reshape(-1, 3, 3)
+    B = max(lat.shape[0], v.shape[0], fn.shape[0], C.shape[0])
+    lat, h = np.broadcast_to(lat, (B,)), np.broadcast_to(h, (B,))
+    v, fn, C = np.broadcast_to(v, (B, 3)), np.broadcast_to(fn, (B, 3)), np.broadcast_to(C, (B, 3, 3))
+    return lat, h, v, fn, C
+
+
+def _attitude_velocity_blocks(lat, h, v, fn):
+    """The §8.0 blocks of the attitude and velocity errors, against position in radians:
+    (Maa, Mav, Map, Mva, Mvv, Mvp), each (B, 3, 3).
+    """
+    B = lat.shape[0]
+    sL, cL, tL = np.sin(lat), np.cos(lat), np.tan(lat)
+    R_Mh, R_Nh = radii(lat, h)
+    wie = 7.2921151467e-5
+    vE, vN = v[:, 0], v[:, 1]
+    w_ie = earth_rate_enu(lat)
+    w_en = transport_rate_enu(lat, h, v)
+    w_in = w_ie + w_en
+    N1 = np.zeros((B, 3, 3))
+    N1[:, 1, 0] = -wie * sL
+    N1[:, 2, 0] = wie * cL
+    N2 = np.zeros((B, 3, 3))
+    N2[:, 0, 2] = vN / R_Mh**2
+    N2[:, 1, 2] = -vE / R_Nh**2
+    N2[:, 2, 0] = vE / (cL**2 * R_Nh)
+    N2[:, 2, 2] = -vE * tL / R_Nh**2
+    Mav = np.zeros((B, 3, 3))
+    Mav[:, 0, 1] = -1.0 / R_Mh
+    Mav[:, 1, 0] = 1.0 / R_Nh
+    Mav[:, 2, 0] = tL / R_Nh
+    Maa = -skew(w_in)
+    Map = N1 + N2
+    Mva = skew(fn)
+    Mvv = skew(v) @ Mav - skew(2.0 * w_ie + w_en)
+    Mvp = skew(v) @ (2.0 * N1 + N2)
+    return Maa, Mav, Map, Mva, Mvv, Mvp
+
+
+def _position_blocks(lat, h, v):
+    """The §8.0 blocks of the position errors and the radians-to-metres scaling:
+    (Mpv, Mpp, D, D⁻¹), each (B, 3, 3).
+    """
+    B = lat.shape[0]
+    cL, tL = np.cos(lat), np.tan(lat)
+    R_Mh, R_Nh = radii(lat, h)
+    vE, vN = v[:, 0], v[:, 1]
+    Mpv = np.zeros((B, 3, 3))
+    Mpv[:, 0, 1] = 1.0 / R_Mh
+    Mpv[:, 1, 0] = 1.0 / (cL * R_Nh)
+    Mpv[:, 2, 2] = 1.0
+    Mpp = np.zeros((B, 3, 3))
+    Mpp[:, 0, 2] = -vN / R_Mh**2
+    Mpp[:, 1, 0] = vE * tL / (cL * R_Nh)
+    Mpp[:, 1, 2] = -vE / (cL * R_Nh**2)
+    D = np.zeros((B, 3, 3))
+    D[:, 0, 0], D[:, 1, 1], D[:, 2, 2] = R_Mh, R_Nh * cL, 1.0
+    Dinv = np.zeros((B, 3, 3))
+    Dinv[:, 0, 0], Dinv[:, 1, 1], Dinv[:, 2, 2] = 1.0 / R_Mh, 1.0 / (R_Nh * cL), 1.0
+    return Mpv, Mpp, D, Dinv
+
+
+def _noise_input(C) -> np.ndarray:
+    """G (B, 15, 12): gyro and accelerometer white noise through C, the bias driving noises."""
+    G = np.zeros((C.shape[0], 15, 12))
+    G[:, 0:3, 0:3] = -C
+    G[:, 3:6, 3:6] = C
+    G[:, 9:12, 6:9] = np.eye(3)
+    G[:, 12:15, 9:12] = np.eye(3)
+    return G
+
+
 def error_model_FG(
     lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn, gravity_gradient: bool = False, tau_g_s=None, tau_a_s=None
 ):
@@ -566,50 +665,10 @@ def error_model_FG(
     F : numpy.ndarray (B, 15, 15)
     G : numpy.ndarray (B, 15, 12)
     """
-    lat = np.atleast_1d(np.asarray(lat_rad, dtype=float))
-    h = np.broadcast_to(np.asarray(h_m, dtype=float), lat.shape)
-    v = np.asarray(v_enu_mps, dtype=float).reshape(-1, 3)
-    fn = np.asarray(f_n_mps2, dtype=float).reshape(-1, 3)
-    C = np.asarray(C_bn, dtype=float).reshape(-1, 3, 3)
-    B = max(lat.shape[0], v.shape[0], fn.shape[0], C.shape[0])
-    lat, h = np.broadcast_to(lat, (B,)), np.broadcast_to(h, (B,))
-    v, fn, C = np.broadcast_to(v, (B, 3)), np.broadcast_to(fn, (B, 3)), np.broadcast_to(C, (B, 3, 3))
-    sL, cL, tL = np.sin(lat), np.cos(lat), np.tan(lat)
-    R_Mh, R_Nh = radii(lat, h)
-    wie = 7.2921151467e-5
-    vE, vN = v[:, 0], v[:, 1]
-    w_ie = earth_rate_enu(lat)
-    w_en = transport_rate_enu(lat, h, v)
-    w_in = w_ie + w_en
-    N1 = np.zeros((B, 3, 3))
-    N1[:, 1, 0] = -wie * sL
-    N1[:, 2, 0] = wie * cL
-    N2 = np.zeros((B, 3, 3))
-    N2[:, 0, 2] = vN / R_Mh**2
-    N2[:, 1, 2] = -vE / R_Nh**2
-    N2[:, 2, 0] = vE / (cL**2 * R_Nh)
-    N2[:, 2, 2] = -vE * tL / R_Nh**2
-    Mav = np.zeros((B, 3, 3))
-    Mav[:, 0, 1] = -1.0 / R_Mh
-    Mav[:, 1, 0] = 1.0 / R_Nh
-    Mav[:, 2, 0] = tL / R_Nh
-    Maa = -skew(w_in)
-    Map = N1 + N2
-    Mva = skew(fn)
-    Mvv = skew(v) @ Mav - skew(2.0 * w_ie + w_en)
-    Mvp = skew(v) @ (2.0 * N1 + N2)
-    Mpv = np.zeros((B, 3, 3))
-    Mpv[:, 0, 1] = 1.0 / R_Mh
-    Mpv[:, 1, 0] = 1.0 / (cL * R_Nh)
-    Mpv[:, 2, 2] = 1.0
-    Mpp = np.zeros((B, 3, 3))
-    Mpp[:, 0, 2] = -vN / R_Mh**2
-    Mpp[:, 1, 0] = vE * tL / (cL * R_Nh)
-    Mpp[:, 1, 2] = -vE / (cL * R_Nh**2)
-    D = np.zeros((B, 3, 3))
-    D[:, 0, 0], D[:, 1, 1], D[:, 2, 2] = R_Mh, R_Nh * cL, 1.0
-    Dinv = np.zeros((B, 3, 3))
-    Dinv[:, 0, 0], Dinv[:, 1, 1], Dinv[:, 2, 2] = 1.0 / R_Mh, 1.0 / (R_Nh * cL), 1.0
+    lat, h, v, fn, C = _error_model_inputs(lat_rad, h_m, v_enu_mps, f_n_mps2, C_bn)
+    B = lat.shape[0]
+    Maa, Mav, Map, Mva, Mvv, Mvp = _attitude_velocity_blocks(lat, h, v, fn)
+    Mpv, Mpp, D, Dinv = _position_blocks(lat, h, v)
     F = np.zeros((B, 15, 15))
     F[:, 0:3, 0:3] = Maa
     F[:, 0:3, 3:6] = Mav
@@ -622,17 +681,13 @@ def error_model_FG(
     F[:, 6:9, 3:6] = D @ Mpv
     F[:, 6:9, 6:9] = D @ Mpp @ Dinv
     if gravity_gradient:
+        R_Mh, R_Nh = radii(lat, h)
         F[:, 5, 8] += 2.0 * normal_gravity(lat, h) / np.sqrt(R_Mh * R_Nh)
     if tau_g_s is not None:
         F[:, 9:12, 9:12] = -np.eye(3) / float(tau_g_s)
     if tau_a_s is not None:
         F[:, 12:15, 12:15] = -np.eye(3) / float(tau_a_s)
-    G = np.zeros((B, 15, 12))
-    G[:, 0:3, 0:3] = -C
-    G[:, 3:6, 3:6] = C
-    G[:, 9:12, 6:9] = np.eye(3)
-    G[:, 12:15, 9:12] = np.eye(3)
-    return F, G
+    return F, _noise_input(C)
 
 
 def discretise(F, G, Qc, T_s):

@@ -51,7 +51,7 @@ import numpy as np
 
 from navlab.errors import NavlabError
 from navlab.linalg import Array
-from navlab.metrics import QuantileMetric
+from navlab.metrics import BOUND_SIGMAS, QuantileMetric
 from navlab.noise import OutlierModel, Schedule
 from navlab.params import MAX_EPOCHS, param
 from navlab.scenarios.base import (
@@ -282,6 +282,144 @@ def check_receiver_sigmas(gnss, sigma_m: float) -> None:
             )
 
 
+def _imu_noise(p: Drive0708Params):
+    """The IMU noise densities of the parameters."""
+    from navlab.ins.lc import ImuNoise
+
+    return ImuNoise(
+        float(p.arw_rad_rts),
+        float(p.vrw_mps_rts),
+        float(p.gyro_bias_rw),
+        float(p.accel_bias_rw),
+        float(p.vib_gyro_factor),
+    )
+
+
+def _receiver_sigma(own: bool, p: Drive0708Params, rec, setup) -> Array | None:
+    """(K+1, 3) per-epoch σ of the fixes from the receiver (with the synthetic σ on top when
+    ``add_noise``), or None: own recordings with receiver σ's that are used only.
+    """
+    if not (own and p.use_receiver_sigmas and setup.gnss_sigma is not None):
+        return None
+    check_receiver_sigmas(rec.gnss, p.sigma_m)
+    return setup.gnss_sigma if not p.add_noise else np.hypot(setup.gnss_sigma, p.sigma_m)
+
+
+def _gnss_aiding(own, p, setup, sigma, rx_sigma, std, noise, var, mask) -> tuple[Array, Array, Array]:
+    """The aiding positions, their true variances and the R(t) schedule: (z, var, std2).
+
+    An own recording: the recorded fixes, synthetic noise and outliers only when asked for; rtkx:
+    the RTK truth plus the schedule's noise (the recording has no second receiver).
+    """
+    K = setup.K
+    if own:
+        # the recorded fixes as recorded; synthetic noise and outliers only when asked for
+        inject = np.where(mask, noise, 0.0) + (np.where(mask, 0.0, noise) if p.add_noise else 0.0)
+        z = setup.gnss_pos[None] + inject
+        clean_var = (rx_sigma if rx_sigma is not None else sigma) ** 2
+        var = np.where(mask, var + (0.0 if p.add_noise else clean_var), np.broadcast_to(clean_var, var.shape))
+        return z, var, np.broadcast_to(clean_var, (K + 1, 3)).copy()
+    return setup.p_true[None] + (noise if p.add_noise else 0.0), var, std**2
+
+
+def _cut_outage(z: Array, setup, p: Drive0708Params) -> None:
+    """Remove the fixes of epoch 0 and of the GNSS outage (``outage_start_s``, s after epoch 0) from ``z``."""
+    z[:, 0] = np.nan
+    if p.outage_len_s > 0 and p.outage_start_s > 0:
+        dt = setup.t - setup.t[0]
+        z[:, (dt >= p.outage_start_s) & (dt < p.outage_start_s + p.outage_len_s)] = np.nan
+
+
+def _with_nhc(z, var, bias, mask, std2, nhc_sigma_mps: float, B: int):
+    """The two NHC pseudo-measurements (lateral and vertical vehicle velocity 0, real noise only)
+    appended as channels for ``B`` runs: (z, var, bias, mask, std2).
+    """
+    K1 = z.shape[1]
+    nh = np.full((B, K1, 2), nhc_sigma_mps**2)
+    z = np.concatenate([z, np.zeros((B, K1, 2))], axis=2)
+    z[:, 0] = np.nan
+    var = np.concatenate([var, nh], axis=2)
+    bias = np.concatenate([bias, np.zeros((B, K1, 2))], axis=2)
+    mask = np.concatenate([mask, np.zeros((B, K1, 2), bool)], axis=2)
+    std2 = np.concatenate([std2, nh[0]], axis=1)
+    return z, var, bias, mask, std2
+
+
+def _true_states(setup, ref, B: int) -> tuple[Array, Array]:
+    """(B, K+1, 15) truth of the IMU point (attitude 0 against the reference), and the lever arm
+    N, E, U per epoch (K+1, 3) from the antenna to it.
+    """
+    K = setup.K
+    # truth of the IMU point: the antenna truth minus the lever arm (reference attitude)
+    lever_neu = (ref.C_bn[0] @ (setup.C_bv.T @ setup.lever_arm_v))[:, [1, 0, 2]]
+    p_true = fill_rows(setup.p_true) - lever_neu
+    v_true = fill_rows(setup.v_true)
+    x_true = np.concatenate([np.zeros((K + 1, 3)), v_true, p_true, ref.bias_g[0], ref.bias_a[0]], axis=1)
+    return np.broadcast_to(x_true, (B, K + 1, 15)).copy(), lever_neu
+
+
+def _initial_states(setup, fixes: Array, lever_neu: Array, B: int) -> Array:
+    """(B, 15) x0: the setup's, each run of an in-motion start at its own first fix."""
+    x0 = np.broadcast_to(setup.x0, (B, 15)).copy()
+    if setup.start == "moving":  # each run starts at its own first fix (the filters' honest start)
+        first = fixes[:, 0] - lever_neu[0]
+        ok0 = np.isfinite(first).all(axis=1)
+        x0[ok0, 6:9] = first[ok0]
+    return x0
+
+
+def _eval_window(setup, eval_from_s: float) -> tuple[Array, bool]:
+    """The epochs judged (from epoch 1 and ``eval_from_s`` on, with a truth) and whether there is a truth."""
+    truth_ok = np.isfinite(setup.p_true).all(axis=1)
+    has_truth = bool(truth_ok.mean() > 0.5)
+    window = (np.arange(setup.K + 1) >= 1) & (setup.t >= eval_from_s - 1e-9)
+    if has_truth:
+        window &= truth_ok
+    if not window.any():
+        raise NavlabError(
+            f"eval_from_s = {eval_from_s:g} s leaves no epoch to judge (the epochs run from "
+            f"{setup.t[0]:.1f} to {setup.t[-1]:.1f} s on the recording's time base)"
+        )
+    return window, has_truth
+
+
+def _divergence_bound(model) -> float | None:
+    """Whitened channels: the error bound of the divergence rule in metres (else None: the default)."""
+    if not model.whitened:
+        return None
+    return BOUND_SIGMAS * float(np.median(np.max(model.scale[1:, :3], axis=1)))
+
+
+def _drive_groups() -> dict[str, MetricGroup]:
+    """Position (3-D, horizontal), velocity and attitude (deg, against the reference)."""
+    return {
+        "pos": MetricGroup((6, 7, 8), "m", "position (3-D)"),
+        "hpos": MetricGroup((6, 7), "m", "horizontal position"),
+        "vel": MetricGroup((3, 4, 5), "m/s", "velocity"),
+        "att": MetricGroup((0, 1, 2), "deg", "attitude vs reference", float(np.degrees(1.0))),
+    }
+
+
+def _drive_extras(rec, setup, rx_sigma: Array | None, sigma: Array) -> dict:
+    """What the pages show besides the filters: source, origin, tracks, σ of the fixes, times."""
+    return {
+        "metrics": REAL_METRICS,
+        "source": rec.source,
+        "recording": rec.name,
+        "origin_deg": (
+            float(np.degrees(setup.lat0_rad)),
+            float(np.degrees(setup.lon0_rad)),
+            setup.h0_m,
+        ),
+        "xy_idx": (7, 6),  # east, north columns of the state for plots
+        "gnss_track": setup.gnss_pos,
+        "p_true_antenna": setup.p_true,
+        "fix_sigma_m": (rx_sigma if rx_sigma is not None else np.broadcast_to(sigma, (setup.K + 1, 3))),
+        "t_abs_s": setup.t,
+        "start": setup.start,
+    }
+
+
 @register_scenario
 class Drive0708(Scenario):
     key = "drive0708"
@@ -321,93 +459,37 @@ class Drive0708(Scenario):
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
     ) -> ScenarioData:
         from navlab.data.checks import aiding_note, check_drive
-        from navlab.ins.lc import STATE_NAMES, ImuNoise, InsGnssModel
+        from navlab.ins.lc import STATE_NAMES, InsGnssModel
 
         p = self.params
         rec, setup, ref = self._setup()
         K = setup.K
         sigma = np.full(3, p.sigma_m)
-        noise = ImuNoise(
-            float(p.arw_rad_rts),
-            float(p.vrw_mps_rts),
-            float(p.gyro_bias_rw),
-            float(p.accel_bias_rw),
-            float(p.vib_gyro_factor),
-        )
-        rx_sigma = None
-        if self.own and p.use_receiver_sigmas and setup.gnss_sigma is not None:
-            check_receiver_sigmas(rec.gnss, p.sigma_m)
-            rx_sigma = setup.gnss_sigma if not p.add_noise else np.hypot(setup.gnss_sigma, p.sigma_m)
+        rx_sigma = _receiver_sigma(self.own, p, rec, setup)
         model = InsGnssModel(
-            setup, ref, sigma, noise=noise, nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma
+            setup, ref, sigma, noise=_imu_noise(p), nhc_sigma_mps=p.nhc_sigma_mps, gnss_sigma_k=rx_sigma
         )
         streams = run_streams(seed, runs)
         B = len(streams)
         std = schedule.std(sigma, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
-        if self.own:
-            # the recorded fixes as recorded; synthetic noise and outliers only when asked for
-            inject = np.where(mask, noise, 0.0) + (np.where(mask, 0.0, noise) if p.add_noise else 0.0)
-            z = setup.gnss_pos[None] + inject
-            clean_var = (rx_sigma if rx_sigma is not None else sigma) ** 2
-            var = np.where(
-                mask, var + (0.0 if p.add_noise else clean_var), np.broadcast_to(clean_var, var.shape)
-            )
-            std2 = np.broadcast_to(clean_var, (K + 1, 3)).copy()
-        else:  # rtkx: the aiding is made from the RTK truth (the recording has no second receiver)
-            z = setup.p_true[None] + (noise if p.add_noise else 0.0)
-            std2 = std**2
+        z, var, std2 = _gnss_aiding(self.own, p, setup, sigma, rx_sigma, std, noise, var, mask)
         fixes = z.copy()  # the aiding positions the filters are fed (N, E, U m), epoch 0 included
-        z[:, 0] = np.nan
-        if p.outage_len_s > 0 and p.outage_start_s > 0:
-            dt = setup.t - setup.t[0]
-            z[:, (dt >= p.outage_start_s) & (dt < p.outage_start_s + p.outage_len_s)] = np.nan
+        _cut_outage(z, setup, p)
         channels = ("p_N", "p_E", "p_U")
         if model.nhc:  # pseudo-measurements 0 = lateral / vertical vehicle velocity: real noise only
-            nh = np.full((B, K + 1, 2), p.nhc_sigma_mps**2)
-            z = np.concatenate([z, np.zeros((B, K + 1, 2))], axis=2)
-            z[:, 0] = np.nan
-            var = np.concatenate([var, nh], axis=2)
-            bias = np.concatenate([bias, np.zeros((B, K + 1, 2))], axis=2)
-            mask = np.concatenate([mask, np.zeros((B, K + 1, 2), bool)], axis=2)
-            std2 = np.concatenate([std2, nh[0]], axis=1)
+            z, var, bias, mask, std2 = _with_nhc(z, var, bias, mask, std2, p.nhc_sigma_mps, B)
             channels += ("v_right", "v_up")
         if model.whitened:  # per-epoch receiver σ: channels in units of σ_k (R0 = I)
             z = model.whiten(z)
             var = var / model.scale[None] ** 2
             bias = bias / model.scale[None]
             std2 = std2 / model.scale**2
-        truth_ok = np.isfinite(setup.p_true).all(axis=1)
-        has_truth = bool(truth_ok.mean() > 0.5)
-        # truth of the IMU point: the antenna truth minus the lever arm (reference attitude)
-        lever_neu = (ref.C_bn[0] @ (setup.C_bv.T @ setup.lever_arm_v))[:, [1, 0, 2]]
-        p_true = fill_rows(setup.p_true) - lever_neu
-        v_true = fill_rows(setup.v_true)
-        x_true = np.concatenate([np.zeros((K + 1, 3)), v_true, p_true, ref.bias_g[0], ref.bias_a[0]], axis=1)
-        x_true = np.broadcast_to(x_true, (B, K + 1, 15)).copy()
-        x0 = np.broadcast_to(setup.x0, (B, 15)).copy()
-        if setup.start == "moving":  # each run starts at its own first fix (the filters' honest start)
-            first = fixes[:, 0] - lever_neu[0]
-            ok0 = np.isfinite(first).all(axis=1)
-            x0[ok0, 6:9] = first[ok0]
-        window = (np.arange(K + 1) >= 1) & (setup.t >= p.eval_from_s - 1e-9)
-        if has_truth:
-            window &= truth_ok
-        if not window.any():
-            from navlab.errors import NavlabError
-
-            raise NavlabError(
-                f"eval_from_s = {p.eval_from_s:g} s leaves no epoch to judge (the epochs run from "
-                f"{setup.t[0]:.1f} to {setup.t[-1]:.1f} s on the recording's time base)"
-            )
-        bound = None  # whitened channels: the error bound of the divergence rule in metres
-        if model.whitened:
-            from navlab.metrics import BOUND_SIGMAS
-
-            bound = BOUND_SIGMAS * float(np.median(np.max(model.scale[1:, :3], axis=1)))
+        x_true, lever_neu = _true_states(setup, ref, B)
+        window, has_truth = _eval_window(setup, p.eval_from_s)
         data = ScenarioData(
             scenario=self.key,
-            divergence_bound=bound,
+            divergence_bound=_divergence_bound(model),
             t=setup.t - setup.t[0],
             model=model,
             x_true=x_true,
@@ -416,37 +498,17 @@ class Drive0708(Scenario):
             R_schedule=std2,
             outlier_mask=mask,
             bias=bias,
-            x0=x0,
+            x0=_initial_states(setup, fixes, lever_neu, B),
             P0=setup.P0,
             runs=np.asarray(runs),
             state_names=STATE_NAMES,
             channel_names=channels,
             channel_units=(("σ",) * 3 if model.whitened else ("m",) * 3)
             + ("m/s", "m/s")[: len(channels) - 3],
-            groups={
-                "pos": MetricGroup((6, 7, 8), "m", "position (3-D)"),
-                "hpos": MetricGroup((6, 7), "m", "horizontal position"),
-                "vel": MetricGroup((3, 4, 5), "m/s", "velocity"),
-                "att": MetricGroup((0, 1, 2), "deg", "attitude vs reference", float(np.degrees(1.0))),
-            },
+            groups=_drive_groups(),
             window=window,
             has_truth=has_truth,
-            extras={
-                "metrics": REAL_METRICS,
-                "source": rec.source,
-                "recording": rec.name,
-                "origin_deg": (
-                    float(np.degrees(setup.lat0_rad)),
-                    float(np.degrees(setup.lon0_rad)),
-                    setup.h0_m,
-                ),
-                "xy_idx": (7, 6),  # east, north columns of the state for plots
-                "gnss_track": setup.gnss_pos,
-                "p_true_antenna": setup.p_true,
-                "fix_sigma_m": (rx_sigma if rx_sigma is not None else np.broadcast_to(sigma, (K + 1, 3))),
-                "t_abs_s": setup.t,
-                "start": setup.start,
-            },
+            extras=_drive_extras(rec, setup, rx_sigma, sigma),
         )
         data.extras["notes"] = [aiding_note(self, setup, rx_sigma), *setup.notes]
         data.extras["findings"] = check_drive(rec, setup) if self.own else []

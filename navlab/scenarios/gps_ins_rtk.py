@@ -321,6 +321,102 @@ class GpsInsRtkParams:
     tau_a_s: float = param(60.0, lo=1.0, hi=1e6, help="accelerometer bias correlation time (s)")
 
 
+def _state_anomaly(p: GpsInsRtkParams, t: Array, streams, B: int) -> tuple[Array, Array, Array]:
+    """The anomaly's epochs and its δv_D, δp_D per run and epoch: (epochs (K+1,), dv, dp (B, K+1)).
+
+    The anomaly (§8.3): N(0, anomaly_var) white noise n_i on the body-z specific force at 200 Hz
+    over each anomaly second, integrated into δv_D and δp_D: Δv = T Σ n_i,
+    Δp = T Σ n_i (1 − t_i + T/2). Both are linear in the n_i, so they are drawn exactly as the
+    2-D Gaussian with the covariance of those sums (the same distribution as summing 200 draws,
+    100× fewer draws).
+    """
+    dt = 1.0 / IMU_RATE
+    anom_ep = (t > p.anomaly_start) & (t <= p.anomaly_stop) & p.state_anomaly & (t > 0)
+    n_an = int(anom_ep.sum())
+    ti = np.arange(1, IMU_RATE + 1) * dt
+    dv_an = np.zeros((B, len(t)))
+    dp_an = np.zeros((B, len(t)))
+    if n_an:
+        A = dt * np.stack([np.ones(IMU_RATE), 1.0 - ti + dt / 2])  # [Δv; Δp] = A n
+        L_an = np.linalg.cholesky(p.anomaly_var * A @ A.T)
+        dvp = streams.aux.standard_normal((n_an, 2)) @ L_an.T
+        dv_an[:, anom_ep], dp_an[:, anom_ep] = dvp[..., 0], dvp[..., 1]
+    return anom_ep, dv_an, dp_an
+
+
+def _anomaly_Q(anomaly_var: float, anom_ep: Array) -> Array:
+    """(K+1, 15, 15) the anomaly's process noise on δp_D, δv_D over its epochs (for the oracle)."""
+    q = anomaly_var * (1.0 / IMU_RATE)
+    Q_extra = np.zeros((len(anom_ep), 15, 15))
+    Q_extra[np.ix_(anom_ep, [2, 5], [2, 5])] = q * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
+    return Q_extra
+
+
+def _true_errors(tr: Trajectory, p0_std: Array, streams, dv_an: Array, dp_an: Array) -> Array:
+    """(B, K+1, 15) the true error state: x_k = Φ_k x_{k−1} + w_k, the anomaly added at its epochs."""
+    K = len(tr.t) - 1
+    x0_true = streams.truth.standard_normal(15) * p0_std
+    wn = streams.truth.standard_normal((K, 15))
+    anomaly = np.zeros((dv_an.shape[0], K, 15))  # added to δp_D, δv_D at its epoch, then propagated by Φ
+    anomaly[..., 2], anomaly[..., 5] = dp_an[:, 1:], dv_an[:, 1:]
+    return propagate(x0_true, tr.Phi, wn, tr.Lq, anomaly)
+
+
+def _imu_increments(
+    tr: Trajectory, x: Array, streams, arw: float, vrw: float, dv_an: Array
+) -> tuple[Array, Array]:
+    """IMU increments with the truth's sensor errors, white noise and the anomaly (NN inputs): (Δθ, Δv)."""
+    B, K1 = x.shape[:2]
+    imu_n = streams.aux.standard_normal((K1, 6))
+    imu_dth = (
+        tr.dtheta + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 9:12]], axis=1) + arw * imu_n[..., :3]
+    )
+    imu_dv = tr.dvel + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 12:15]], axis=1)
+    imu_dv = imu_dv + vrw * imu_n[..., 3:]
+    imu_dv[:, :, 2] += dv_an
+    imu_dth[:, 0] = 0.0
+    imu_dv[:, 0] = 0.0
+    return imu_dth, imu_dv
+
+
+def _gross_errors(p: GpsInsRtkParams, streams, B: int, K: int) -> tuple[Array, Array, Array, Array]:
+    """S2's gross errors on latitude and east velocity: (errors, variances, mask, means), (B, K+1, 6)."""
+    gross = np.zeros((B, K + 1, 6))
+    gvar = np.zeros((B, K + 1, 6))
+    gmask = np.zeros((B, K + 1, 6), dtype=bool)
+    gmean = np.zeros((B, K + 1, 6))
+    if p.gross_errors:
+        ep_lat = np.arange(p.gross_start, min(p.gross_stop, K) + 1, p.gross_every)
+        ep_ve = ep_lat + p.gross_vel_offset
+        ep_ve = ep_ve[ep_ve <= K]
+        gn = streams.aux.standard_normal((2, K + 1))
+        for ch, eps, mu, sd, row in (
+            (0, ep_lat, p.gross_lat_m, p.gross_lat_std_m, 0),
+            (4, ep_ve, p.gross_ve_mps, p.gross_ve_std_mps, 1),
+        ):
+            gross[:, eps, ch] = mu + sd * gn[:, row, eps]
+            gvar[:, eps, ch] = sd**2
+            gmean[:, eps, ch] = mu
+            gmask[:, eps, ch] = True
+    return gross, gvar, gmask, gmean
+
+
+def _rtk_groups() -> dict[str, MetricGroup]:
+    """Position, velocity, attitude (arcmin) and each of their axes."""
+    return {
+        "pos": MetricGroup((0, 1, 2), "m", "position"),
+        "vel": MetricGroup((3, 4, 5), "m/s", "velocity"),
+        "att": MetricGroup((6, 7, 8), "arcmin", "attitude (φ_N, φ_E, φ_D)", ARCMIN),
+        "pos_N": MetricGroup((0,), "m", "north (latitude) position"),
+        "pos_E": MetricGroup((1,), "m", "east position"),
+        "pos_D": MetricGroup((2,), "m", "down position"),
+        "vel_N": MetricGroup((3,), "m/s", "north velocity"),
+        "vel_E": MetricGroup((4,), "m/s", "east velocity"),
+        "vel_D": MetricGroup((5,), "m/s", "down velocity"),
+        "heading": MetricGroup((8,), "arcmin", "heading (φ_D)", ARCMIN),
+    }
+
+
 @register_scenario
 class GpsInsRtk(Scenario):
     key = "gps-ins-rtk"
@@ -364,71 +460,18 @@ class GpsInsRtk(Scenario):
         p0_std = np.array(
             [1.0, 1.0, 2.0] + [0.5] * 3 + [1 * DEG, 1 * DEG, 3 * DEG] + [sig_g] * 3 + [sig_a] * 3
         )
-        P0 = np.diag(p0_std**2)
         H = np.hstack([np.eye(6), np.zeros((6, 9))])
-        R0 = np.diag(R_STD**2)
         streams = run_streams(seed, runs)
         B = len(streams)
         t = tr.t
-
-        # truth error state with the anomaly (§8.3): N(0, anomaly_var) white noise n_i on the body-z
-        # specific force at 200 Hz over each anomaly second, integrated into δv_D and δp_D:
-        # Δv = T Σ n_i, Δp = T Σ n_i (1 − t_i + T/2). Both are linear in the n_i, so they are drawn
-        # exactly as the 2-D Gaussian with the covariance of those sums (the same distribution as
-        # summing 200 draws, 100× fewer draws).
-        dt = 1.0 / IMU_RATE
-        anom_ep = (t > p.anomaly_start) & (t <= p.anomaly_stop) & p.state_anomaly & (t > 0)
-        n_an = int(anom_ep.sum())
-        ti = np.arange(1, IMU_RATE + 1) * dt
-        dv_an = np.zeros((B, K + 1))
-        dp_an = np.zeros((B, K + 1))
-        if n_an:
-            A = dt * np.stack([np.ones(IMU_RATE), 1.0 - ti + dt / 2])  # [Δv; Δp] = A n
-            L_an = np.linalg.cholesky(p.anomaly_var * A @ A.T)
-            dvp = streams.aux.standard_normal((n_an, 2)) @ L_an.T
-            dv_an[:, anom_ep], dp_an[:, anom_ep] = dvp[..., 0], dvp[..., 1]
-        x0_true = streams.truth.standard_normal(15) * p0_std
-        wn = streams.truth.standard_normal((K, 15))
-        anomaly = np.zeros((B, K, 15))  # added to δp_D, δv_D at its epoch, then propagated by Φ
-        anomaly[..., 2], anomaly[..., 5] = dp_an[:, 1:], dv_an[:, 1:]
-        x = propagate(x0_true, tr.Phi, wn, tr.Lq, anomaly)
-        q = p.anomaly_var * dt
-        Q_extra = np.zeros((K + 1, 15, 15))
-        Q_extra[np.ix_(anom_ep, [2, 5], [2, 5])] = q * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]])
-
-        # IMU increments with the truth's sensor errors, white noise and the anomaly (NN inputs)
-        imu_n = streams.aux.standard_normal((K + 1, 6))
-        imu_dth = (
-            tr.dtheta + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 9:12]], axis=1) + arw * imu_n[..., :3]
-        )
-        imu_dv = tr.dvel + np.concatenate([np.zeros((B, 1, 3)), x[:, :-1, 12:15]], axis=1)
-        imu_dv = imu_dv + vrw * imu_n[..., 3:]
-        imu_dv[:, :, 2] += dv_an
-        imu_dth[:, 0] = 0.0
-        imu_dv[:, 0] = 0.0
-
+        anom_ep, dv_an, dp_an = _state_anomaly(p, t, streams, B)
+        x = _true_errors(tr, p0_std, streams, dv_an, dp_an)
+        imu_dth, imu_dv = _imu_increments(tr, x, streams, arw, vrw, dv_an)
         # GPS errors: schedule/outlier model, then S2's gross errors; z = H x − e
         std = schedule.std(R_STD, K)
         noise, var, bias, mask = draw_measurement_noise(streams, std, outliers)
-        gross = np.zeros((B, K + 1, 6))
-        gvar = np.zeros((B, K + 1, 6))
-        gmask = np.zeros((B, K + 1, 6), dtype=bool)
-        gmean = np.zeros((B, K + 1, 6))
-        if p.gross_errors:
-            ep_lat = np.arange(p.gross_start, min(p.gross_stop, K) + 1, p.gross_every)
-            ep_ve = ep_lat + p.gross_vel_offset
-            ep_ve = ep_ve[ep_ve <= K]
-            gn = streams.aux.standard_normal((2, K + 1))
-            for ch, eps, mu, sd, row in (
-                (0, ep_lat, p.gross_lat_m, p.gross_lat_std_m, 0),
-                (4, ep_ve, p.gross_ve_mps, p.gross_ve_std_mps, 1),
-            ):
-                gross[:, eps, ch] = mu + sd * gn[:, row, eps]
-                gvar[:, eps, ch] = sd**2
-                gmean[:, eps, ch] = mu
-                gmask[:, eps, ch] = True
-        e = noise + gross
-        z = np.einsum("ij,bkj->bki", H, x) - e
+        gross, gvar, gmask, gmean = _gross_errors(p, streams, B, K)
+        z = np.einsum("ij,bkj->bki", H, x) - (noise + gross)
         z[:, 0] = np.nan
         window = (t >= p.window_start) & (t <= p.window_stop) & (t > 0)
         if not window.any():
@@ -437,7 +480,7 @@ class GpsInsRtk(Scenario):
             tr.Phi,
             tr.Qd,
             H,
-            R0,
+            np.diag(R_STD**2),
             pos_ned=tr.pos_ned,
             vel_ned=tr.vel_ned,
             yaw=tr.yaw,
@@ -456,24 +499,13 @@ class GpsInsRtk(Scenario):
             outlier_mask=mask | gmask,
             bias=-(bias + gmean),
             x0=np.zeros((B, 15)),
-            P0=P0,
+            P0=np.diag(p0_std**2),
             runs=np.asarray(runs),
             state_names=STATE_NAMES,
             channel_names=CHANNELS,
             channel_units=("m", "m", "m", "m/s", "m/s", "m/s"),
-            groups={
-                "pos": MetricGroup((0, 1, 2), "m", "position"),
-                "vel": MetricGroup((3, 4, 5), "m/s", "velocity"),
-                "att": MetricGroup((6, 7, 8), "arcmin", "attitude (φ_N, φ_E, φ_D)", ARCMIN),
-                "pos_N": MetricGroup((0,), "m", "north (latitude) position"),
-                "pos_E": MetricGroup((1,), "m", "east position"),
-                "pos_D": MetricGroup((2,), "m", "down position"),
-                "vel_N": MetricGroup((3,), "m/s", "north velocity"),
-                "vel_E": MetricGroup((4,), "m/s", "east velocity"),
-                "vel_D": MetricGroup((5,), "m/s", "down velocity"),
-                "heading": MetricGroup((8,), "arcmin", "heading (φ_D)", ARCMIN),
-            },
+            groups=_rtk_groups(),
             window=window,
-            Q_extra=Q_extra,
+            Q_extra=_anomaly_Q(p.anomaly_var, anom_ep),
             extras={"gross_mask": gmask, "anomaly_epochs": anom_ep},
         )

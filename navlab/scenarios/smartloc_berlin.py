@@ -88,13 +88,14 @@ knowledge).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
 
 from navlab.data.loaders import SMARTLOC_DIR, SMARTLOC_SOURCE
+from navlab.errors import NavlabError
 from navlab.ins.earth import OMEGA_IE_RADPS, ecef_to_geodetic, rot_ecef_to_enu
 from navlab.linalg import Array
 from navlab.noise import OutlierModel, Schedule
@@ -541,6 +542,160 @@ def _truth_heading(enu: Array, t: Array) -> Array:
     return v[idx] / sp[idx, None]
 
 
+def _check_height(ep: PrEpochs, p: SmartlocParams) -> None:
+    """Refuse Berlin's map height (the default ``height_m``) for another recording."""
+    if ep.name != SMARTLOC_DIR and p.height_aiding != "off" and p.height_m == 75.0:
+        raise NavlabError(
+            f"height_m = {p.height_m:g} m is the map height of Berlin's Potsdamer Platz; for "
+            f"{ep.name} give your street's ellipsoidal antenna height (scenario.height_m) or set "
+            "scenario.height_aiding=off"
+        )
+
+
+def _with_elevations(ep: PrEpochs, notes: list[str]) -> PrEpochs:
+    """``ep`` with the elevations the file lacks computed from a first least-squares fix."""
+    if np.isfinite(ep.el_deg[np.isfinite(ep.rho)]).all():
+        return ep
+    r_rough, _ = robust_ls_fix(
+        ep.rho[0], ep.sat[0], np.ones(ep.rho.shape[1]), ep.sys_idx, n_sys=len(ep.clock_names)
+    )
+    el = np.where(np.isfinite(ep.el_deg), ep.el_deg, elevations_deg(ep.sat, r_rough))
+    notes.append("elevations computed from a first least-squares fix (the file has none)")
+    return replace(ep, el_deg=el)
+
+
+def _variance_model_used(ep: PrEpochs, p: SmartlocParams, notes: list[str]) -> str:
+    """The variance model asked for, or the one the file's columns allow (a note says so)."""
+    vm = p.variance_model
+    has_cn0 = np.isfinite(ep.cn0[np.isfinite(ep.rho)]).all()
+    if vm in ("cn0-elevation", "cn0") and not has_cn0:
+        vm = "file" if np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all() else "elevation"
+        notes.append(f"variance model '{p.variance_model}' needs C/N0, which the file lacks: '{vm}' used")
+    if vm == "file" and not np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all():
+        raise NavlabError(
+            "variance_model 'file' needs the var_m2 column; choose 'cn0-elevation' or 'elevation'"
+        )
+    return vm
+
+
+def _used_pseudoranges(ep: PrEpochs, p: SmartlocParams) -> Array:
+    """(K+1, m) the pseudoranges present and above the elevation and C/N0 masks."""
+    used = np.isfinite(ep.rho)
+    with np.errstate(invalid="ignore"):
+        used &= (ep.el_deg >= p.elevation_mask_deg) & ~(ep.cn0 < p.cn0_mask_dbhz)
+    return used
+
+
+def _first_fix(ep: PrEpochs, p: SmartlocParams, used: Array, sig: Array) -> tuple[Array, Array]:
+    """Robust least-squares fix at epoch 0 (with the map height unless height aiding is off): (r, clocks)."""
+    return robust_ls_fix(
+        np.where(used[0], ep.rho[0], np.nan),
+        ep.sat[0],
+        np.where(np.isfinite(sig[0]), sig[0], 1.0),
+        ep.sys_idx,
+        height=None if p.height_aiding == "off" else p.height_m,
+        sigma_height=p.sigma_height_m,
+        n_sys=len(ep.clock_names),
+    )
+
+
+def _pseudorange_model(ep: PrEpochs, p: SmartlocParams, sig: Array, r_fix: Array) -> PseudorangeModel:
+    """The pseudorange model with the scenario's noise and height aiding, about the origin ``r_fix``."""
+    return PseudorangeModel(
+        ep,
+        sig,
+        r_fix,
+        sigma_speed=p.sigma_speed,
+        q_heading=p.q_heading,
+        q_pos=p.q_pos,
+        q_height=p.q_height,
+        q_clock=p.q_clock,
+        q_drift=p.q_drift,
+        q_isb=p.q_isb,
+        sigma_norm=p.sigma_heading_norm,
+        sigma_height=p.sigma_height_m if p.height_aiding == "map" else None,
+        height_prior=None
+        if p.height_aiding != "map-prior"
+        else (p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s),
+        q_accel=p.q_accel,
+    )
+
+
+def _summary_note(ep: PrEpochs, p: SmartlocParams, model: PseudorangeModel, used: Array, vm: str) -> str:
+    """One sentence on the pseudoranges used, the clocks, σ, the motion model and the height."""
+    K = len(ep.t) - 1
+    return (
+        f"pseudoranges: {int(used.sum())} of {int(np.isfinite(ep.rho).sum())} used over {K} epochs; "
+        f"{model.S} system(s) ({', '.join(ep.clock_names)}), each with its own receiver clock on one "
+        f"oscillator; σ from the '{vm}' variance model; motion: "
+        + ("odometry dead reckoning" if model.odometry else "constant velocity (no odometry in the files)")
+        + f"; height: {p.height_aiding}"
+        + ("" if ep.has_truth else "; no truth: errors cannot be computed")
+    )
+
+
+def _clean_z(ep: PrEpochs, p: SmartlocParams, model: PseudorangeModel, used: Array) -> tuple[Array, Array]:
+    """Whitened measurements of every channel and which are present: (z (K+1, m), present (K+1, m)).
+
+    Channels: the satellites, then ‖d‖ = 1 (with odometry, from ``heading_init_s`` on), then the
+    map height (``height_aiding = "map"``).
+    """
+    K = len(ep.t) - 1
+    t_rel = ep.t - ep.t[0]
+    cols_present = [used]
+    cols_z = [ep.rho / model.sigma]
+    if model.odometry:
+        cols_present.append((t_rel >= p.heading_init_s)[:, None])
+        cols_z.append(np.full((K + 1, 1), 1.0 / p.sigma_heading_norm))
+    if p.height_aiding == "map":
+        cols_present.append(np.ones((K + 1, 1), dtype=bool))
+        cols_z.append(np.full((K + 1, 1), p.height_m / p.sigma_height_m))
+    return np.concatenate(cols_z, axis=1), np.concatenate(cols_present, axis=1)
+
+
+def _true_states(ep: PrEpochs, model: PseudorangeModel, r_fix: Array) -> Array:
+    """(K+1, n) the truth of every state (NaN without a truth file)."""
+    if not ep.has_truth:
+        return np.full((len(ep.t), model.n), np.nan)
+    enu = (ep.truth_ecef - r_fix) @ model.C_ne
+    # the heading state, or (constant-velocity model) the velocity
+    d_true = _truth_heading(enu, ep.t) if model.odometry else np.gradient(enu[:, 0:2], ep.t, axis=0)
+    cb = _truth_clocks(ep)
+    cd = np.gradient(cb[:, 0], ep.t)
+    return fill_rows(np.concatenate([enu, d_true, cb, cd[:, None]], axis=1))
+
+
+def _prior(model: PseudorangeModel, clk: Array) -> tuple[Array, Array]:
+    """x0 (at the first fix, with its clocks) and P0."""
+    x0 = np.r_[np.zeros(3), np.zeros(2), clk, 0.0]
+    P0 = np.diag(
+        [10.0**2] * 3 + ([1.0, 1.0] if model.odometry else [15.0**2] * 2) + [10.0**2] * model.S + [300.0**2]
+    )  # heading unknown (or a city speed, ≤ 15 m/s, without odometry); drift: ±1 ppm
+    return x0, P0
+
+
+def _channel_and_state_names(
+    ep: PrEpochs, model: PseudorangeModel, aid_h: bool
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The channel names and the state names."""
+    names = (*ep.names, *(("|d|",) if model.odometry else ())) + (("height",) if aid_h else ())
+    state_names = ("E", "N", "U", *(("d_E", "d_N") if model.odometry else ("v_E", "v_N")))
+    state_names += (*(f"cb_{c}" for c in ep.clock_names), "cd")
+    return names, state_names
+
+
+def _metric_groups(odometry: bool) -> dict[str, MetricGroup]:
+    """Position (3-D, horizontal, vertical) and the heading vector or, without odometry, the velocity."""
+    return {
+        "pos": MetricGroup((0, 1, 2), "m", "position (3-D)"),
+        "hpos": MetricGroup((0, 1), "m", "horizontal position"),
+        "vpos": MetricGroup((2,), "m", "vertical position"),
+        "heading": MetricGroup((3, 4), "", "unit heading vector")
+        if odometry
+        else MetricGroup((3, 4), "m/s", "horizontal velocity"),
+    }
+
+
 @register_scenario
 class SmartlocBerlin(Scenario):
     key = "smartloc-berlin"
@@ -564,130 +719,39 @@ class SmartlocBerlin(Scenario):
     def simulate(
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
     ) -> ScenarioData:
-        import dataclasses
-
-        from navlab.errors import NavlabError
-
         p = self.params
         ep = load_epochs(p.data_dir)
         K_all = len(ep.t) - 1
         K = K_all if not p.epochs else min(int(p.epochs), K_all)
         ep = ep.cut(K)
         notes = []
-        if ep.name != SMARTLOC_DIR and p.height_aiding != "off" and p.height_m == 75.0:
-            raise NavlabError(
-                f"height_m = {p.height_m:g} m is the map height of Berlin's Potsdamer Platz; for "
-                f"{ep.name} give your street's ellipsoidal antenna height (scenario.height_m) or set "
-                "scenario.height_aiding=off"
-            )
-        if not np.isfinite(ep.el_deg[np.isfinite(ep.rho)]).all():  # no elevation column: from a first fix
-            r_rough, _ = robust_ls_fix(
-                ep.rho[0], ep.sat[0], np.ones(ep.rho.shape[1]), ep.sys_idx, n_sys=len(ep.clock_names)
-            )
-            el = np.where(np.isfinite(ep.el_deg), ep.el_deg, elevations_deg(ep.sat, r_rough))
-            ep = dataclasses.replace(ep, el_deg=el)
-            notes.append("elevations computed from a first least-squares fix (the file has none)")
-        vm = p.variance_model
-        has_cn0 = np.isfinite(ep.cn0[np.isfinite(ep.rho)]).all()
-        if vm in ("cn0-elevation", "cn0") and not has_cn0:
-            vm = "file" if np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all() else "elevation"
-            notes.append(f"variance model '{p.variance_model}' needs C/N0, which the file lacks: '{vm}' used")
-        if vm == "file" and not np.isfinite(ep.var_file[np.isfinite(ep.rho)]).all():
-            raise NavlabError(
-                "variance_model 'file' needs the var_m2 column; choose 'cn0-elevation' or 'elevation'"
-            )
-        var = variance_model(ep, vm, p.cn0_a)
-        sig = np.sqrt(var)
-        used = np.isfinite(ep.rho)
-        with np.errstate(invalid="ignore"):
-            used &= (ep.el_deg >= p.elevation_mask_deg) & ~(ep.cn0 < p.cn0_mask_dbhz)
-        aid_h = p.height_aiding == "map"
-        rho0 = np.where(used[0], ep.rho[0], np.nan)
-        r_fix, clk = robust_ls_fix(
-            rho0,
-            ep.sat[0],
-            np.where(np.isfinite(sig[0]), sig[0], 1.0),
-            ep.sys_idx,
-            height=None if p.height_aiding == "off" else p.height_m,
-            sigma_height=p.sigma_height_m,
-            n_sys=len(ep.clock_names),
-        )
-        model = PseudorangeModel(
-            ep,
-            sig,
-            r_fix,
-            sigma_speed=p.sigma_speed,
-            q_heading=p.q_heading,
-            q_pos=p.q_pos,
-            q_height=p.q_height,
-            q_clock=p.q_clock,
-            q_drift=p.q_drift,
-            q_isb=p.q_isb,
-            sigma_norm=p.sigma_heading_norm,
-            sigma_height=p.sigma_height_m if aid_h else None,
-            height_prior=None
-            if p.height_aiding != "map-prior"
-            else (p.height_m - float(ecef_to_geodetic(r_fix)[2]), p.sigma_height_m, p.tau_height_s),
-            q_accel=p.q_accel,
-        )
-        S = model.S
-        notes.append(
-            f"pseudoranges: {int(used.sum())} of {int(np.isfinite(ep.rho).sum())} used over {K} epochs; "
-            f"{S} system(s) ({', '.join(ep.clock_names)}), each with its own receiver clock on one "
-            f"oscillator; σ from the '{vm}' variance model; motion: "
-            + (
-                "odometry dead reckoning"
-                if model.odometry
-                else "constant velocity (no odometry in the files)"
-            )
-            + f"; height: {p.height_aiding}"
-            + ("" if ep.has_truth else "; no truth: errors cannot be computed")
-        )
-        m = model.m
+        _check_height(ep, p)
+        ep = _with_elevations(ep, notes)
+        vm = _variance_model_used(ep, p, notes)
+        sig = np.sqrt(variance_model(ep, vm, p.cn0_a))
+        used = _used_pseudoranges(ep, p)
+        r_fix, clk = _first_fix(ep, p, used, sig)
+        model = _pseudorange_model(ep, p, sig, r_fix)
+        notes.append(_summary_note(ep, p, model, used, vm))
+        m, n = model.m, model.n
         streams = run_streams(seed, runs)
         B = len(streams)
         # extra injected noise (schedule/outliers) in whitened units: the real errors stay
         std = schedule.std(np.ones(m), K)
         noise, var_inj, bias, mask = draw_measurement_noise(streams, std, outliers)
-        t_rel = ep.t - ep.t[0]
-        cols_present = [used]
-        cols_z = [ep.rho / model.sigma]
-        if model.odometry:
-            cols_present.append((t_rel >= p.heading_init_s)[:, None])
-            cols_z.append(np.full((K + 1, 1), 1.0 / p.sigma_heading_norm))
-        if aid_h:
-            cols_present.append(np.ones((K + 1, 1), dtype=bool))
-            cols_z.append(np.full((K + 1, 1), p.height_m / p.sigma_height_m))
-        present = np.concatenate(cols_present, axis=1)
+        z_clean, present = _clean_z(ep, p, model, used)
         extra = np.where(mask, noise, 0.0)  # the nominal noise is real: inject only contamination
-        z_clean = np.concatenate(cols_z, axis=1)
         z = np.where(present[None], z_clean[None] + extra, np.nan)
         z[:, 0] = np.nan
-        # truth (NaN without a truth file)
-        n = model.n
-        if ep.has_truth:
-            enu = (ep.truth_ecef - r_fix) @ model.C_ne
-            # the heading state, or (constant-velocity model) the velocity
-            d_true = _truth_heading(enu, ep.t) if model.odometry else np.gradient(enu[:, 0:2], ep.t, axis=0)
-            cb = _truth_clocks(ep)
-            cd = np.gradient(cb[:, 0], ep.t)
-            x_true = fill_rows(np.concatenate([enu, d_true, cb, cd[:, None]], axis=1))
-        else:
-            x_true = np.full((K + 1, n), np.nan)
-        x0 = np.r_[np.zeros(3), np.zeros(2), clk, 0.0]
-        P0 = np.diag(
-            [10.0**2] * 3 + ([1.0, 1.0] if model.odometry else [15.0**2] * 2) + [10.0**2] * S + [300.0**2]
-        )  # heading unknown (or a city speed, ≤ 15 m/s, without odometry); drift: ±1 ppm
+        x0, P0 = _prior(model, clk)
         R_true = np.broadcast_to(np.ones((K + 1, m)), (B, K + 1, m)).copy()
         R_true[mask] = var_inj[mask]
-        names = (*ep.names, *(("|d|",) if model.odometry else ())) + (("height",) if aid_h else ())
-        state_names = ("E", "N", "U", *(("d_E", "d_N") if model.odometry else ("v_E", "v_N")))
-        state_names += (*(f"cb_{c}" for c in ep.clock_names), "cd")
+        names, state_names = _channel_and_state_names(ep, model, p.height_aiding == "map")
         return ScenarioData(
             scenario=self.key,
-            t=t_rel,
+            t=ep.t - ep.t[0],
             model=model,
-            x_true=np.broadcast_to(x_true, (B, K + 1, n)).copy(),
+            x_true=np.broadcast_to(_true_states(ep, model, r_fix), (B, K + 1, n)).copy(),
             z=z,
             # urban pseudorange errors reach ~100 m per epoch (WLS): a filter kilometres off has lost it
             divergence_bound=1000.0,
@@ -701,14 +765,7 @@ class SmartlocBerlin(Scenario):
             state_names=state_names,
             channel_names=names,
             channel_units=("σ",) * len(names),
-            groups={
-                "pos": MetricGroup((0, 1, 2), "m", "position (3-D)"),
-                "hpos": MetricGroup((0, 1), "m", "horizontal position"),
-                "vpos": MetricGroup((2,), "m", "vertical position"),
-                "heading": MetricGroup((3, 4), "", "unit heading vector")
-                if model.odometry
-                else MetricGroup((3, 4), "m/s", "horizontal velocity"),
-            },
+            groups=_metric_groups(model.odometry),
             window=(np.arange(K + 1) >= 1) & (np.isfinite(ep.truth_ecef).all(axis=1) | (not ep.has_truth)),
             has_truth=bool(ep.has_truth),
             extras={

@@ -242,19 +242,23 @@ def _draw_heatmap(fig: Any, ax: Any, tr: Any) -> None:
     ax.grid(False)
 
 
-def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
-    """The matplotlib Figure of Plotly ``fig`` in the print style (call under :data:`_LOCK`)."""
-    from matplotlib.figure import Figure
-    from matplotlib.gridspec import GridSpec
-
-    layout = fig.layout
+def _axis_pairs(fig: go.Figure) -> list[tuple[str, str]]:
+    """The (x, y) axis pairs the traces are drawn on, in the order of the traces (at least one)."""
     pairs: list[tuple[str, str]] = []
     for tr in fig.data:
         p = (getattr(tr, "xaxis", None) or "x", getattr(tr, "yaxis", None) or "y")
         if p not in pairs:
             pairs.append(p)
-    pairs = pairs or [("x", "y")]
-    dom = _domains(layout, pairs)
+    return pairs or [("x", "y")]
+
+
+def _subplots(layout, pairs: list[tuple[str, str]], dom: dict, width_in: float):
+    """A matplotlib Figure with one subplot per axis pair on the grid of the Plotly domains (an
+    x axis that matches or is anchored shares the first subplot's): (figure, {pair: axes}).
+    """
+    from matplotlib.figure import Figure
+    from matplotlib.gridspec import GridSpec
+
     rows = sorted({d[1] for d in dom.values()}, key=lambda d: -d[1])  # top first
     cols = sorted({d[0] for d in dom.values()})
     height_px = float(layout.height or 420)
@@ -276,6 +280,11 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
         ax = mfig.add_subplot(gs[rows.index(yd), cols.index(xd)], sharex=share)
         by_x.setdefault(p[0], ax)
         axes[p] = ax
+    return mfig, axes
+
+
+def _draw_traces(mfig, fig: go.Figure, axes: dict) -> None:
+    """Every visible scatter, bar and heatmap trace on its subplot."""
     prev: dict[Any, Any] = {}
     for tr in fig.data:
         if tr.visible is False:
@@ -288,7 +297,13 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
             _draw_bar(ax, tr)
         elif kind == "heatmap":
             _draw_heatmap(mfig, ax, tr)
-    lowest = {}  # per x axis: the subplot lowest on the page carries its title and tick labels
+
+
+def _style_axes(layout, axes: dict, dom: dict) -> None:
+    """The Plotly axes' titles, ranges and scales; per x axis only the lowest subplot on the page
+    carries its title and tick labels.
+    """
+    lowest = {}
     for xr, yr in axes:
         if xr not in lowest or dom[(xr, yr)][1][0] < dom[lowest[xr]][1][0]:
             lowest[xr] = (xr, yr)
@@ -298,8 +313,13 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
         if lowest[xr] != (xr, yr):
             ax.set_xlabel("")
             ax.tick_params(labelbottom=False)
-    # vertical lines and x bands across the plot; a player's shapes (the frames move them: its
-    # cursor and veil) are not part of a still figure
+
+
+def _draw_shapes(fig: go.Figure, axes: dict) -> None:
+    """Vertical lines and x bands across the plot; a player's shapes (the frames move them: its
+    cursor and veil) are not part of a still figure.
+    """
+    layout = fig.layout
     for sh in () if fig.frames else layout.shapes or ():
         xr = (sh.xref or "x").split(" ")[0]
         across = (sh.yref or "y").split(" ")[-1] in ("paper", "domain")
@@ -312,7 +332,10 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
             alpha = float(sh.opacity) if sh.opacity is not None else None
             for ax in targets:
                 ax.axvspan(float(sh.x0), float(sh.x1), color=c, alpha=alpha, linewidth=0, zorder=0)
-    # subplot titles (annotations at the top of a domain) go on their axes; the main title above
+
+
+def _titles(mfig, layout, axes: dict, dom: dict) -> None:
+    """Subplot titles (annotations at the top of a domain) on their axes; the main title above."""
     for an in layout.annotations or ():
         if an.xref == "paper" and an.yref == "paper" and an.text:
             best = min(
@@ -326,6 +349,10 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
     if title:
         head, *sub = title.split("\n")
         mfig.suptitle(head + ("\n" + "\n".join(sub) if sub else ""), x=0.01, ha="left", fontsize=10)
+
+
+def _legend(mfig, layout, axes: dict) -> None:
+    """One legend below the figure for every subplot's labelled artists (each label once)."""
     handles, labels = [], []
     for ax in axes.values():
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
@@ -334,6 +361,19 @@ def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
                 labels.append(lab)
     if handles and layout.showlegend is not False:
         mfig.legend(handles, labels, loc="outside lower center", ncols=min(3, len(labels)), frameon=False)
+
+
+def publication(fig: go.Figure, width_in: float = WIDTH_IN) -> Any:
+    """The matplotlib Figure of Plotly ``fig`` in the print style (call under :data:`_LOCK`)."""
+    layout = fig.layout
+    pairs = _axis_pairs(fig)
+    dom = _domains(layout, pairs)
+    mfig, axes = _subplots(layout, pairs, dom, width_in)
+    _draw_traces(mfig, fig, axes)
+    _style_axes(layout, axes, dom)
+    _draw_shapes(fig, axes)
+    _titles(mfig, layout, axes, dom)
+    _legend(mfig, layout, axes)
     return mfig
 
 

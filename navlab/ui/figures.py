@@ -475,49 +475,27 @@ BAND_MAX = 2  # a shared panel draws spread bands for at most this many R̂ esti
 PANEL_HEIGHT = 230  # px per row of small multiples
 
 
-def r_vs_rhat(
-    res: Results,
-    channel: int,
-    *,
-    log_y: bool = True,
-    as_std: bool = False,
-    show_used: bool = True,
-    band: tuple[float, float] = BAND,
-    outlier_strip: bool = False,
-    height: int = 420,
-) -> go.Figure:
-    """True R(t) of the noise schedule beside each filter's R̂ (median and spread over runs).
+def _axis_suffix(i: int) -> str:
+    """Plotly's axis suffix of panel ``i``: "" for the first, then "2", "3" and so on."""
+    return "" if i == 0 else str(i + 1)
 
-    Up to ``SINGLE_PANEL_MAX`` filters share one panel (spread bands only while at most
-    ``BAND_MAX`` of them estimate R: more bands overlap into one smear); beyond, small multiples:
-    one panel per filter, in the table's order, with shared axes and the true R(t) in every panel,
-    so no filter hides another. Log y axis by default (``log_y=False``: linear). The true R(t) is
-    drawn last, in black on a white halo. The y range is computed from clean entries only — per
-    filter, the band's quantiles over the runs whose measurement on this channel and epoch is not
-    an outlier — so a contaminated-epoch variance (the oracle's R̂ *is* the variance drawn,
-    outliers included) never sets the scale; what lies beyond is cut off and the subtitle says so.
-    Filters without an R̂ show the R they used (dashed median) when ``show_used``. With
-    ``outlier_strip`` a lower panel shows, per epoch, the share of runs with an outlier on the
-    channel.
+
+def _rhat_traces(
+    res: Results, shown: list[str], channel: int, tf, sym: str, band: tuple[float, float], multi: bool
+) -> tuple[list, list[np.ndarray], list[np.ndarray]]:
+    """Each shown filter's R̂ (median and band) or R used, in its panel, with the true R(t) in each of
+    the small multiples: (traces, the clean quantiles that set the y range, those drawn).
     """
-    data = res.data
+    data, t = res.data, res.data.t
     colors = filter_colors(list(res.runs))
-    t = data.t
-    tf = lambda v: np.sqrt(np.maximum(v, 0.0)) if as_std else v  # noqa: E731
-    sym = "σ" if as_std else "R"
     truth = tf(data.R_schedule[:, channel])
-    shown = [k for k, fr in res.runs.items() if fr.R_hat is not None or show_used]
-    multi = len(shown) > SINGLE_PANEL_MAX
     n_est = sum(res.runs[k].R_hat is not None for k in shown)
-    cols = 1 if not multi else (2 if len(shown) == 4 else 3)
-    rows = 1 if not multi else -(-len(shown) // cols)
-    axis = lambda i: "" if i == 0 else str(i + 1)  # noqa: E731  plotly's axis suffixes
     traces: list = []
     clean: list[np.ndarray] = [truth]  # what sets the axis range
     drawn: list[np.ndarray] = []  # what is drawn (to tell whether anything is cut off)
     for i, key in enumerate(shown):
         fr = res.runs[key]
-        ax = {"xaxis": f"x{axis(i if multi else 0)}", "yaxis": f"y{axis(i if multi else 0)}"}
+        ax = {"xaxis": f"x{_axis_suffix(i if multi else 0)}", "yaxis": f"y{_axis_suffix(i if multi else 0)}"}
         ok = judged(res, key)
         c = colors[key]
         if not ok.any():
@@ -544,15 +522,11 @@ def r_vs_rhat(
             truth_line(traces, t, truth, f"true {sym}(t) (schedule)", **ax)
             if i > 0:
                 traces[-1].showlegend = False
-    name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
-    units = _r_units(data, channel, as_std)
-    y_title = f"{sym} ({units})" if units else sym
-    title = f"Channel {name}: true {sym}(t) vs each filter's {sym}̂"
-    sub = f"median, {int(band[0] * 100)}–{int(band[1] * 100)} % band over {data.B} runs"
-    if not multi and n_est > BAND_MAX:
-        sub = f"median over {data.B} runs (bands left out: {n_est} estimates would overlap)"
-    if multi:
-        sub += "; one panel per filter, the true " + sym + "(t) in black in each"
+    return traces, clean, drawn
+
+
+def _rhat_y_axis(clean: list[np.ndarray], drawn: list[np.ndarray], log_y: bool, sub: str) -> tuple[dict, str]:
+    """The shared y axis (range from the clean entries) and the subtitle, told what is cut off."""
     rng = value_range(clean, log_y)
     yaxis: dict = {"automargin": True, "type": "log" if log_y else "linear"}
     if rng is not None:
@@ -560,36 +534,62 @@ def r_vs_rhat(
         top = 10 ** yaxis["range"][1] if log_y else yaxis["range"][1]
         if any((_positive(d) if log_y else np.asarray(d, float)).max(initial=-np.inf) > top for d in drawn):
             sub += "<br>outlier-epoch values above the top are cut off"
-    if not multi:
-        truth_line(traces, t, truth, f"true {sym}(t) (schedule)")
+    return yaxis, sub
+
+
+def _outlier_strip_bar(data, channel: int, strip_ax: str) -> go.Bar:
+    """Per epoch, the share of runs with an outlier on ``channel`` (bucketed maxima)."""
+    frac = data.outlier_mask[:, :, channel].mean(axis=0)
+    idx, fmax = bucket_max(frac)
+    return go.Bar(
+        x=_f32(data.t[idx]),
+        y=_f32(fmax),
+        name="outlier epochs",
+        marker={"color": "#d62728", "line": {"width": 0}},
+        legendgroup="outliers",
+        hovertemplate="%{y:.0%} of runs<extra>outliers</extra>",
+        xaxis=f"x{strip_ax}",
+        yaxis=f"y{strip_ax}",
+        legendrank=2000,
+    )
+
+
+def _panel_title(label: str, color: str, x0: float, y1: float) -> dict:
+    """A small multiple's title: the filter's label in its colour, above the panel's left corner."""
+    return {
+        "text": f"<b>{label}</b>",
+        "x": x0,
+        "xref": "paper",
+        "xanchor": "left",
+        "y": y1,
+        "yref": "paper",
+        "yanchor": "bottom",
+        "showarrow": False,
+        "font": {"size": 13, "color": color},
+    }
+
+
+def _rhat_grid(
+    layout: dict,
+    res: Results,
+    shown: list[str],
+    multi: bool,
+    shape: tuple[int, int],
+    yaxis: dict,
+    y_title: str,
+    strip_top: float | None,
+) -> None:
+    """The panels' axes into ``layout``: rows × cols top to bottom over the strip (``strip_top``:
+    its top as a fraction of the plot height, None without the strip), one time axis.
+    """
+    rows, cols = shape
     n_panels = len(shown) if multi else 1
+    outlier_strip = strip_top is not None
     strip_ax = str(n_panels + 1) if outlier_strip else ""
-    if outlier_strip:  # drawn first (the truth stays the last trace), listed last in the legend
-        frac = data.outlier_mask[:, :, channel].mean(axis=0)
-        idx, fmax = bucket_max(frac)
-        traces.insert(
-            0,
-            go.Bar(
-                x=_f32(t[idx]),
-                y=_f32(fmax),
-                name="outlier epochs",
-                marker={"color": "#d62728", "line": {"width": 0}},
-                legendgroup="outliers",
-                hovertemplate="%{y:.0%} of runs<extra>outliers</extra>",
-                xaxis=f"x{strip_ax}",
-                yaxis=f"y{strip_ax}",
-                legendrank=2000,
-            ),
-        )
-    strip_h = 90 if outlier_strip else 0
-    plot_h = (rows * PANEL_HEIGHT if multi else height - 120) + strip_h
-    layout = _base_layout(title, plot_h + 120, sub)
-    if outlier_strip:
-        layout["bargap"] = 0
+    colors = filter_colors(list(res.runs))
     # the grid, top to bottom: panel rows, then the strip; fractions of the plot height
     gap = 0.06 if multi else 0.1
-    strip_top = strip_h / plot_h if outlier_strip else 0.0
-    bottom = strip_top + (gap if outlier_strip else 0.0)
+    bottom = (strip_top or 0.0) + (gap if outlier_strip else 0.0)
     row_h = (1.0 - bottom - gap * (rows - 1)) / rows
     hgap = 0.04
     col_w = (1.0 - hgap * (cols - 1)) / cols
@@ -600,54 +600,106 @@ def r_vs_rhat(
         x0 = cidx * (col_w + hgap)
         # x labels under the bottom panel of each column (shared x axes, the strip shows its own)
         below = r == last_row or (r == last_row - 1 and cidx > (n_panels - 1) % cols)
-        xa: dict = {"domain": [x0, x0 + col_w], "anchor": f"y{axis(i)}", "automargin": True}
+        xa: dict = {"domain": [x0, x0 + col_w], "anchor": f"y{_axis_suffix(i)}", "automargin": True}
         # one time axis, titled: the strip's below them all, else the last panel's (bottom row)
-        ref = f"x{strip_ax}" if outlier_strip else f"x{axis(n_panels - 1)}"
-        if ref != f"x{axis(i)}":
+        ref = f"x{strip_ax}" if outlier_strip else f"x{_axis_suffix(n_panels - 1)}"
+        if ref != f"x{_axis_suffix(i)}":
             xa["matches"] = ref
         xa["showticklabels"] = below and not outlier_strip
         if xa["showticklabels"]:
             xa["title"] = {"text": "time (s)"}
-        ya = {**yaxis, "domain": [y1 - row_h, y1], "anchor": f"x{axis(i)}"}
+        ya = {**yaxis, "domain": [y1 - row_h, y1], "anchor": f"x{_axis_suffix(i)}"}
         if i:
             ya["matches"] = "y"
         if cidx == 0:
             ya["title"] = {"text": y_title}
         else:
             ya["showticklabels"] = False
-        layout[f"xaxis{axis(i)}"] = xa
-        layout[f"yaxis{axis(i)}"] = ya
+        layout[f"xaxis{_axis_suffix(i)}"] = xa
+        layout[f"yaxis{_axis_suffix(i)}"] = ya
         if multi:
-            fr = res.runs[shown[i]]
-            layout.setdefault("annotations", []).append(
-                {
-                    "text": f"<b>{fr.label}</b>",
-                    "x": x0,
-                    "xref": "paper",
-                    "xanchor": "left",
-                    "y": y1,
-                    "yref": "paper",
-                    "yanchor": "bottom",
-                    "showarrow": False,
-                    "font": {"size": 13, "color": colors[shown[i]]},
-                }
-            )
+            label = res.runs[shown[i]].label
+            layout.setdefault("annotations", []).append(_panel_title(label, colors[shown[i]], x0, y1))
+
+
+def _strip_axes(layout: dict, strip_ax: str, strip_top: float) -> None:
+    """The outlier strip's axes into ``layout``: under the panels, titled, shares of runs 0–100 %."""
+    layout[f"xaxis{strip_ax}"] = {
+        "domain": [0.0, 1.0],
+        "anchor": f"y{strip_ax}",
+        "title": {"text": "time (s)"},
+        "automargin": True,
+    }
+    layout[f"yaxis{strip_ax}"] = {
+        "title": {"text": "share of runs"},
+        "range": [0, 1],
+        "dtick": 0.5,
+        "tickformat": ".0%",
+        "domain": [0.0, strip_top],
+        "anchor": f"x{strip_ax}",
+        "automargin": True,
+    }
+
+
+def r_vs_rhat(
+    res: Results,
+    channel: int,
+    *,
+    log_y: bool = True,
+    as_std: bool = False,
+    show_used: bool = True,
+    band: tuple[float, float] = BAND,
+    outlier_strip: bool = False,
+    height: int = 420,
+) -> go.Figure:
+    """True R(t) of the noise schedule beside each filter's R̂ (median and spread over runs).
+
+    Up to ``SINGLE_PANEL_MAX`` filters share one panel (spread bands only while at most
+    ``BAND_MAX`` of them estimate R: more bands overlap into one smear); beyond, small multiples:
+    one panel per filter, in the table's order, with shared axes and the true R(t) in every panel,
+    so no filter hides another. Log y axis by default (``log_y=False``: linear). The true R(t) is
+    drawn last, in black on a white halo. The y range is computed from clean entries only — per
+    filter, the band's quantiles over the runs whose measurement on this channel and epoch is not
+    an outlier — so a contaminated-epoch variance (the oracle's R̂ *is* the variance drawn,
+    outliers included) never sets the scale; what lies beyond is cut off and the subtitle says so.
+    Filters without an R̂ show the R they used (dashed median) when ``show_used``. With
+    ``outlier_strip`` a lower panel shows, per epoch, the share of runs with an outlier on the
+    channel.
+    """
+    data = res.data
+    tf = lambda v: np.sqrt(np.maximum(v, 0.0)) if as_std else v  # noqa: E731
+    sym = "σ" if as_std else "R"
+    shown = [k for k, fr in res.runs.items() if fr.R_hat is not None or show_used]
+    multi = len(shown) > SINGLE_PANEL_MAX
+    n_est = sum(res.runs[k].R_hat is not None for k in shown)
+    cols = 1 if not multi else (2 if len(shown) == 4 else 3)
+    rows = 1 if not multi else -(-len(shown) // cols)
+    traces, clean, drawn = _rhat_traces(res, shown, channel, tf, sym, band, multi)
+    name = data.channel_names[channel] if channel < len(data.channel_names) else str(channel)
+    units = _r_units(data, channel, as_std)
+    title = f"Channel {name}: true {sym}(t) vs each filter's {sym}̂"
+    sub = f"median, {int(band[0] * 100)}–{int(band[1] * 100)} % band over {data.B} runs"
+    if not multi and n_est > BAND_MAX:
+        sub = f"median over {data.B} runs (bands left out: {n_est} estimates would overlap)"
+    if multi:
+        sub += "; one panel per filter, the true " + sym + "(t) in black in each"
+    yaxis, sub = _rhat_y_axis(clean, drawn, log_y, sub)
+    if not multi:
+        truth_line(traces, data.t, tf(data.R_schedule[:, channel]), f"true {sym}(t) (schedule)")
+    strip_ax = str((len(shown) if multi else 1) + 1) if outlier_strip else ""
+    if outlier_strip:  # drawn first (the truth stays the last trace), listed last in the legend
+        traces.insert(0, _outlier_strip_bar(data, channel, strip_ax))
+    strip_h = 90 if outlier_strip else 0
+    plot_h = (rows * PANEL_HEIGHT if multi else height - 120) + strip_h
+    layout = _base_layout(title, plot_h + 120, sub)
     if outlier_strip:
-        layout[f"xaxis{strip_ax}"] = {
-            "domain": [0.0, 1.0],
-            "anchor": f"y{strip_ax}",
-            "title": {"text": "time (s)"},
-            "automargin": True,
-        }
-        layout[f"yaxis{strip_ax}"] = {
-            "title": {"text": "share of runs"},
-            "range": [0, 1],
-            "dtick": 0.5,
-            "tickformat": ".0%",
-            "domain": [0.0, strip_top],
-            "anchor": f"x{strip_ax}",
-            "automargin": True,
-        }
+        layout["bargap"] = 0
+    strip_top = strip_h / plot_h if outlier_strip else None
+    _rhat_grid(
+        layout, res, shown, multi, (rows, cols), yaxis, f"{sym} ({units})" if units else sym, strip_top
+    )
+    if outlier_strip:
+        _strip_axes(layout, strip_ax, strip_top)
     return go.Figure(data=traces, layout=layout)
 
 
@@ -892,57 +944,51 @@ def sweep_heatmap_2d(df: pd.DataFrame, x_label: str, y_label: str, z_label: str,
     return fig
 
 
-def tune_landscape(
-    trials: pd.DataFrame, dims: Sequence, names: Sequence[str], tuned: dict, label: str
-) -> go.Figure:
-    """A filter's objective over its one or two most influential parameters: every candidate of
-    the first successive-halving rung (all on the same training runs), the default and the
-    tuned value marked. ``trials`` is :func:`navlab.tune.trials_frame` for this filter.
-    """
-    by = {d.name: d for d in dims}
-    t0 = trials[(trials.rung == 0) & np.isfinite(trials.objective)]
-    runs = int(t0.runs.iloc[0]) if len(t0) else 0
-    log = {n: by[n].scale == "log" for n in names}
-    if len(names) == 1:
-        n = names[0]
-        x = t0[f"p.{n}"].to_numpy(dtype=float)
-        order = np.argsort(x)
-        traces = [
+def _landscape_1d(t0: pd.DataFrame, dim, tuned: float, runs: int, label: str) -> go.Figure:
+    """The objective over one parameter: the candidates as a line, the default and the tuned value marked."""
+    n = dim.name
+    x = t0[f"p.{n}"].to_numpy(dtype=float)
+    order = np.argsort(x)
+    traces = [
+        go.Scatter(
+            x=x[order],
+            y=_f32(t0.objective.to_numpy(dtype=float)[order]),
+            mode="markers+lines",
+            name=f"candidates ({runs} runs each)",
+            line={"color": "#888", "width": 1},
+            marker={"size": 8, "color": "#1f77b4"},
+        )
+    ]
+    d0 = t0[t0.candidate == 0]
+    if len(d0):
+        traces.append(
             go.Scatter(
-                x=x[order],
-                y=_f32(t0.objective.to_numpy(dtype=float)[order]),
-                mode="markers+lines",
-                name=f"candidates ({runs} runs each)",
-                line={"color": "#888", "width": 1},
-                marker={"size": 8, "color": "#1f77b4"},
+                x=[dim.default],
+                y=[float(d0.objective.iloc[0])],
+                mode="markers",
+                name="default",
+                marker={"size": 13, "symbol": "diamond-open", "color": TRUTH_COLOR},
             )
-        ]
-        d0 = t0[t0.candidate == 0]
-        if len(d0):
-            traces.append(
-                go.Scatter(
-                    x=[by[n].default],
-                    y=[float(d0.objective.iloc[0])],
-                    mode="markers",
-                    name="default",
-                    marker={"size": 13, "symbol": "diamond-open", "color": TRUTH_COLOR},
-                )
+        )
+    hit = t0[np.isclose(t0[f"p.{n}"].to_numpy(dtype=float), tuned)]
+    if len(hit):
+        traces.append(
+            go.Scatter(
+                x=[tuned],
+                y=[float(hit.objective.iloc[0])],
+                mode="markers",
+                name="tuned",
+                marker={"size": 15, "symbol": "star", "color": "#d62728"},
             )
-        hit = t0[np.isclose(t0[f"p.{n}"].to_numpy(dtype=float), tuned[n])]
-        if len(hit):
-            traces.append(
-                go.Scatter(
-                    x=[tuned[n]],
-                    y=[float(hit.objective.iloc[0])],
-                    mode="markers",
-                    name="tuned",
-                    marker={"size": 15, "symbol": "star", "color": "#d62728"},
-                )
-            )
-        fig = _figure(traces, f"{label}: objective over {n}", n, "objective (training seeds)")
-        fig.update_xaxes(type="log" if log[n] else "linear", range=None)
-        return clean_log_ticks(fig)
-    a, b = names[:2]
+        )
+    fig = _figure(traces, f"{label}: objective over {n}", n, "objective (training seeds)")
+    fig.update_xaxes(type="log" if dim.scale == "log" else "linear", range=None)
+    return clean_log_ticks(fig)
+
+
+def _landscape_2d(t0: pd.DataFrame, da, db, tuned: dict, runs: int, label: str) -> go.Figure:
+    """The objective over two parameters: candidates coloured by it, default and tuned value marked."""
+    a, b = da.name, db.name
     traces = [
         go.Scatter(
             x=t0[f"p.{a}"].to_numpy(dtype=float),
@@ -959,8 +1005,8 @@ def tune_landscape(
             hovertemplate=f"{a} %{{x:.4g}}, {b} %{{y:.4g}}: %{{marker.color:.4g}}<extra></extra>",
         ),
         go.Scatter(
-            x=[by[a].default],
-            y=[by[b].default],
+            x=[da.default],
+            y=[db.default],
             mode="markers",
             name="default",
             marker={"size": 14, "symbol": "diamond-open", "color": TRUTH_COLOR},
@@ -974,9 +1020,25 @@ def tune_landscape(
         ),
     ]
     fig = _figure(traces, f"{label}: objective over {a} × {b}", a, b)
-    fig.update_xaxes(type="log" if log[a] else "linear")
-    fig.update_yaxes(type="log" if log[b] else "linear")
+    fig.update_xaxes(type="log" if da.scale == "log" else "linear")
+    fig.update_yaxes(type="log" if db.scale == "log" else "linear")
     return clean_log_ticks(fig)
+
+
+def tune_landscape(
+    trials: pd.DataFrame, dims: Sequence, names: Sequence[str], tuned: dict, label: str
+) -> go.Figure:
+    """A filter's objective over its one or two most influential parameters: every candidate of
+    the first successive-halving rung (all on the same training runs), the default and the
+    tuned value marked. ``trials`` is :func:`navlab.tune.trials_frame` for this filter.
+    """
+    by = {d.name: d for d in dims}
+    shown = [by[n] for n in names]
+    t0 = trials[(trials.rung == 0) & np.isfinite(trials.objective)]
+    runs = int(t0.runs.iloc[0]) if len(t0) else 0
+    if len(names) == 1:
+        return _landscape_1d(t0, shown[0], tuned[names[0]], runs, label)
+    return _landscape_2d(t0, shown[0], shown[1], tuned, runs, label)
 
 
 @functools.lru_cache(maxsize=64)

@@ -40,16 +40,9 @@ def add_measurements(fig: go.Figure, g: pd.DataFrame, suffix: str, size: int) ->
         fig.add_trace(trace.update(mode="markers", legendgroup="outlier"), row=1, col=1)
 
 
-def overview_figure(res: StepThrough, step: int) -> go.Figure:
-    """Four stacked panels over the epochs, the current ``step`` highlighted.
-
-    1 measurement z, the filter's prediction ẑ⁻ and the truth per channel (outliers marked);
-    2 NIS per epoch against the χ²_{1−α}(m) threshold;
-    3 R_used and R̂ against the true R per channel (log scale);
-    4 per-channel weights (1 = untouched) with the flag of each channel as hover text.
-    """
-    color = filter_color(res.key)
-    fig = make_subplots(
+def _four_panels() -> go.Figure:
+    """The empty figure: z and ẑ⁻ (1), NIS (2), R (3) and weights (4) over shared epochs."""
+    return make_subplots(
         rows=4,
         cols=1,
         shared_xaxes=True,
@@ -62,135 +55,156 @@ def overview_figure(res: StepThrough, step: int) -> go.Figure:
         ),
         row_heights=(0.32, 0.24, 0.24, 0.2),
     )
-    df = res.steps
-    ep = res.epoch_table()
-    true_R: list[go.Scatter] = []  # drawn after every channel's R used and R̂: on top
-    for i, (ch, g) in enumerate(df.groupby("channel", sort=False)):
-        dash = CHANNEL_DASH[i % len(CHANNEL_DASH)]
-        x = _a(g["epoch"])
+
+
+def _add_z_panel(fig: go.Figure, g: pd.DataFrame, ch, dash: str, color: str) -> None:
+    """Panel 1 for one channel: its truth, the filter's prediction ẑ⁻ and the measurements."""
+    x = _a(g["epoch"])
+    truth_line = {"color": TRUTH_COLOR, "dash": dash, "width": 1}
+    fig.add_trace(
+        go.Scatter(
+            x=x, y=_a(g["truth"]), name=f"truth {ch}", mode="lines", line=truth_line, legendgroup="truth"
+        ),
+        row=1,
+        col=1,
+    )
+    fig.add_trace(
+        go.Scatter(
+            x=x,
+            y=_a(g["z_pred"]),
+            name=f"prediction ẑ⁻ {ch}",
+            mode="lines+markers",
+            line={"color": color, "dash": dash},
+            legendgroup="pred",
+        ),
+        row=1,
+        col=1,
+    )
+    add_measurements(fig, g, f" {ch}", size=8)
+
+
+def _add_r_panel(fig: go.Figure, g: pd.DataFrame, ch, dash: str, color: str) -> None:
+    """Panel 3 for one channel: the R used in the gain and, if the filter estimates it, R̂."""
+    x = _a(g["epoch"])
+    fig.add_trace(
+        go.Scatter(
+            x=x,
+            y=_a(g["R_used"]),
+            name=f"R used {ch}",
+            mode="lines+markers",
+            line={"color": color, "dash": dash},
+            legendgroup="Rused",
+        ),
+        row=3,
+        col=1,
+    )
+    if np.isfinite(g["R_hat"].to_numpy(dtype=float)).any():
         fig.add_trace(
             go.Scatter(
                 x=x,
-                y=_a(g["truth"]),
-                name=f"truth {ch}",
-                mode="lines",
-                line={"color": TRUTH_COLOR, "dash": dash, "width": 1},
-                legendgroup="truth",
-            ),
-            row=1,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=x,
-                y=_a(g["z_pred"]),
-                name=f"prediction ẑ⁻ {ch}",
+                y=_a(g["R_hat"]),
+                name=f"R̂ {ch}",
                 mode="lines+markers",
-                line={"color": color, "dash": dash},
-                legendgroup="pred",
-            ),
-            row=1,
-            col=1,
-        )
-        add_measurements(fig, g, f" {ch}", size=8)
-        fig.add_trace(
-            go.Scatter(
-                x=x,
-                y=_a(g["R_used"]),
-                name=f"R used {ch}",
-                mode="lines+markers",
-                line={"color": color, "dash": dash},
-                legendgroup="Rused",
+                line={"color": rgba(color, 0.55), "dash": dash, "width": 3},
+                marker={"symbol": "diamond"},
+                legendgroup="Rhat",
             ),
             row=3,
             col=1,
         )
-        if np.isfinite(g["R_hat"].to_numpy(dtype=float)).any():
-            fig.add_trace(
-                go.Scatter(
-                    x=x,
-                    y=_a(g["R_hat"]),
-                    name=f"R̂ {ch}",
-                    mode="lines+markers",
-                    line={"color": rgba(color, 0.55), "dash": dash, "width": 3},
-                    marker={"symbol": "diamond"},
-                    legendgroup="Rhat",
-                ),
-                row=3,
-                col=1,
-            )
-        true_R.append(
-            go.Scatter(
-                x=x,
-                y=_a(g["R_true"]),
-                name=f"true R {ch}",
-                mode="lines",
-                line={"color": TRUTH_COLOR, "dash": dash, "width": 2.5},
-                legendgroup="Rtrue",
-            )
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=x,
-                y=_a(g["weight"]),
-                name=f"weight {ch}",
-                mode="lines+markers",
-                line={"color": color, "dash": dash},
-                text=g["flag_name"].astype(str).to_numpy(),
-                hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
-                legendgroup="w",
-            ),
-            row=4,
-            col=1,
-        )
-    for tr in true_R:  # black, thick enough to be unmistakable
-        fig.add_trace(tr, row=3, col=1)
-    if len(ep):
-        exceed = ep["nis_exceeds"].to_numpy(dtype=bool)
-        fig.add_trace(
-            go.Bar(
-                x=_a(ep["epoch"]),
-                y=_a(ep["nis"]),
-                name="NIS",
-                marker={"color": np.where(exceed, "#d62728", color).tolist()},
-            ),
-            row=2,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=_a(ep["epoch"]),
-                y=_a(ep["nis_nominal"]),
-                name="NIS with nominal R₀",
-                mode="markers",
-                marker={"color": TRUTH_COLOR, "symbol": "diamond-open", "size": 10},
-            ),
-            row=2,
-            col=1,
-        )
-        fig.add_trace(
-            go.Scatter(
-                x=_a(ep["epoch"]),
-                y=_a(ep["nis_threshold"]),
-                name="χ² threshold",
-                mode="lines",
-                line={"color": TRUTH_COLOR, "dash": "dash", "shape": "hvh"},
-            ),
-            row=2,
-            col=1,
-        )
+
+
+def _true_r_trace(g: pd.DataFrame, ch, dash: str) -> go.Scatter:
+    """One channel's true R (black, thick enough to be unmistakable)."""
+    return go.Scatter(
+        x=_a(g["epoch"]),
+        y=_a(g["R_true"]),
+        name=f"true R {ch}",
+        mode="lines",
+        line={"color": TRUTH_COLOR, "dash": dash, "width": 2.5},
+        legendgroup="Rtrue",
+    )
+
+
+def _weight_trace(g: pd.DataFrame, ch, dash: str, color: str) -> go.Scatter:
+    """Panel 4 for one channel: its weight, the flag as hover text."""
+    return go.Scatter(
+        x=_a(g["epoch"]),
+        y=_a(g["weight"]),
+        name=f"weight {ch}",
+        mode="lines+markers",
+        line={"color": color, "dash": dash},
+        text=g["flag_name"].astype(str).to_numpy(),
+        hovertemplate="epoch %{x}: w = %{y:.3g} (%{text})<extra></extra>",
+        legendgroup="w",
+    )
+
+
+def _nis_traces(ep: pd.DataFrame, color: str) -> list:
+    """Panel 2: NIS per epoch (red where it exceeds the threshold), the NIS with R₀, the χ² threshold."""
+    exceed = ep["nis_exceeds"].to_numpy(dtype=bool)
+    x = _a(ep["epoch"])
+    return [
+        go.Bar(
+            x=x, y=_a(ep["nis"]), name="NIS", marker={"color": np.where(exceed, "#d62728", color).tolist()}
+        ),
+        go.Scatter(
+            x=x,
+            y=_a(ep["nis_nominal"]),
+            name="NIS with nominal R₀",
+            mode="markers",
+            marker={"color": TRUTH_COLOR, "symbol": "diamond-open", "size": 10},
+        ),
+        go.Scatter(
+            x=x,
+            y=_a(ep["nis_threshold"]),
+            name="χ² threshold",
+            mode="lines",
+            line={"color": TRUTH_COLOR, "dash": "dash", "shape": "hvh"},
+        ),
+    ]
+
+
+def _finish_overview(fig: go.Figure, step: int, epochs: int) -> None:
+    """The step's cursor on every panel, the axes (two log panels) and the layout."""
     for r in (1, 2, 3, 4):
         fig.add_vline(x=step, line={"color": "#f0a500", "width": 2}, opacity=0.5, row=r, col=1)
     fig.update_yaxes(title_text="z (m)", row=1, col=1)
     fig.update_yaxes(type="log", title_text="NIS (dimensionless)", row=2, col=1)
     fig.update_yaxes(type="log", title_text="R (m²)", row=3, col=1)
     fig.update_yaxes(range=[-0.05, 1.1], title_text="weight", row=4, col=1)
-    fig.update_xaxes(title_text="epoch k", dtick=1 if res.epochs <= 20 else 2, row=4, col=1)
+    fig.update_xaxes(title_text="epoch k", dtick=1 if epochs <= 20 else 2, row=4, col=1)
     fig.update_layout(height=860, bargap=0.4)
     # legend below, clean 1-2-5 / decade ticks on the two log panels (no main title: the
     # subplot titles sit where it would)
     readable(fig, title_above=False)
     fig.update_layout(margin_t=40)  # room for the first subplot title
+
+
+def overview_figure(res: StepThrough, step: int) -> go.Figure:
+    """Four stacked panels over the epochs, the current ``step`` highlighted.
+
+    1 measurement z, the filter's prediction ẑ⁻ and the truth per channel (outliers marked);
+    2 NIS per epoch against the χ²_{1−α}(m) threshold;
+    3 R_used and R̂ against the true R per channel (log scale);
+    4 per-channel weights (1 = untouched) with the flag of each channel as hover text.
+    """
+    color = filter_color(res.key)
+    fig = _four_panels()
+    ep = res.epoch_table()
+    true_R: list[go.Scatter] = []  # drawn after every channel's R used and R̂: on top
+    for i, (ch, g) in enumerate(res.steps.groupby("channel", sort=False)):
+        dash = CHANNEL_DASH[i % len(CHANNEL_DASH)]
+        _add_z_panel(fig, g, ch, dash, color)
+        _add_r_panel(fig, g, ch, dash, color)
+        true_R.append(_true_r_trace(g, ch, dash))
+        fig.add_trace(_weight_trace(g, ch, dash, color), row=4, col=1)
+    for tr in true_R:
+        fig.add_trace(tr, row=3, col=1)
+    if len(ep):
+        for tr in _nis_traces(ep, color):
+            fig.add_trace(tr, row=2, col=1)
+    _finish_overview(fig, step, res.epochs)
     return fig
 
 

@@ -392,6 +392,105 @@ def show_error(exc: BaseException) -> None:
         )
 
 
+class _LiveProgress:
+    """The progress bar and Stop button of :func:`run_live`, and a rerun asked for mid-chunk.
+
+    A rerun (``RerunException``) raised by a Streamlit call made through :meth:`guarded` is held
+    in ``pending`` until the chunk in flight is finished.
+    """
+
+    def __init__(
+        self, spec: ExperimentSpec, page: str, start: Results | None, stop_button: bool, pc, sc
+    ) -> None:
+        self.runs = spec.runs
+        self.prog = pc.progress(
+            0.0 if start is None else start.done_runs / spec.runs, text="starting the Monte Carlo…"
+        )
+        self.stop_ph = sc.empty()
+        if stop_button:
+            self.stop_ph.button(
+                "Stop",
+                key=f"_stop_{page}",
+                on_click=cancel_run,
+                args=(page,),
+                help="stop after the batch of runs in flight (it is kept); Run resumes where it stopped",
+            )
+        self.pending: list[BaseException] = []  # a rerun asked for mid-chunk, held until the chunk ends
+        self.value = 0.0
+        self.shown = 0.0
+
+    def guarded(self, fn: Callable[..., Any], *args: Any, **kw: Any) -> None:
+        """``fn(*args, **kw)``, holding a rerun it raises in ``pending``."""
+        from streamlit.runtime.scriptrunner_utils.exceptions import RerunException
+
+        try:
+            fn(*args, **kw)
+        except RerunException as exc:
+            self.pending[:] = [exc]
+            with contextlib.suppress(RerunException):
+                self.prog.progress(self.value, text="finishing the batch in flight (kept), then stopping…")
+
+    def tick(self, runs_done: float) -> None:
+        """Progress within a batch, at most every 5 %."""
+        if runs_done - self.shown >= 0.05 * self.runs and not self.pending:
+            self.shown = runs_done
+            self.value = min(1.0, runs_done / self.runs)
+            self.guarded(self.prog.progress, self.value, text=f"{runs_done:.0f}/{self.runs} runs…")
+
+    def chunk_done(self, res: Results) -> None:
+        """Progress after a finished chunk."""
+        self.value = res.done_runs / self.runs
+        self.guarded(
+            self.prog.progress,
+            self.value,
+            text=f"{res.done_runs}/{self.runs} runs · {res.elapsed_s:.2f} s compute",
+        )
+
+    def clear(self) -> None:
+        self.prog.empty()
+        self.stop_ph.empty()
+
+
+def _compute_live(
+    p: Plan,
+    key: str,
+    page: str,
+    start: Results | None,
+    first_chunk: int | None,
+    partials: dict[str, tuple[str, Results]],
+    live: _LiveProgress,
+    render: Callable[[Results], None] | None,
+) -> Results | None:
+    """Run the remaining chunks within the memory budget, keeping each in ``partials`` and
+    rendering it; stops after the chunk in flight once a rerun is pending. The last results.
+    """
+    res = None
+    size = run_size(p)
+    need = size.full()
+    memory.check(size, need)  # this run alone (the message says what to change)
+    with ledger().reserve(need):  # and all sessions' runs together
+        for res in iter_chunks(p, start, first_chunk, live.tick):
+            partials[page] = (key, res)  # no session_state access: that can raise a rerun
+            if live.pending:
+                break
+            live.chunk_done(res)
+            if render is not None and not live.pending:
+                live.guarded(render, res)
+            if live.pending:
+                break
+    return res
+
+
+def _finish_stored(store: ResultStore, key: str, page: str, res: Results, render) -> Results:
+    """Results found finished (in the store, or complete in the session): stored, shown, returned."""
+    store.put(key, res)
+    _partials().pop(page, None)
+    cancel_run(page)
+    if render is not None:
+        render(res)
+    return res
+
+
 def run_live(
     spec: ExperimentSpec | Plan,
     page: str,
@@ -415,8 +514,6 @@ def run_live(
     (already shown as an error). ``spec`` may be its :class:`~navlab.experiment.Plan` (the
     sidebar's, planned once and passed on).
     """
-    from streamlit.runtime.scriptrunner_utils.exceptions import RerunException
-
     planned = spec if isinstance(spec, Plan) else None
     spec = spec.spec if isinstance(spec, Plan) else spec
     key = spec.to_json()
@@ -428,88 +525,41 @@ def run_live(
         return res
     start = partial_results(page, spec)
     if start is not None and start.complete:  # a click during the last batch kept all of it
-        store.put(key, start)
-        _partials().pop(page, None)
-        cancel_run(page)
-        if render is not None:
-            render(start)
-        return start
+        return _finish_stored(store, key, page, start, render)
     # the session's dict, fetched once: reading st.session_state is one of Streamlit's yield
     # points, where a rerun asked for mid-chunk is raised; storing a finished chunk through it
     # could lose that chunk (measured: Stop at 630 of 3000 runs kept 25)
     partials = _partials()
-    pc = progress_container if progress_container is not None else st
-    prog = pc.progress(
-        0.0 if start is None else start.done_runs / spec.runs, text="starting the Monte Carlo…"
+    live = _LiveProgress(
+        spec,
+        page,
+        start,
+        stop_button,
+        progress_container if progress_container is not None else st,
+        stop_container if stop_container is not None else st,
     )
-    stop_ph = (stop_container if stop_container is not None else st).empty()
-    if stop_button:
-        stop_ph.button(
-            "Stop",
-            key=f"_stop_{page}",
-            on_click=cancel_run,
-            args=(page,),
-            help="stop after the batch of runs in flight (it is kept); Run resumes where it stopped",
-        )
-    pending: list[RerunException] = []  # a rerun asked for mid-chunk, held until the chunk ends
-
-    def guarded(fn: Callable[..., Any], *args: Any, **kw: Any) -> None:
-        try:
-            fn(*args, **kw)
-        except RerunException as exc:
-            pending[:] = [exc]
-            with contextlib.suppress(RerunException):
-                prog.progress(prog_value[0], text="finishing the batch in flight (kept), then stopping…")
-
-    prog_value = [0.0]
     if start is not None and render is not None:
-        guarded(render, start)
+        live.guarded(render, start)
     t0 = time.perf_counter()
-    shown = [0.0]
-
-    def tick(runs_done: float) -> None:  # progress within a batch, at most every 5 %
-        if runs_done - shown[0] >= 0.05 * spec.runs and not pending:
-            shown[0] = runs_done
-            prog_value[0] = min(1.0, runs_done / spec.runs)
-            guarded(prog.progress, prog_value[0], text=f"{runs_done:.0f}/{spec.runs} runs…")
-
     try:
         p = planned or plan(spec)
-        size = run_size(p)
-        need = size.full()
-        memory.check(size, need)  # this run alone (the message says what to change)
-        with ledger().reserve(need):  # and all sessions' runs together
-            for res in iter_chunks(p, start, first_chunk, tick):
-                partials[page] = (key, res)  # no session_state access: that can raise a rerun
-                if pending:
-                    break
-                prog_value[0] = res.done_runs / spec.runs
-                guarded(
-                    prog.progress,
-                    prog_value[0],
-                    text=f"{res.done_runs}/{spec.runs} runs · {res.elapsed_s:.2f} s compute",
-                )
-                if render is not None and not pending:
-                    guarded(render, res)
-                if pending:
-                    break
+        res = _compute_live(p, key, page, start, first_chunk, partials, live, render)
     except Exception as exc:  # shown to the user, never a traceback
-        prog.empty()
-        stop_ph.empty()
+        live.clear()
         cancel_run(page)
         show_error(exc)
         return None
-    if pending:  # the finished chunks (the one in flight included) are kept: now rerun
+    if live.pending:  # the finished chunks (the one in flight included) are kept: now rerun
         if res is not None and res.complete:  # the last batch: finished, so stored now
             store.put(key, res)
             partials.pop(page, None)
-        raise pending[0]
+        raise live.pending[0]
     assert res is not None
-    stop_ph.empty()
+    live.stop_ph.empty()
     store.put(key, res)
     _partials().pop(page, None)
     cancel_run(page)
-    prog.progress(
+    live.prog.progress(
         1.0,
         text=f"done: {spec.runs} runs, {res.elapsed_s:.2f} s compute, "
         f"{time.perf_counter() - t0:.2f} s on the page",

@@ -93,6 +93,193 @@ def _a(v: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(v, dtype=F32)
 
 
+def _estimate_traces(fr, key: str, c: str, run: int, state: int, t: np.ndarray, ref: np.ndarray) -> list:
+    """Panel 1 for one filter: its estimate of ``state`` minus ``ref`` with a ±2σ (√P) band."""
+    ix = shown_epochs(t.size)
+    x = (fr.x[run, :, state] - ref)[ix]
+    s2 = (2.0 * np.sqrt(np.maximum(fr.P_diag[run, :, state], 0.0)))[ix]
+    edge = {"mode": "lines", "line": {"width": 0, "color": c}, "showlegend": False, "legendgroup": key}
+    return [
+        go.Scatter(x=_a(t[ix]), y=_a(x + s2), hoverinfo="skip", **edge),
+        go.Scatter(
+            x=_a(t[ix]), y=_a(x - s2), fill="tonexty", fillcolor=rgba(c, 0.15), hoverinfo="skip", **edge
+        ),
+        go.Scatter(
+            x=_a(t[ix]),
+            y=_a(x),
+            mode="lines",
+            name=_run_label(fr, run),
+            line={"color": c, "width": 2},
+            legendgroup=key,
+        ),
+    ]
+
+
+def _run_label(fr, run: int) -> str:
+    """The filter's label, saying so when it diverged in this run."""
+    return fr.label + (" (diverged in this run)" if fr.diverged[run] else "")
+
+
+def _weight_traces(fr, key: str, c: str, run: int, channel: int, t: np.ndarray) -> list:
+    """Panel 2 for one filter: its weight on ``channel`` from the first update on, × where flagged."""
+    ix1 = shown_epochs(t.size)
+    ix1 = ix1[ix1 > 0]
+    w = fr.weights[run, :, channel]
+    out = [
+        go.Scatter(
+            x=_a(t[ix1]),
+            y=_a(w[ix1]),
+            mode="lines",
+            name=_run_label(fr, run),
+            line={"color": c, "width": 1.5, "shape": "hv"},
+            legendgroup=key,
+            showlegend=False,
+        )
+    ]
+    flagged = fr.flags[run, :, channel] > 0
+    if flagged[1:].any():
+        k = np.flatnonzero(flagged)
+        k = k[k > 0]
+        out.append(
+            go.Scatter(
+                x=_a(t[k]),
+                y=_a(w[k]),
+                mode="markers",
+                name=f"{fr.label}: flagged",
+                marker={"color": c, "symbol": "x", "size": 8},
+                legendgroup=key,
+                showlegend=False,
+            )
+        )
+    return out
+
+
+def _r_trace(fr, key: str, c: str, run: int, channel: int, t: np.ndarray) -> go.Scatter:
+    """Panel 3 for one filter: its R̂ on ``channel`` (dashed: the R it used, without an R̂)."""
+    ix1 = shown_epochs(t.size)
+    ix1 = ix1[ix1 > 0]
+    est = fr.R_hat is not None
+    return go.Scatter(
+        x=_a(t[ix1]),
+        y=_a((fr.R_hat if est else fr.R_used)[run, ix1, channel]),
+        mode="lines",
+        name=f"{fr.label} {'R̂' if est else 'R used'}",
+        line={"color": c, "width": 2 if est else 1.2, "dash": None if est else "dash"},
+        legendgroup=key,
+        showlegend=False,
+    )
+
+
+def _measurement_traces(d, run: int, mch: int, t: np.ndarray, ref: np.ndarray) -> list:
+    """Panel 1: the measurements of channel ``mch`` minus ``ref`` (clean ones decimated; outliers: red ×)."""
+    drawn = np.zeros(t.size, bool)
+    drawn[shown_epochs(t.size)] = True
+    z = d.z[run, :, mch] - ref
+    bad = d.outlier_mask[run, :, mch] & np.isfinite(z)
+    clean = ~d.outlier_mask[run, :, mch] & np.isfinite(z) & drawn
+    out = []
+    for sel, name, marker, always in (
+        (clean, "measurement", {"color": "#6e7781", "symbol": "circle-open", "size": 6}, True),
+        (bad, "outlier (measurement)", {"color": OUTLIER_COLOR, "symbol": "x", "size": 10}, False),
+    ):
+        if always or sel.any():
+            out.append(go.Scatter(x=_a(t[sel]), y=_a(z[sel]), mode="markers", name=name, marker=marker))
+    return out
+
+
+def _truth_traces(
+    d, run: int, state: int, channel: int, t: np.ndarray, ref: np.ndarray, relative: bool
+) -> list:
+    """The truth of ``state`` minus ``ref`` (panel 1) and the true R(t) of ``channel`` (panel 3)."""
+    ix = shown_epochs(t.size)
+    truth = d.x_true[run, :, state]
+    line = {"color": TRUTH_COLOR, "width": 2.5}
+    return [
+        (
+            go.Scatter(
+                x=_a(t[ix]),
+                y=_a((truth - ref)[ix]),
+                mode="lines",
+                name="truth" + (" (the zero line)" if relative else ""),
+                line=line,
+            ),
+            1,
+        ),
+        (
+            go.Scatter(
+                x=_a(t[ix]),
+                y=_a(d.R_schedule[ix, channel]),
+                mode="lines",
+                name="true R(t)",
+                line=line,
+                showlegend=False,
+            ),
+            3,
+        ),
+    ]
+
+
+def _outlier_tick_traces(d, run: int, channel: int, t: np.ndarray, in_legend: bool) -> list:
+    """Red ticks at the outlier epochs of ``channel`` on the time axes of panels 2 and 3."""
+    out = d.outlier_mask[run, :, channel]
+    if not out.any():
+        return []
+    k = np.flatnonzero(out)
+    return [
+        (
+            go.Scatter(
+                x=_a(t[k]),
+                y=np.zeros(k.size, F32) if row == 2 else _a(d.R_schedule[k, channel]),
+                mode="markers",
+                name="outlier epoch",
+                marker={"color": OUTLIER_COLOR, "symbol": "triangle-up", "size": 9},
+                legendgroup="outlier",
+                showlegend=row == 2 and in_legend,
+            ),
+            row,
+        )
+        for row in (2, 3)
+    ]
+
+
+def _names(d, state: int, channel: int) -> tuple[str, str, str]:
+    """The state's name, the channel's name and the channel's unit ("" if not given)."""
+    sname = d.state_names[state] if state < len(d.state_names) else str(state)
+    cname = d.channel_names[channel] if channel < len(d.channel_names) else str(channel)
+    cunit = d.channel_units[channel] if channel < len(d.channel_units) else ""
+    return sname, cname, cunit
+
+
+def _three_panels(d, state: int, channel: int, mch: int | None, relative: bool) -> go.Figure:
+    """The empty figure: estimate (1), weight (2) and R (3) over a shared time axis, with titles."""
+    sname, cname, _ = _names(d, state, channel)
+    return make_subplots(
+        rows=3,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.07,
+        row_heights=(0.5, 0.22, 0.28),
+        subplot_titles=(
+            f"state {sname}{' minus the truth' if relative else ''}: each filter's estimate ± 2σ"
+            + (f", measurements of channel {d.channel_names[mch]}" if mch is not None else ""),
+            f"weight on channel {cname} (1 = untouched; ×: flagged)",
+            f"R on channel {cname}: each filter's R̂ (dashed: the R it used) and the true R(t)",
+        ),
+    )
+
+
+def _label_axes(fig: go.Figure, d, state: int, channel: int, log_r: bool, relative: bool) -> None:
+    """Axis titles of the three panels (R on a log axis with ``log_r``)."""
+    sname, _, cunit = _names(d, state, channel)
+    unit = f" ({cunit})" if cunit else ""
+    fig.update_yaxes(title_text=f"{sname} − truth" if relative else sname, row=1, col=1)
+    fig.update_yaxes(title_text="weight", range=[-0.08, 1.12], row=2, col=1)
+    fig.update_yaxes(
+        title_text=f"R{unit[:-1]}²)" if cunit else "R", type="log" if log_r else "linear", row=3, col=1
+    )
+    fig.update_xaxes(title_text="time (s)", row=3, col=1)
+
+
 def single_run_figure(
     res: Results,
     run: int,
@@ -120,194 +307,25 @@ def single_run_figure(
     """
     d = res.data
     t = np.asarray(d.t, dtype=float)
-    ix = shown_epochs(t.size)
-    ix1 = ix[ix > 0]  # weights and R from the first update on
-    drawn = np.zeros(t.size, bool)
-    drawn[ix] = True
     colors = filter_colors(list(res.runs))
-    sname = d.state_names[state] if state < len(d.state_names) else str(state)
-    cname = d.channel_names[channel] if channel < len(d.channel_names) else str(channel)
-    cunit = d.channel_units[channel] if channel < len(d.channel_units) else ""
     mch = measured_channel(res, state)
-    r_idx = int(d.runs[run]) if run < len(d.runs) else run
     truth = d.x_true[run, :, state]
     ref = truth if relative else np.zeros_like(truth)
-    fig = make_subplots(
-        rows=3,
-        cols=1,
-        shared_xaxes=True,
-        vertical_spacing=0.07,
-        row_heights=(0.5, 0.22, 0.28),
-        subplot_titles=(
-            f"state {sname}{' minus the truth' if relative else ''}: each filter's estimate ± 2σ"
-            + (f", measurements of channel {d.channel_names[mch]}" if mch is not None else ""),
-            f"weight on channel {cname} (1 = untouched; ×: flagged)",
-            f"R on channel {cname}: each filter's R̂ (dashed: the R it used) and the true R(t)",
-        ),
-    )
+    fig = _three_panels(d, state, channel, mch, relative)
     traces: list[tuple[Any, int]] = []
     for key in filters:
-        fr = res.runs[key]
-        c = colors[key]
-        x = fr.x[run, :, state] - ref
-        s2 = 2.0 * np.sqrt(np.maximum(fr.P_diag[run, :, state], 0.0))
-        name = fr.label + (" (diverged in this run)" if fr.diverged[run] else "")
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[ix]),
-                    y=_a((x + s2)[ix]),
-                    mode="lines",
-                    line={"width": 0, "color": c},
-                    showlegend=False,
-                    legendgroup=key,
-                    hoverinfo="skip",
-                ),
-                1,
-            )
-        )
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[ix]),
-                    y=_a((x - s2)[ix]),
-                    mode="lines",
-                    line={"width": 0, "color": c},
-                    fill="tonexty",
-                    fillcolor=rgba(c, 0.15),
-                    showlegend=False,
-                    legendgroup=key,
-                    hoverinfo="skip",
-                ),
-                1,
-            )
-        )
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[ix]),
-                    y=_a(x[ix]),
-                    mode="lines",
-                    name=name,
-                    line={"color": c, "width": 2},
-                    legendgroup=key,
-                ),
-                1,
-            )
-        )
-        w = fr.weights[run, :, channel]
-        flagged = fr.flags[run, :, channel] > 0
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[ix1]),
-                    y=_a(w[ix1]),
-                    mode="lines",
-                    name=name,
-                    line={"color": c, "width": 1.5, "shape": "hv"},
-                    legendgroup=key,
-                    showlegend=False,
-                ),
-                2,
-            )
-        )
-        if flagged[1:].any():
-            k = np.flatnonzero(flagged)
-            k = k[k > 0]
-            traces.append(
-                (
-                    go.Scatter(
-                        x=_a(t[k]),
-                        y=_a(w[k]),
-                        mode="markers",
-                        name=f"{fr.label}: flagged",
-                        marker={"color": c, "symbol": "x", "size": 8},
-                        legendgroup=key,
-                        showlegend=False,
-                    ),
-                    2,
-                )
-            )
-        est = fr.R_hat is not None
-        rv = (fr.R_hat if est else fr.R_used)[run, ix1, channel]
-        traces.append(
-            (
-                go.Scatter(
-                    x=_a(t[ix1]),
-                    y=_a(rv),
-                    mode="lines",
-                    name=f"{fr.label} {'R̂' if est else 'R used'}",
-                    line={"color": c, "width": 2 if est else 1.2, "dash": None if est else "dash"},
-                    legendgroup=key,
-                    showlegend=False,
-                ),
-                3,
-            )
-        )
-    out = d.outlier_mask[run, :, channel]
+        fr, c = res.runs[key], colors[key]
+        traces += [(tr, 1) for tr in _estimate_traces(fr, key, c, run, state, t, ref)]
+        traces += [(tr, 2) for tr in _weight_traces(fr, key, c, run, channel, t)]
+        traces.append((_r_trace(fr, key, c, run, channel, t), 3))
     if mch is not None:
-        z = d.z[run, :, mch] - ref
-        bad = d.outlier_mask[run, :, mch] & np.isfinite(z)
-        clean = ~d.outlier_mask[run, :, mch] & np.isfinite(z) & drawn
-        for sel, name, marker, always in (
-            (clean, "measurement", {"color": "#6e7781", "symbol": "circle-open", "size": 6}, True),
-            (bad, "outlier (measurement)", {"color": OUTLIER_COLOR, "symbol": "x", "size": 10}, False),
-        ):
-            if always or sel.any():
-                traces.append(
-                    (go.Scatter(x=_a(t[sel]), y=_a(z[sel]), mode="markers", name=name, marker=marker), 1)
-                )
-    traces.append(
-        (
-            go.Scatter(
-                x=_a(t[ix]),
-                y=_a((truth - ref)[ix]),
-                mode="lines",
-                name="truth" + (" (the zero line)" if relative else ""),
-                line={"color": TRUTH_COLOR, "width": 2.5},
-            ),
-            1,
-        )
-    )
-    traces.append(
-        (
-            go.Scatter(
-                x=_a(t[ix]),
-                y=_a(d.R_schedule[ix, channel]),
-                mode="lines",
-                name="true R(t)",
-                line={"color": TRUTH_COLOR, "width": 2.5},
-                showlegend=False,
-            ),
-            3,
-        )
-    )
-    if out.any():
-        k = np.flatnonzero(out)
-        for row in (2, 3):
-            traces.append(
-                (
-                    go.Scatter(
-                        x=_a(t[k]),
-                        y=np.zeros(k.size, F32) if row == 2 else _a(d.R_schedule[k, channel]),
-                        mode="markers",
-                        name="outlier epoch",
-                        marker={"color": OUTLIER_COLOR, "symbol": "triangle-up", "size": 9},
-                        legendgroup="outlier",
-                        showlegend=row == 2 and mch is None,
-                    ),
-                    row,
-                )
-            )
+        traces += [(tr, 1) for tr in _measurement_traces(d, run, mch, t, ref)]
+    traces += _truth_traces(d, run, state, channel, t, ref, relative)
+    traces += _outlier_tick_traces(d, run, channel, t, in_legend=mch is None)
     for tr, row in traces:
         fig.add_trace(tr, row=row, col=1)
-    unit = f" ({cunit})" if cunit else ""
-    fig.update_yaxes(title_text=f"{sname} − truth" if relative else sname, row=1, col=1)
-    fig.update_yaxes(title_text="weight", range=[-0.08, 1.12], row=2, col=1)
-    fig.update_yaxes(
-        title_text=f"R{unit[:-1]}²)" if cunit else "R", type="log" if log_r else "linear", row=3, col=1
-    )
-    fig.update_xaxes(title_text="time (s)", row=3, col=1)
+    _label_axes(fig, d, state, channel, log_r, relative)
+    r_idx = int(d.runs[run]) if run < len(d.runs) else run
     fig.update_layout(
         height=820,
         hovermode="x unified",
@@ -321,6 +339,91 @@ def single_run_figure(
     return fig
 
 
+def _veil_and_cursor(tk: float, t_end: float, pad: float) -> list[dict]:
+    """Layout shapes at time ``tk``: a white veil over the later epochs and an orange cursor line."""
+    return [
+        {
+            "type": "rect",
+            "xref": "x",
+            "yref": "paper",
+            "x0": tk + pad,
+            "x1": t_end + pad,
+            "y0": 0,
+            "y1": 1,
+            "fillcolor": "rgba(255,255,255,0.82)",
+            "line": {"width": 0},
+            "layer": "above",
+        },
+        {
+            "type": "line",
+            "xref": "x",
+            "yref": "paper",
+            "x0": tk,
+            "x1": tk,
+            "y0": 0,
+            "y1": 1,
+            "line": {"color": "#f0a500", "width": 2},
+        },
+    ]
+
+
+def _play_buttons(names: list[str]) -> dict:
+    """The ▶ play / ❚❚ pause buttons that animate the frames ``names``."""
+    return {
+        "type": "buttons",
+        "direction": "left",
+        "x": 0.0,
+        "xanchor": "left",
+        "y": 1.07,
+        "yanchor": "bottom",
+        "pad": {"t": 0, "r": 4},
+        "showactive": False,
+        "buttons": [
+            {
+                "label": "▶ play",
+                "method": "animate",
+                "args": [
+                    names,
+                    {
+                        "frame": {"duration": 120, "redraw": True},
+                        "fromcurrent": False,
+                        "mode": "immediate",
+                    },
+                ],
+            },
+            {
+                "label": "❚❚ pause",
+                "method": "animate",
+                "args": [[None], {"frame": {"duration": 0, "redraw": False}, "mode": "immediate"}],
+            },
+        ],
+    }
+
+
+def _time_slider(names: list[str]) -> dict:
+    """A slider with one step a frame, at the last one."""
+    return {
+        "active": len(names) - 1,
+        "x": 0.16,
+        "len": 0.84,
+        "y": 1.07,
+        "yanchor": "bottom",
+        "pad": {"t": 0, "b": 0},
+        "currentvalue": {"prefix": "epoch ", "font": {"size": 12}},
+        "steps": [
+            {
+                "label": name,
+                "method": "animate",
+                "args": [
+                    [name],
+                    {"frame": {"duration": 0, "redraw": True}, "mode": "immediate"},
+                ],
+            }
+            for name in names
+        ],
+    }
+
+
 def add_player(fig: go.Figure, t: np.ndarray) -> None:
     """A play button and a time slider: frames that move a cursor and lift a white veil off the
     epochs up to it (layout shapes only, so a frame is a few bytes and the data is sent once).
@@ -329,90 +432,15 @@ def add_player(fig: go.Figure, t: np.ndarray) -> None:
     steps = np.unique(np.linspace(1, K, min(MAX_FRAMES, K)).round().astype(int))
     t_end = float(t[-1])
     pad = 0.5 * float(np.median(np.diff(t))) if t.size > 1 else 0.5
-
-    def shapes(k: int) -> list[dict]:
-        tk = float(t[k])
-        return [
-            {
-                "type": "rect",
-                "xref": "x",
-                "yref": "paper",
-                "x0": tk + pad,
-                "x1": t_end + pad,
-                "y0": 0,
-                "y1": 1,
-                "fillcolor": "rgba(255,255,255,0.82)",
-                "line": {"width": 0},
-                "layer": "above",
-            },
-            {
-                "type": "line",
-                "xref": "x",
-                "yref": "paper",
-                "x0": tk,
-                "x1": tk,
-                "y0": 0,
-                "y1": 1,
-                "line": {"color": "#f0a500", "width": 2},
-            },
-        ]
-
-    fig.frames = [go.Frame(name=str(int(k)), layout={"shapes": shapes(int(k))}) for k in steps]
+    names = [str(int(k)) for k in steps]
+    fig.frames = [
+        go.Frame(name=str(int(k)), layout={"shapes": _veil_and_cursor(float(t[int(k)]), t_end, pad)})
+        for k in steps
+    ]
     fig.update_layout(
-        shapes=shapes(int(steps[-1])),
-        updatemenus=[
-            {
-                "type": "buttons",
-                "direction": "left",
-                "x": 0.0,
-                "xanchor": "left",
-                "y": 1.07,
-                "yanchor": "bottom",
-                "pad": {"t": 0, "r": 4},
-                "showactive": False,
-                "buttons": [
-                    {
-                        "label": "▶ play",
-                        "method": "animate",
-                        "args": [
-                            [str(int(k)) for k in steps],
-                            {
-                                "frame": {"duration": 120, "redraw": True},
-                                "fromcurrent": False,
-                                "mode": "immediate",
-                            },
-                        ],
-                    },
-                    {
-                        "label": "❚❚ pause",
-                        "method": "animate",
-                        "args": [[None], {"frame": {"duration": 0, "redraw": False}, "mode": "immediate"}],
-                    },
-                ],
-            }
-        ],
-        sliders=[
-            {
-                "active": len(steps) - 1,
-                "x": 0.16,
-                "len": 0.84,
-                "y": 1.07,
-                "yanchor": "bottom",
-                "pad": {"t": 0, "b": 0},
-                "currentvalue": {"prefix": "epoch ", "font": {"size": 12}},
-                "steps": [
-                    {
-                        "label": str(int(k)),
-                        "method": "animate",
-                        "args": [
-                            [str(int(k))],
-                            {"frame": {"duration": 0, "redraw": True}, "mode": "immediate"},
-                        ],
-                    }
-                    for k in steps
-                ],
-            }
-        ],
+        shapes=_veil_and_cursor(float(t[int(steps[-1])]), t_end, pad),
+        updatemenus=[_play_buttons(names)],
+        sliders=[_time_slider(names)],
     )
     # the title at the top of the figure, the controls between it and the first panel
     fig.update_layout(
