@@ -119,6 +119,7 @@ class Noise:
     fixed : () or (B,) True where this step needed a numerical repair (flag 9).
     stats : per-run diagnostics for :class:`~navlab.filters.base.StepOut`.
     state : new values of the filter's own state fields (the VB α, β …).
+    nu : the innovation the gain multiplies, if not ν (the skew-t's ν′ = ν − Δ E[u]).
     """
 
     R: Array
@@ -128,6 +129,7 @@ class Noise:
     fixed: Array | bool = False
     stats: dict[str, Array] = field(default_factory=dict)
     state: dict[str, Array] = field(default_factory=dict)
+    nu: Array | None = None
 
 
 class KalmanUpdate(Filter):
@@ -144,7 +146,7 @@ class KalmanUpdate(Filter):
         nz = self.noise(model, state, pr, z)  # the R in the gain (and the weights, R̂ …)
         S = sym(pr.mk.M + nz.R)  # 3  S = H P⁻ Hᵀ + R
         K, fixed = self.gain(pr.mk, S, nz)  # 4  K = P⁻ Hᵀ S⁻¹
-        x = pr.x + mv(K, pr.mk.nu)  # 5  x⁺ = x⁻ + K ν
+        x = pr.x + mv(K, pr.mk.nu if nz.nu is None else nz.nu)  # 5  x⁺ = x⁻ + K ν
         P = joseph_from_gain(pr.P, K, pr.mk.U, S)  # 6  P⁺ = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ
         flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
         flag_fix(flags, nz.fixed | fixed)

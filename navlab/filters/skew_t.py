@@ -79,18 +79,14 @@ from scipy.special import betaln, log_ndtr, stdtr
 from navlab.errors import NavlabError
 from navlab.filters.base import (
     DOWNWEIGHTED,
-    Filter,
     KFLimit,
     KFState,
     Model,
-    SideInfo,
-    StepOut,
     Teaching,
-    flag_fix,
     register,
 )
 from navlab.filters.ekf import ekf_predict
-from navlab.filters.kalman import kf_update, measurement_prediction
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.linalg import Array, batched, diag, diag_embed, mask_missing, solve_sym
 from navlab.params import param
 
@@ -266,7 +262,7 @@ class SkewTParams:
 
 
 @register
-class SkewTKF(Filter):
+class SkewTKF(KalmanUpdate):
     """Skew-t VB KF: NLOS-aware update with a positive skewness variable per channel (§11)."""
 
     key = "skew-t-kf"
@@ -327,32 +323,25 @@ class SkewTKF(Filter):
         x, P = ekf_predict(model, state.x, state.P, k)  # x⁻ = f(x⁺), P⁻ = A P⁺ Aᵀ + Q
         return state._replace(x=x, P=P)
 
-    def update(self, model: Model, state: KFState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x0, P0 = state.x, state.P
+    def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
+        """Steps 1–3 of every run: the pseudo-measurement ν′ and noise R′ of the final KF update."""
+        p, mk = self.params, pr.mk
         B = z.shape[0]
-        R0 = np.asarray(model.R0, dtype=float)
-        r = p.r_scale * np.diagonal(R0)  # R = s·R0
-        mk = measurement_prediction(model, x0, P0, k, z, R0)  # ν = z − h(x⁻), U = P⁻Hᵀ, M = H P⁻ Hᵀ
+        r = p.r_scale * np.diagonal(np.asarray(model.R0, dtype=float))  # R = s·R0
         ok = mk.ok
         Delta = np.where(positive_skew(model) & ok, p.delta * np.sqrt(r), 0.0)  # Δ = δ √R
         nu_p, R_p, lam, Eu, _, fixed = skew_t_update(batched(mk.M, B), mk.nu, ok, r, Delta, p.dof, p.iters)
-        R_used = mask_missing(z, mk.nu, diag_embed(R_p)).R
-        x, P, S, _, fix = kf_update(x0, P0, mk.U, mk.M, nu_p, R_used)  # KF update with ν′, R′
         w = np.where(ok, r / R_p, 1.0)
         flags = np.where(ok & (w < p.flag_below), DOWNWEIGHTED, 0).astype(np.int8)
         # the predictive density of each measurement before it is used (the state's uncertainty
         # joins the core: W = H P⁻ Hᵀ_jj + R_j), for the truth-free score nlpd (navlab.metrics)
         core = np.diagonal(batched(mk.M, B), axis1=-2, axis2=-1) + r
         logpdf = np.where(ok, skew_t_logpdf(mk.nu, core, Delta, p.dof), np.nan)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=R_used,
+        return Noise(
+            mask_missing(z, mk.nu, diag_embed(R_p)).R,
             weights=w,
-            flags=flag_fix(flags, fixed | fix),
+            flags=flags,
+            fixed=fixed,
             stats={"excess": Delta * Eu, "lambda": lam, "logpdf": logpdf},
+            nu=nu_p,  # ν′ = ν − Δ E[u]
         )
-        return KFState(x, P), out
