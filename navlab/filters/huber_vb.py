@@ -152,10 +152,10 @@ def vb_iterations(
     iterations done, the last max |Δβ/β| and whether S needed jitter (flag 9).
     """
     m = nu.shape[0]
-    beta = beta_minus.copy()  # β^(0) = β⁻
-    resid = nu.copy()
-    w, Rt, Rhat, hph = np.ones((4, m))  # per channel: weight, R̃, R̂, H P⁺ Hᵀ
+    beta, resid, w, Rt, Rhat, hph = np.ones((6, m))  # per channel: β, z − Hx⁺, weight, R̃, R̂, HP⁺Hᵀ
     S, L, G = np.empty((3, m, m))  # work arrays of the update
+    beta[:] = beta_minus  # β^(0) = β⁻
+    resid[:] = nu
     n_iter, delta, fixed = 0, 0.0, False
     for it in range(iters):
         for i in range(m):
