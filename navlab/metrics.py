@@ -13,8 +13,9 @@ How a number is made (the statistics spec, docs/STATISTICS.md):
   (:attr:`navlab.experiment.FilterRun.diverged_at`).
 * **Every filter is judged on the same runs.** A filter that diverges in at most 5 % of the runs
   is *reliable*; the *common runs* are those where every reliable filter is valid, and every
-  reliable filter's metrics are computed over them (so a run lost by one filter is left out for
-  all, and counted). A filter that diverges in more than 5 % is reported as "diverges in k of N
+  reliable filter's table values are computed over them (counted). A paired comparison does not
+  leave a lost run out: it is a loss for the filter that lost it (:data:`LOSS_RULE`), the Δ over
+  the runs both kept shown beside. A filter that diverges in more than 5 % is reported as "diverges in k of N
   runs", ranks below every reliable filter whatever its numbers, and its metrics are computed over
   the common runs it survived, labelled so.
 * Skipped non-finite entries (NEES, NIS, R̂ ratios) are counted and reported beside the metric.
@@ -78,7 +79,24 @@ COLUMNS = [
     "runs_used",
     "note",
 ]
-DIFF_COLUMNS = ["vs", "p_value", "p_holm", "verdict"]
+LOSS_RULE = (
+    "in a paired comparison a run lost (diverged) by one filter counts as a loss for it: its value "
+    "there is the worst any run of either filter reached (per epoch for per-epoch metrics), so "
+    "diverging can never help; Δ, its interval and the test are over every run, the Δ over the "
+    "runs both kept is shown beside"
+)
+DIFF_COLUMNS = [
+    "vs",
+    "p_value",
+    "p_bound",  # "<": the p is at the bootstrap's floor, a bound (no resample beyond 0)
+    "p_holm",
+    "p_holm_bound",
+    "verdict",
+    "common_value",  # Δ over the runs both filters kept (no loss scored), with its interval
+    "common_ci_lo",
+    "common_ci_hi",
+    "common_runs",
+]
 
 
 # --------------------------------------------------------------------------- array helpers
@@ -394,6 +412,18 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
 
 
 @dataclass(frozen=True)
+class Paired:
+    """A paired comparison under the loss rule (``c``), the same over the runs both filters kept
+    (``common``), the unit and a note on the lost runs.
+    """
+
+    c: S.Comparison
+    common: S.Comparison
+    unit: str
+    note: str = ""
+
+
+@dataclass(frozen=True)
 class Judgement:
     """Which runs each filter is judged on (module note): valid, reliable, common, judged."""
 
@@ -530,6 +560,7 @@ class Summary:
         self._est: dict[tuple[str, bytes], dict[str, tuple[S.Estimator, str]]] = {}
         self._ci: dict[tuple[str, str], S.Estimate] = {}
         self._rep: dict[tuple[str, str, bytes], Array] = {}
+        self._paired: dict[tuple[str, str, str], Paired | None] = {}
 
     def resampler(self, n: int) -> S.Resampler:
         if n not in self._resamplers:
@@ -557,7 +588,22 @@ class Summary:
         return self._ci[ck]
 
     def comparison(self, key: str, ref: str, metric: str) -> tuple[S.Comparison, str] | None:
-        """Paired Δ = metric(key) − metric(ref) over the runs both are judged on."""
+        """Paired Δ = metric(key) − metric(ref) under the loss rule (:meth:`paired`)."""
+        got = self.paired(key, ref, metric)
+        return None if got is None else (got.c, got.unit)
+
+    def paired(self, key: str, ref: str, metric: str) -> Paired | None:
+        """Paired Δ = metric(key) − metric(ref) over EVERY run, a run lost by one of the two
+        scored as its loss (:data:`LOSS_RULE`, :func:`navlab.stats.with_losses`), and the Δ over
+        the runs both are judged on beside. Metrics without a direction (consistency) have no
+        worst value: their Δ is over the judged runs alone.
+        """
+        ck = (key, ref, metric)
+        if ck not in self._paired:
+            self._paired[ck] = self._make_paired(key, ref, metric)
+        return self._paired[ck]
+
+    def _make_paired(self, key: str, ref: str, metric: str) -> Paired | None:
         jd = self.judgement
         runs = jd.judged[key] & jd.judged[ref]
         n = int(runs.sum())
@@ -565,7 +611,25 @@ class Summary:
         eb = self.estimators(ref, runs).get(metric)
         if ea is None or eb is None or n == 0:
             return None
-        return self.resampler(n).compare(ea[0], eb[0]), ea[1]
+        common = self.resampler(n).compare(ea[0], eb[0])
+        d = direction(metric)
+        lost_a, lost_b = ~jd.valid[key], ~jd.valid[ref]
+        if d == 0 or (runs.all() and not (lost_a.any() or lost_b.any())):
+            return Paired(common, common, ea[1], "")
+        every = np.ones(jd.n_runs, dtype=bool)
+        fa = self.estimators(key, every).get(metric)
+        fb = self.estimators(ref, every).get(metric)
+        if fa is None or fb is None:
+            return Paired(common, common, ea[1], "")
+        a, b = S.with_losses(fa[0], fb[0], lost_a, lost_b, d)
+        c = self.resampler(jd.n_runs).compare(a, b)
+        lost = [f"{int(m.sum())} runs lost by {k}" for k, m in ((key, lost_a), (ref, lost_b)) if m.any()]
+        note = (
+            "; ".join(lost) + ": scored as the worst run of the pair (a loss)"
+            if lost
+            else f"over all {jd.n_runs} runs"
+        )
+        return Paired(c, common, ea[1], note)
 
     def rows(self, metrics: list[str] | None = None) -> pd.DataFrame:
         """Tidy rows (:data:`COLUMNS`): every metric of every filter, with intervals for the
@@ -673,13 +737,16 @@ def compare(
     """Paired differences of every other filter (of ``among``, default all) against ``ref``
     (rows ``<metric>_diff``; Holm's correction is across those filters).
 
-    For each filter A ≠ ref and metric of ``metrics``: Δ = metric(A) − metric(ref) over the runs both
-    are judged on (the common runs when both are reliable, so Δ is the difference of the table's
-    values), its 95 % interval and p-value (paired bootstrap over runs, or the delta method at
-    ≥ 1000 runs), Holm-adjusted across the other filters (``p_holm``), and a verdict: ``better`` /
-    ``worse`` (adjusted p < 0.05, by the metric's direction) or ``indistinguishable`` at this run
-    count. A filter that diverges in more than 5 % of the runs is ``worse`` than a reliable
-    reference whatever Δ (and the reverse).
+    For each filter A ≠ ref and metric of ``metrics``: Δ = metric(A) − metric(ref) over every run,
+    a run lost by one of the two scored as its loss (:data:`LOSS_RULE`; with no run lost and the
+    common runs all runs, Δ is the difference of the table's values), its 95 % interval and
+    p-value (paired bootstrap over runs, the p the inversion of that interval, or the delta
+    method at ≥ 1000 runs; ``p_bound`` "<" where it is at the bootstrap's floor), Holm-adjusted
+    across the other filters (``p_holm``, ``p_holm_bound``), a verdict: ``better`` / ``worse``
+    (adjusted p < 0.05, by the metric's direction and the side of 0 the interval lies on) or
+    ``indistinguishable`` at this run count, and beside it Δ over the runs both kept
+    (``common_*``, no loss scored). A filter that diverges in more than 5 % of the runs is
+    ``worse`` than a reliable reference whatever Δ (and the reverse).
     """
     if ref not in res.runs:
         raise NavlabError(
@@ -691,26 +758,36 @@ def compare(
     for metric in metrics:
         part: list[dict] = []
         pvals: dict[str, float] = {}
+        bounds: dict[str, bool] = {}
         for key in res.runs:
             if key == ref or (among is not None and key not in among):
                 continue
-            got = sm.comparison(key, ref, metric)
+            got = sm.paired(key, ref, metric)
             if got is None:
                 continue
-            c, unit = got
-            pvals[key] = c.p_value
-            r = row(key, res.runs[key].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note)
-            r.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs=ref, p_value=c.p_value)
-            part.append(r)
-        adj = S.holm(pvals)
+            pvals[key], bounds[key] = got.c.p_value, got.c.at_floor
+            part.append(diff_row(key, res.runs[key].label, metric, got, ref))
+        adj, adj_bound = S.holm_bounds(pvals, bounds)
         for r in part:
             key = r["filter"]
             r["p_holm"] = adj.get(key, np.nan)
+            r["p_holm_bound"] = "<" if adj_bound.get(key) else ""
             r["verdict"], extra = verdict(metric, r, jd, key, ref)
             if extra:
                 r["note"] = "; ".join(x for x in (r["note"], extra) if x)
         rows += part
     return pd.DataFrame(rows, columns=COLUMNS + DIFF_COLUMNS)
+
+
+def diff_row(key: str, label: str, metric: str, got: Paired, vs: str) -> dict:
+    """The ``<metric>_diff`` row of a paired comparison (before Holm's correction and verdict)."""
+    c, cc = got.c, got.common
+    note = "; ".join(x for x in (c.note, got.note) if x)
+    r = row(key, label, f"{metric}_diff", c.value, got.unit, None, c.n_runs, note)
+    r.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs=vs, p_value=c.p_value)
+    r["p_bound"] = "<" if c.at_floor else ""
+    r.update(common_value=cc.value, common_ci_lo=cc.lo, common_ci_hi=cc.hi, common_runs=cc.n_runs)
+    return r
 
 
 def verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[str, str]:
@@ -724,9 +801,12 @@ def verdict(metric: str, r: dict, jd: Judgement, key: str, ref: str) -> tuple[st
         return "", "no test (too few runs)"
     if d == 0:
         return "", "no direction: consistency is judged against its χ² band"
-    if p < S.ALPHA and r["value"] * d < 0:
+    # the side of 0 the interval lies on (a test p < 0.05 means it excludes 0): never the point
+    # estimate against its own interval (a bias-corrected interval need not hold it)
+    side = 1.0 if r["ci_lo"] > 0 else (-1.0 if r["ci_hi"] < 0 else np.sign(r["value"]))
+    if p < S.ALPHA and side * d < 0:
         return "better", ""
-    if p < S.ALPHA and r["value"] * d > 0:
+    if p < S.ALPHA and side * d > 0:
         return "worse", ""
     return "indistinguishable", "indistinguishable at this run count"
 

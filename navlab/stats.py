@@ -23,11 +23,14 @@ docs/STATISTICS.md):
   free (quantiles keep the bootstrap, in blocks of resamples so memory stays bounded). Which
   one was used is returned with every estimate (``method``). With fewer than
   :data:`MIN_RUNS` runs there is no interval.
-* Paired p-values: the bootstrap p-value is the level at which the (expanded BCa) interval
-  of Δ reaches 0 — so p < 0.05 exactly when the 95 % interval excludes 0 — computed from the
-  share of resamples with Δ* < 0 (for the plain percentile interval this is the spec's
-  ``2·min(P*(Δ ≤ 0), P*(Δ ≥ 0))``); where no resample falls on the other side of 0 it is
-  floored at that share = 1/B and reported as "p < …", never 0. Delta: ``p = 2 Φ(−|Δ|/se)``.
+* Paired p-values: one bootstrap, inverted for both — the p-value is the largest α whose
+  (expanded BCa) (1 − α) interval, from the same replicates and quantiles, still holds 0, so
+  p < 0.05 exactly when the 95 % interval excludes 0, a bias-corrected maximum included
+  (:func:`_inverted_p`; for the plain percentile interval this is the spec's
+  ``2·min(P*(Δ ≤ 0), P*(Δ ≥ 0))``); where no level holds 0 it is below the bootstrap's
+  resolution and reported as the bound :func:`floor_p` ("p < …", ``at_floor``), never 0.
+  Delta: ``p = 2 Φ(−|Δ|/se)``. A run lost by one filter of a pair is scored as its loss
+  (:func:`with_losses`, docs/STATISTICS.md §5).
   Several filters against one reference: Holm's step-down correction (:func:`holm`).
 
 References: Efron & Tibshirani, *An Introduction to the Bootstrap*, 1993 (ch. 13–14);
@@ -38,6 +41,7 @@ T. C. Hesterberg, "What teachers should know about the bootstrap", The American 
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -258,6 +262,7 @@ class Quantile(Estimator):
 
     def __init__(self, values: Array, q: float) -> None:
         v = np.asarray(values, dtype=float)
+        self.values = v  # the per-run values (a loss rule fills a lost run's: with_losses)
         self.n = int(v.shape[0])
         self.q = float(q)
         run = np.broadcast_to(np.arange(self.n)[:, None], v.shape)
@@ -317,6 +322,81 @@ class _Combined(Estimator):
         if not vb:
             return None
         return (ia - (va / vb) * ib) / vb
+
+
+def _worst(values: Array, sign: int) -> Array:
+    """Per column, the worst finite value (max where lower is better), NaN where none."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an epoch no run reached: NaN
+        return np.nanmax(values, axis=0) if sign > 0 else np.nanmin(values, axis=0)
+
+
+def with_losses(
+    a: Estimator, b: Estimator, lost_a: Array, lost_b: Array, sign: int
+) -> tuple[Estimator, Estimator]:
+    """The estimators ``a`` and ``b`` (over the same runs) with each one's LOST runs (diverged)
+    scored as the worst per-run value of the pair (docs/STATISTICS.md §5, the loss rule).
+
+    The composite strategy (ICH E9(R1)): losing a run is part of the outcome, and its worst
+    form — the lost run takes, for that filter, the worst value any run of either filter
+    reached (per epoch for per-epoch statistics), ``sign`` +1 where lower is better, −1 where
+    higher is. So a lost run ranks last for its filter (a loss, or a tie where both lost it),
+    whatever the share of lost runs; the penalty is bounded by what was observed (one lost run
+    cannot make an interval infinite), and with no lost run the estimators are ``a`` and ``b``.
+    """
+    la, lb = np.asarray(lost_a, dtype=bool), np.asarray(lost_b, dtype=bool)
+    if not (la.any() or lb.any()):
+        return a, b
+    if type(a) is not type(b):
+        raise TypeError("a paired comparison needs estimators of the same statistic")
+    if isinstance(a, Ratio):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ra, rb = a.num / a.den, b.num / b.den
+        vals = np.concatenate([ra[~la & (a.den > 0)], rb[~lb & (b.den > 0)]])
+        vals = vals[np.isfinite(vals)]
+        if not vals.size:
+            return a, b
+        key = sign * (a.scale if a.scale else 1.0)
+        worst = float(vals.max() if key > 0 else vals.min())
+        den = np.maximum(a.den, b.den)  # a lost run's counts: the pair's fuller one
+
+        def fill(e: Ratio, lost: Array) -> Ratio:
+            num, d = e.num.copy(), e.den.copy()
+            d[lost] = den[lost]
+            num[lost] = worst * d[lost]
+            return Ratio(num, d, sqrt=e.sqrt, scale=e.scale)
+
+        return fill(a, la), fill(b, lb)
+    if isinstance(a, MeanSqrtRatio):  # the maximum too: per epoch, the pair's worst error
+        fa = np.asarray(a.num, dtype=float)
+        fb = np.asarray(b.num, dtype=float)
+        da = np.ones_like(fa) if a.den is None else a.den
+        db = np.ones_like(fb) if b.den is None else b.den
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ra = np.where(~la[:, None] & (da > 0), fa / np.where(da > 0, da, 1.0), np.nan)
+            rb = np.where(~lb[:, None] & (db > 0), fb / np.where(db > 0, db, 1.0), np.nan)
+        both = np.concatenate([ra, rb])
+        both = np.where(np.isfinite(both), both, np.nan)
+        worst = _worst(both, sign)
+
+        def fill_k(e: MeanSqrtRatio, f: Array, lost: Array) -> MeanSqrtRatio:
+            f = f.copy()
+            if e.den is None:
+                f[lost] = worst
+                return type(e)(f, scale=e.scale)
+            d = e.den.copy()
+            d[lost] = 1.0
+            f[lost] = worst
+            return type(e)(f, d, scale=e.scale)
+
+        return fill_k(a, fa, la), fill_k(b, fb, lb)
+    if isinstance(a, Quantile):
+        va, vb = a.values.copy(), b.values.copy()
+        both = np.concatenate([np.where(la[:, None], np.nan, va), np.where(lb[:, None], np.nan, vb)])
+        worst = _worst(both, sign)
+        va[la], vb[lb] = worst, worst
+        return Quantile(va, a.q), Quantile(vb, b.q)
+    raise TypeError(f"no loss rule for {type(a).__name__}")
 
 
 @functools.lru_cache(maxsize=256)
@@ -456,21 +536,91 @@ class Resampler:
         t, z0, acc = self._bca(d, e.value)
         if np.ptp(t) <= 1e-9 * max(1.0, abs(e.value)) and abs(e.value) <= 1e-9:
             return Comparison(e.value, e.lo, e.hi, 1.0, "bootstrap", self.n)  # the same twice
-        # the level at which the BCa interval's end reaches 0: invert its quantile map at the
-        # share of resamples below 0, then undo the small-sample expansion (module note)
-        q0 = float(np.mean(t < 0) + 0.5 * np.mean(t == 0))
-        floor = q0 < 1.0 / self.n_boot or q0 > 1.0 - 1.0 / self.n_boot
-        q0 = np.clip(q0, 1.0 / self.n_boot, 1.0 - 1.0 / self.n_boot)
-        w = float(ndtri(q0)) - z0
-        z = w / (1.0 + acc * w) - z0
-        p = expanded_p(float(2.0 * ndtr(-abs(z))), self.n)
+        p, floor = _inverted_p(np.sort(t), z0, acc, self.n)
         return Comparison(e.value, e.lo, e.hi, p, "bootstrap", self.n, at_floor=floor)
+
+
+def _zero_positions(t: Array) -> tuple[float, float]:
+    """Where 0 sits in the sorted replicates ``t`` as a position of ``np.quantile``'s linear
+    interpolation (position = level · (B − 1)): (the last position whose quantile is ≤ 0, the
+    first whose quantile is ≥ 0); ±inf where the quantile never gets there.
+    """
+    B = t.size
+    j = int(np.searchsorted(t, 0.0, side="right")) - 1  # last t ≤ 0
+    if j < 0:
+        hi = -np.inf
+    elif j == B - 1:
+        hi = np.inf
+    else:
+        hi = j + (0.0 - t[j]) / (t[j + 1] - t[j])
+    i = int(np.searchsorted(t, 0.0, side="left"))  # first t ≥ 0
+    if i == B:
+        lo = np.inf
+    elif i == 0:
+        lo = -np.inf
+    else:
+        lo = (i - 1) + (0.0 - t[i - 1]) / (t[i] - t[i - 1])
+    return hi, lo
+
+
+def _alpha(z: float, n: int) -> float:
+    """The two-sided level 1 − coverage of the expanded interval with nominal quantile ``z``
+    (the inverse of ``−ndtri(expanded_tail(n, 1 − α))``).
+    """
+    if n < 2:
+        return float(2.0 * ndtr(-z))
+    return float(2.0 * student_t.sf(z * np.sqrt((n - 1.0) / n), n - 1))
+
+
+def floor_p(n: int, n_boot: int = N_BOOT) -> float:
+    """The smallest p a bootstrap of ``n_boot`` resamples resolves: one resample in ``n_boot``
+    on the other side of 0 in a percentile interval (2/B two-sided), expanded for ``n`` runs.
+    A p at this floor is a bound ("p < …").
+    """
+    return _alpha(float(ndtri(1.0 - 1.0 / n_boot)), n)
+
+
+Z_MAX = 40.0  # nominal quantiles beyond this: every interval level the bootstrap can express
+
+
+def _inverted_p(t: Array, z0: float, acc: float, n: int) -> tuple[float, bool]:
+    """The paired p-value as the inversion of the very interval :meth:`Resampler.estimate`
+    reports: p = the largest α whose (1 − α) interval still holds 0, so p < 0.05 exactly when the
+    95 % interval excludes 0 (a bias-corrected maximum too). Where no interval level holds 0 (no
+    resample on the other side, or a bias correction that pushes every level past it) the p is
+    below the bootstrap's resolution: :func:`floor_p`, flagged as a bound.
+    """
+    B = t.size
+    hi0, lo0 = _zero_positions(t)
+
+    def holds(z: float) -> bool:  # 0 inside the interval of nominal quantile z
+        lo = _bca_level(z0, acc, -z) * (B - 1)
+        hi = _bca_level(z0, acc, z) * (B - 1)
+        return lo <= hi0 and hi >= lo0
+
+    if holds(0.0):
+        return 1.0, False
+    if not holds(Z_MAX):
+        return min(floor_p(n, B), ALPHA / 2), True
+    a, b = 0.0, Z_MAX  # holds(a) False, holds(b) True: bisect to the boundary
+    for _ in range(80):
+        m = 0.5 * (a + b)
+        if holds(m):
+            b = m
+        else:
+            a = m
+    if holds(-float(ndtri(expanded_tail(n)))):  # the 95 % interval holds 0: p ≥ its α
+        return max(_alpha(a, n), ALPHA), False
+    return min(_alpha(b, n), np.nextafter(ALPHA, 0.0)), False
 
 
 def _bca_level(z0: float, acc: float, z: float) -> float:
     """BCa quantile level for a nominal normal quantile z (Efron & Tibshirani 1993, §14.3)."""
     u = z0 + z
-    return float(ndtr(z0 + u / (1.0 - acc * u)))
+    den = 1.0 - acc * u
+    if den <= 0.0:  # past the pole of the acceleration: the level saturates (monotone in z)
+        return 1.0 if u > 0 else 0.0
+    return float(ndtr(z0 + u / den))
 
 
 def _normal_p(value: float, se: float) -> float:
@@ -492,12 +642,33 @@ def holm(p_values: dict[str, float]) -> dict[str, float]:
     return out
 
 
+def holm_bounds(
+    p_values: dict[str, float], bounds: dict[str, bool]
+) -> tuple[dict[str, float], dict[str, bool]]:
+    """:func:`holm` of p-values some of which are bounds (a p at the bootstrap's floor): the
+    adjusted values, and which of them are bounds — those whose step-down maximum is a bound's
+    multiple (Holm's adjusted p grows with every raw p, so a bound in gives a bound out).
+    """
+    items = sorted(((p, k) for k, p in p_values.items() if np.isfinite(p)))
+    m = len(items)
+    out = {k: float("nan") for k in p_values}
+    bound = {k: False for k in p_values}
+    running, running_bound = 0.0, False
+    for i, (p, k) in enumerate(items):
+        term = min(1.0, (m - i) * p)
+        if term > running or (term == running and not bounds.get(k, False)):
+            running, running_bound = term, bool(bounds.get(k, False)) and term < 1.0
+        out[k], bound[k] = running, running_bound
+    return out, bound
+
+
 def format_p(p: float, at_floor: bool = False) -> str:
     """'p = 0.012'; 'p < …' at the bootstrap's resolution floor (never 'p = 0')."""
     if not np.isfinite(p):
         return ""
-    if at_floor:
-        return f"p < {p:.2g}"
+    if at_floor:  # a bound: rounded up, so the printed bound still holds
+        mag = 10.0 ** (np.floor(np.log10(p)) - 1) if p > 0 else 1.0
+        return f"p < {np.ceil(p / mag - 1e-9) * mag:.2g}"
     if p < 1e-4:
         return "p < 0.0001"
     return f"p = {p:.2g}" if p < 0.01 else f"p = {p:.2f}"

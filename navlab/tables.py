@@ -95,13 +95,23 @@ def cell(value: float, lo: float = np.nan, hi: float = np.nan) -> str:
 
 
 def verdict_cell(row: pd.Series, ref_label: str, short: bool = False) -> str:
-    """'better than KF (Δ −0.41 m [−0.52, −0.30])' etc. for one ``_diff`` row (``short``: the
-    reference is in the column's name: 'better (Δ −0.41 m [−0.52, −0.30])').
+    """'better than KF (Δ −0.41 m [−0.52, −0.30], Holm p < 0.002)' etc. for one ``_diff`` row
+    (``short``: the reference is in the column's name: 'better (Δ −0.41 m [−0.52, −0.30], …)');
+    a p at the bootstrap's floor is written as the bound it is ("p < …").
     """
     unit = f" {row['unit']}" if row["unit"] and row["unit"] != "%" else (" %" if row["unit"] else "")
     d = f"Δ {S.sig3(row['value'])}{unit}"
     if np.isfinite(row["ci_lo"]):
         d += f" [{S.sig3(row['ci_lo'])}, {S.sig3(row['ci_hi'])}]"
+    p = row.get("p_holm", np.nan)
+    if p is not None and np.isfinite(p):
+        d += f", Holm {S.format_p(p, row.get('p_holm_bound') == '<')}"
+    n_common, cv = row.get("common_runs", np.nan), row.get("common_value", np.nan)
+    if n_common is not None and np.isfinite(n_common) and n_common != row["runs_used"] and np.isfinite(cv):
+        # beside the verdict (lost runs scored as losses): Δ over the runs both kept
+        d += f"; on the {int(n_common)} runs both kept Δ {S.sig3(cv)}{unit}"
+        if np.isfinite(row.get("common_ci_lo", np.nan)):
+            d += f" [{S.sig3(row['common_ci_lo'])}, {S.sig3(row['common_ci_hi'])}]"
     v = row["verdict"]
     words = {
         "better": f"better than {ref_label}",
@@ -298,8 +308,10 @@ def headline(
         notes.append(
             f"{col}: {metric_name(first, data)} paired over the same runs, Δ = filter − {ref_label} "
             f"with its 95 % interval; better/worse when Holm-corrected p < 0.05 across the "
-            f"{len(res.runs) - 1} other filters, else indistinguishable at this run count"
+            f"{len(res.runs) - 1} other filters, else indistinguishable at this run count; "
+            f"p < …: below the bootstrap's resolution (no resample on the other side of 0)"
         )
+        notes.append(f"Lost runs: {M.LOSS_RULE}.")
     winners: dict[str, str] = {}
     if best and len(res.runs) > 1:
         for m in metrics:

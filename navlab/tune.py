@@ -53,7 +53,7 @@ from navlab.experiment import ExperimentSpec, filter_group, plan
 from navlab.filters import registry
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
-from navlab.stats import holm
+from navlab.stats import holm_bounds
 from navlab.tables import best_filter, comparison_metrics
 
 REAL_SPLIT = ((0.0, 0.5), (0.5, 1.0))  # real recordings: tune on the first half, report on the second
@@ -662,16 +662,13 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
     jd = sm.judgement
     out = []
     for metric in metrics:
-        part, pvals = [], {}
+        part, pvals, bounds = [], {}, {}
         for k in r.setup.spec.filters:
-            got = sm.comparison(k + TEST_SUFFIX, k, metric)
+            got = sm.paired(k + TEST_SUFFIX, k, metric)
             if got is None:
                 continue
-            c, unit = got
-            row = M.row(
-                k, res.runs[k + TEST_SUFFIX].label, f"{metric}_diff", c.value, unit, None, c.n_runs, c.note
-            )
-            row.update(ci_lo=c.lo, ci_hi=c.hi, ci_method=c.method, vs="default", p_value=c.p_value)
+            c = got.c
+            row = M.diff_row(k, res.runs[k + TEST_SUFFIX].label, metric, got, "default")
             if not r.tuned.get(k):
                 row["note"] = "; ".join(
                     x for x in (row["note"], "no tunable parameter: tuned = default") if x
@@ -682,12 +679,13 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
                 )
                 row["note"] = "; ".join(x for x in (row["note"], f"{why}: tuned = default") if x)
             else:
-                pvals[k] = c.p_value
+                pvals[k], bounds[k] = c.p_value, c.at_floor
             part.append(row)
-        adj = holm(pvals)
+        adj, adj_bound = holm_bounds(pvals, bounds)
         for row in part:
             k = row["filter"]
             row["p_holm"] = adj.get(k, np.nan)
+            row["p_holm_bound"] = "<" if adj_bound.get(k) else ""
             verdict, extra = M.verdict(metric, row, jd, k + TEST_SUFFIX, k)
             row["verdict"] = verdict if k in pvals else ""
             if extra and k in pvals:

@@ -274,7 +274,8 @@ def ukf_measurement_prediction(
         if state.neg is not None:
             neg = neg | state.neg
         return MeasPred(mv(H, state.x), A, Pxy, neg)  # 4  ẑ⁻ = H x⁻
-    if reuse:  # option: the propagated χ* (FilterPy's choice)
+    if reuse:  # option: the propagated χ* (FilterPy 2.0.0 redraws instead: its predict() ends
+        # by drawing σ-points from (x⁻, P⁻), which is "redraw" here, equal to it to round-off)
         chi, neg = state.chi_f, np.zeros(B, dtype=bool)
     else:
         chi, neg = sigma_points(state.x, state.P, w.c, method)  # 3  redraw from (x⁻, P⁻)
@@ -397,7 +398,8 @@ class UKFParams:
     resample: str = param(
         "redraw",
         choices=("redraw", "reuse"),
-        help="measurement sigma points: redraw from (x⁻, P⁻) (spec default) or reuse f(χ) (FilterPy)",
+        help="measurement sigma points: redraw from (x⁻, P⁻) (spec default, as FilterPy 2.0.0 does) "
+        "or reuse the propagated f(χ) (skips the second set of σ-points; ignores Q's effect on them)",
     )
     sqrt_method: str = param(
         "svd",

@@ -353,6 +353,7 @@ class Measured:
     lost: dict[str, int]
     curves: dict[tuple[str, str], tuple[Array, Array]]  # (filter, curve) -> Σ e², count per epoch
     t: Array
+    valid: dict[str, Array] = field(default_factory=dict)  # filter -> (S·N,) bool: not diverged
 
 
 @dataclass(eq=False)
@@ -434,7 +435,7 @@ def _assemble(exp: Experiment, blocks: Sequence[_Block]) -> Measured:
         curves[kc] = (sq.sum(axis=0), np.full(sq.shape[1], float(sq.shape[0])))
     labels = first.labels
     return Measured(
-        exp, labels, feats, jd.judged, jd.reliable, {k: jd.lost(k) for k in labels}, curves, first.t
+        exp, labels, feats, jd.judged, jd.reliable, {k: jd.lost(k) for k in labels}, curves, first.t, jd.valid
     )
 
 
@@ -727,16 +728,28 @@ class _Evaluator:
     def compare_both(
         self, a: Ref, b: Ref, quantity: str, absolute: bool = True, relative: bool = True
     ) -> tuple[S.Comparison | None, S.Comparison | None] | None:
-        """(a − b, (a − b)/b) paired over the runs judged for both, on the same resamples (the
-        second one costs little more: the estimators' resampled values are computed once).
+        """(a − b, (a − b)/b) paired on the same resamples (the second one costs little more: the
+        estimators' resampled values are computed once), under the loss rule of
+        navlab.metrics.LOSS_RULE: over every run, a run lost by one of the two scored as the
+        pair's worst (navlab.stats.with_losses); over the runs judged for both where neither lost
+        a run.
         """
-        runs = self.judged(a, b)
+        lost_a, lost_b = self.lost(a), self.lost(b)
+        runs = np.ones(self.N * self.S, dtype=bool) if lost_a.any() or lost_b.any() else self.judged(a, b)
         n = int(runs.sum())
         if n == 0:
             return None
         rs = S.Resampler(n, self.seed)
         ea, eb = self.estimator(a, quantity, runs), self.estimator(b, quantity, runs)
+        if lost_a.any() or lost_b.any():
+            sign = 1 if _quantity(self.rep, quantity).lower_is_better else -1
+            ea, eb = S.with_losses(ea, eb, lost_a, lost_b, sign)
         return (rs.compare(ea, eb) if absolute else None, rs.compare(ea, eb, True) if relative else None)
+
+    def lost(self, r: Ref) -> Array:
+        """The runs filter ``r`` lost (diverged), (S·N,) bool."""
+        valid = self.m[r.experiment].valid.get(r.filter)
+        return np.zeros(self.N * self.S, dtype=bool) if valid is None else ~valid
 
     def label(self, r: Ref, *others: Ref) -> str:
         """The filter's name, with its experiment where ``others`` span several experiments."""
@@ -792,6 +805,7 @@ def _row(claim: Claim, kind: str, **kw) -> dict:
         runs_per_seed=np.nan,
         share_of_seeds_holding=np.nan,
         p_value=np.nan,
+        p_bound="",  # "<": p_value is a bound (at the bootstrap's floor)
         verdict="",
         note=claim.note,
     )
@@ -895,7 +909,10 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
         for r, b in both.items()
         if b is not None
     ]
-    adj = S.holm({str(i): (cm.p_value if cm is not None else np.nan) for i, cm in enumerate(comps.values())})
+    adj, adj_bound = S.holm_bounds(
+        {str(i): (cm.p_value if cm is not None else np.nan) for i, cm in enumerate(comps.values())},
+        {str(i): bool(cm is not None and cm.at_floor) for i, cm in enumerate(comps.values())},
+    )
     better, worse, parts = {}, {}, []
     for i, (r, cm) in enumerate(comps.items()):
         rel_a = ev.m[c.better.experiment].reliable[c.better.filter]
@@ -910,15 +927,23 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
         if cm is not None:
             parts.append(
                 f"vs {ev.name(r)}: Δ {S.sig3(cm.value)} [{S.sig3(cm.lo)}, {S.sig3(cm.hi)}] {unit}, "
-                f"Holm {S.format_p(p, cm.at_floor)}"
+                f"Holm {S.format_p(p, adj_bound[str(i)])}"
             )
-    finite = [v for v in adj.values() if np.isfinite(v)]
+    finite = {k: v for k, v in adj.items() if np.isfinite(v)}
+    keys = {r: str(i) for i, r in enumerate(comps)}
     if len(better) == len(c.than):
-        verdict, p_value = "reproduced", max(finite, default=np.nan)  # every comparison must hold
+        pick = max(finite, key=finite.get, default=None)  # every comparison must hold
+        verdict = "reproduced"
     elif worse:
-        verdict, p_value = "contradicted", min(worse.values())  # the clearest counterexample
+        forced = any(v == 0.0 for v in worse.values())  # a filter diverging in > 5 %: p 0
+        tested = [keys[r] for r in worse if keys[r] in finite]
+        pick = None if forced else min(tested, key=finite.get, default=None)
+        verdict = "contradicted"  # the clearest counterexample
     else:
-        verdict, p_value = "inconclusive", max(finite, default=np.nan)
+        pick = max(finite, key=finite.get, default=None)
+        verdict = "inconclusive"
+    p_value = finite[pick] if pick is not None else (0.0 if verdict == "contradicted" else np.nan)
+    p_bound = "<" if pick is not None and adj_bound[pick] else ""
     first = comps[c.than[0]] if len(c.than) == 1 else None
     return _row(
         c,
@@ -931,6 +956,7 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
         runs_per_seed=ev.N,
         share_of_seeds_holding=share,
         p_value=p_value,
+        p_bound=p_bound,
         verdict=verdict,
         note=_join(c.note, "; ".join(parts), ev.reliability_note(c.better, *c.than)),
         evidence=evidence,
@@ -976,6 +1002,7 @@ def _judge_margin(ev: _Evaluator, c: Margin, unit: str) -> dict:
         runs_per_seed=ev.N,
         share_of_seeds_holding=float(np.mean(np.abs(per - paper) <= TOLERANCE * abs(paper))),
         p_value=cm.p_value,
+        p_bound="<" if cm.at_floor else "",
         verdict=_number_verdict(est, paper),
         note=_join(
             c.note,

@@ -22,7 +22,9 @@ RULES = (
     "each, contradicted when it says worse than at least one; a margin is judged as a number on the "
     "paired interval of the relative difference; 'close' reads every filter within ±10 % of the best. "
     "A seed is one Monte Carlo set of the paper's run count; 'holds' counts the seeds on which the "
-    "claim holds by its point estimate."
+    "claim holds by its point estimate. In a paired test a run lost (diverged) by one filter counts as a "
+    "loss for it, scored as the worst run of the pair (docs/STATISTICS.md §5); p < …: a bound, below the "
+    "bootstrap's resolution."
 )
 
 

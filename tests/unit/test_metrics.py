@@ -273,3 +273,57 @@ def test_timing_leaves_out_the_first_epochs_one_off_start_up(monkeypatch):
     assert us < 300
     assert M.timed_steps(10, 20) == 10 * 19
     assert M.timed_steps(10, 1) == 10
+
+
+@pytest.fixture(scope="module")
+def huber_diverges():
+    """Issue 25, item 3: cv2d, seed 7, 5 % contamination, 200 runs; huber-kf (worse than chi2-kf,
+    Δ +0.035 m, Holm p 0.003) then made to diverge (NaN from epoch 50) in the 10 runs where it is
+    worst against chi2-kf (5.0 %, still "reliable")."""
+    spec = ExperimentSpec(
+        scenario="cv2d",
+        filters=("kf", "oracle-kf", "chi2-kf", "huber-kf"),
+        runs=200,
+        seed=7,
+        contamination=0.05,
+    )
+    res = run_experiment(spec)
+    st, ref = summary(res).stats["huber-kf"], summary(res).stats["chi2-kf"]
+    worst = np.argsort(st.sse["pos"] - ref.sse["pos"])[-10:]
+    fr = res.runs["huber-kf"]
+    x = fr.x.copy()
+    x[worst, 50:] = np.nan
+    da, why = fr.diverged_at.copy(), fr.diverged_why.copy()
+    da[worst], why[worst] = 50, 1
+    runs = dict(res.runs)
+    runs["huber-kf"] = dataclasses.replace(fr, x=x, diverged_at=da, diverged_why=why)
+    return res, Results(spec=spec, data=res.data, runs=runs)
+
+
+def test_diverging_in_its_worst_runs_does_not_help_a_filter(huber_diverges):
+    before, after = huber_diverges
+    b = compare(before, "chi2-kf", ["rmse_pos"]).set_index("filter").loc["huber-kf"]
+    assert b.verdict == "worse" and b.value == pytest.approx(0.0353, abs=5e-4)
+    assert summary(after).judgement.reliable["huber-kf"]  # 10 of 200: at most 5 %
+    a = compare(after, "chi2-kf", ["rmse_pos"]).set_index("filter").loc["huber-kf"]
+    assert a.verdict == "worse" and a.ci_lo > 0 and a.p_holm < 0.05
+    assert a.value >= b.value  # the lost runs count as losses: no better than before
+    assert a.runs_used == 200 and "10 runs lost by huber-kf" in a.note
+    # the metric over the runs both kept, shown beside: what the verdict used to rest on
+    assert a.common_value == pytest.approx(0.0178, abs=5e-4) and a.common_runs == 190
+    assert a.common_ci_lo < 0 < a.common_ci_hi
+    assert best_filter(after, "rmse_pos")[0] == best_filter(before, "rmse_pos")[0] == "chi2-kf"
+    # the rule is printed where the verdicts are shown
+    t = tables.headline(after, compare_to="chi2-kf")
+    assert any(n.startswith("Lost runs:") and "worst" in n for n in t.notes)
+
+
+def test_a_p_at_the_floor_is_marked_as_a_bound_in_every_output(huber_diverges):
+    res, _ = huber_diverges
+    c = compare(res, "chi2-kf", ["rmse_pos"]).set_index("filter")
+    kf = c.loc["kf"]  # Δ +1.7 m: no resample on the other side of 0
+    assert kf.p_bound == "<" and kf.p_holm_bound == "<" and kf.p_value < 0.01
+    assert c.loc["huber-kf"].p_bound == ""
+    rows = tables.summary_rows(res, compare_to="chi2-kf")  # what --format json|csv writes
+    assert {"p_bound", "p_holm_bound"} <= set(rows.columns)
+    assert "p < " in tables.verdict_cell(kf.rename(None).to_dict() | {"filter": "kf"}, "χ² KF")

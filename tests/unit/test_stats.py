@@ -189,3 +189,62 @@ def test_influence_values_are_not_kept_for_very_many_runs(monkeypatch):
     ci_fresh = S.Resampler(3000, seed=1).estimate(fresh)
     assert "_psi" not in fresh.__dict__
     assert (ci_fresh.value, ci_fresh.lo, ci_fresh.hi) == (ci_kept.value, ci_kept.lo, ci_kept.hi)
+
+
+def _paired_cases():
+    """Paired comparisons of every kind of statistic: smooth (pooled RMSE), a maximum and a
+    quantile (bias corrected, no acceleration), small and large shifts, 12 to 100 runs."""
+    rng = np.random.default_rng(0)
+    for i in range(300):
+        n = int(rng.choice([12, 20, 40, 100]))
+        K = int(rng.choice([5, 30]))
+        shift = rng.choice([0.0, 0.05, 0.1, 0.2, 0.5, 1.0])
+        base = rng.gamma(2.0, size=(n, K))
+        a = base * (1 + shift) + 0.3 * rng.gamma(2.0, size=(n, K))
+        b = base + 0.3 * rng.gamma(2.0, size=(n, K))
+        kind = ("max", "rmse", "median")[i % 3]
+        if kind == "max":
+            ea, eb = S.MaxSqrtRatio(a), S.MaxSqrtRatio(b)
+        elif kind == "rmse":
+            ea, eb = (S.Ratio(x.sum(1), np.full(n, float(K)), sqrt=True) for x in (a, b))
+        else:
+            ea, eb = S.Quantile(a, 0.5), S.Quantile(b, 0.5)
+        yield i, kind, S.Resampler(n, seed=i).compare(ea, eb, relative=bool(i % 2))
+
+
+def test_p_below_5_percent_exactly_when_the_interval_excludes_0():
+    """One bootstrap inverted for both (issue 25, item 5): p < 0.05 ⇔ 0 outside the 95 % interval,
+    for every paired statistic — the maximum of the per-epoch RMSE with its bias correction too,
+    where a p computed from the share of resamples below 0 read 0.96 beside [0.47, 0.62]."""
+    seen = set()
+    for i, kind, c in _paired_cases():
+        excludes = c.lo > 0 or c.hi < 0
+        assert excludes == (c.p_value < S.ALPHA), (i, kind, c)
+        if c.at_floor:  # no resample on the other side of 0: a bound, and below 0.05
+            assert excludes and c.p_text.startswith("p < ")
+        seen.add((kind, excludes, c.at_floor))
+    assert {("max", True, True), ("max", False, False), ("rmse", True, False)} <= seen
+
+
+def test_holm_keeps_the_bound_of_a_floored_p():
+    adj, bound = S.holm_bounds({"a": 0.001, "b": 0.04, "c": 0.03}, {"a": True, "b": False, "c": False})
+    assert adj["a"] == pytest.approx(0.003) and bound["a"]  # 3 × a bound is a bound
+    assert adj["c"] == pytest.approx(0.06) and not bound["c"]
+    assert S.format_p(adj["a"], bound["a"]) == "p < 0.003"
+
+
+def test_a_lost_run_is_a_loss_for_its_filter_whatever_the_share():
+    """Issue 25, item 3: the lost runs are scored as the worst per-run value of the pair (the
+    composite strategy), so leaving out the worst runs of A can never make A look better."""
+    rng = np.random.default_rng(2)
+    n = 100
+    b = rng.gamma(4.0, size=n)
+    a = b * 1.1 + 0.05 * rng.gamma(2.0, size=n)  # A worse in every run
+    lost = np.zeros(n, dtype=bool)
+    lost[np.argsort(a - b)[-5:]] = True  # A loses its 5 worst runs (5 %)
+    a_nan = np.where(lost, np.nan, a)
+    ones = np.ones(n)
+    ea, eb = S.with_losses(S.Ratio(a_nan, ones), S.Ratio(b, ones), lost, np.zeros(n, bool), 1)
+    assert np.isfinite(ea.num).all() and (ea.num[lost] == max(a[~lost].max(), b.max())).all()
+    c = S.Resampler(n, seed=0).compare(ea, eb)
+    assert c.value > 0 and c.lo > 0 and c.p_value < S.ALPHA  # still worse
