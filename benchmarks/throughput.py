@@ -11,16 +11,23 @@ extra steps over the extra time between them (what one more run costs, start-up 
 Its split at the larger size: simulation (``Scenario.simulate``), the filter (``runtime_s``),
 metrics (``Results.metrics``) and the rest of ``run_experiment`` (driver + recorder), and the
 floor set by random-number generation (the same draws as the simulation, nothing else).
+The same through the CLI: ``python -m navlab run --scenario cv2d --filters kf --runs N -q`` once
+at each size in a child process (what one more run costs a user of the CLI, who also gets the
+table with its intervals and the diagnostics), with numpy's huge pages as the CLI sets them and
+as numpy sets them (``NUMPY_MADVISE_HUGEPAGE=1``, see navlab/__main__.py), and its ratio to the
+in-process figure (``--cli`` 0 to skip).
 Not a test: these machines are shared and noisy, so read the ratios, not the absolute figures;
 every time is the best of ``--repeat`` (default 7: with 3 the marginal ratio ranged 46–65× over
 a dozen runs on one quiet 2-core machine, with 7 it ranged 63–69× over six).
 
-    python benchmarks/throughput.py [--repeat 7] [--runs 1,100,1000] [--pipeline-runs 1000,10000]
+    python benchmarks/throughput.py [--repeat 7] [--runs 1,100,1000] [--pipeline-runs 1000,10000] [--cli 1]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -32,6 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a check
 from navlab.experiment import ExperimentSpec, plan, run_experiment, run_filters
 from navlab.filters import make_filter
 from navlab.scenarios.base import run_streams
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def best_of(fn, repeat):
@@ -69,7 +78,38 @@ def rng_floor(runs: int, K: int, m: int, n: int, truth_dim: int, seed: int = 1) 
     s.meas.random((K + 1, m))
 
 
-def pipeline(sizes: list[int], repeat: int) -> None:
+def cli_run(runs: int, env: dict[str, str]) -> tuple[float, float]:
+    """(wall s, CPU s of user + system) of one ``python -m navlab run`` of kf on cv2d."""
+    cmd = [sys.executable, "-m", "navlab", "run", "--scenario", "cv2d", "--filters", "kf"]
+    cmd += ["--runs", str(runs), "--epochs", "100", "--seed", "1", "-q"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **env}
+    t0 = time.perf_counter()
+    child = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.DEVNULL)
+    _, status, ru = os.wait4(child.pid, 0)
+    wall = time.perf_counter() - t0
+    if os.waitstatus_to_exitcode(status):
+        raise SystemExit(f"{' '.join(cmd)} failed")
+    return wall, ru.ru_utime + ru.ru_stime
+
+
+def cli(sizes: list[int], K: int, fp: float, marg: float) -> None:
+    """The marginal throughput through the CLI, one child process per size (alternating)."""
+    lo, hi = sizes[0], sizes[-1]
+    print(f"through the CLI (python -m navlab run ... -q, one run at {lo} and at {hi} runs; a child's")
+    print("start-up varies by seconds on a loaded machine, so the CPU figure is the steadier one):")
+    variants = (("as the CLI runs", {}), ("numpy huge pages", {"NUMPY_MADVISE_HUGEPAGE": "1"}))
+    for name, env in variants:
+        (w_lo, c_lo), (w_hi, c_hi) = cli_run(lo, env), cli_run(hi, env)
+        m, mc = (hi - lo) * K / (w_hi - w_lo), (hi - lo) * K / (c_hi - c_lo)
+        load = " ".join(f"{v:.1f}" for v in os.getloadavg())
+        print(
+            f"  {name}: wall {w_lo:.2f} -> {w_hi:.2f} s, CPU {c_lo:.2f} -> {c_hi:.2f} s (load {load})\n"
+            f"    marginal by wall {m:,.0f} steps/s = {m / fp:.1f}x FilterPy = {m / marg:.2f} of in-process; "
+            f"by CPU {mc:,.0f} steps/s = {mc / fp:.1f}x = {mc / marg:.2f}"
+        )
+
+
+def pipeline(sizes: list[int], repeat: int, with_cli: bool = True) -> None:
     spec0 = ExperimentSpec(filters=("kf",), runs=sizes[0], seed=1, epochs=100)
     p = plan(spec0)
     fp_runs = 300
@@ -89,6 +129,8 @@ def pipeline(sizes: list[int], repeat: int) -> None:
     lo, hi = sizes[0], sizes[-1]
     marg = (hi - lo) * K / (times[hi] - times[lo])
     print(f"marginal {lo} -> {hi} runs: {marg:,.0f} steps/s = {marg / fp:.1f}x FilterPy (target 60x)")
+    if with_cli:
+        cli(sizes, K, fp, marg)
 
     # where the time goes at the larger size: timers inside one run_experiment (best of `repeat`)
     spec = spec0.replace(runs=hi)
@@ -140,6 +182,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=7, help="best of this many (the uncontended time)")
     ap.add_argument("--runs", default="1,100,1000")
     ap.add_argument("--pipeline-runs", default="1000,10000", help="two sizes ('' to skip)")
+    ap.add_argument("--cli", type=int, default=1, help="1: time the pipeline through the CLI too")
     a = ap.parse_args()
 
     print("cv2d, 100 epochs; steps = runs x epochs; best of", a.repeat)
@@ -157,7 +200,7 @@ def main() -> None:
     t, _ = best_of(lambda: run_experiment(spec), a.repeat)
     print(f"default compare run (cv2d, 100 runs x 100 epochs, 3 filters, with metrics): {t:.3f} s")
     if a.pipeline_runs:
-        pipeline([int(r) for r in a.pipeline_runs.split(",")], a.repeat)
+        pipeline([int(r) for r in a.pipeline_runs.split(",")], a.repeat, bool(a.cli))
 
 
 if __name__ == "__main__":

@@ -153,7 +153,15 @@ def _runs(n: int, of: int) -> str:
     return f"{n} of {of} run" + ("" if of == 1 else "s")
 
 
+def _any_flag(fr: FilterRun, *codes: int) -> bool:
+    """Whether any run, epoch and channel of ``fr`` carries one of the flags ``codes``."""
+    fl = fr.flags
+    return any(bool((fl == c).any()) for c in codes)
+
+
 def _lockout(res: Results, fr: FilterRun, group: str, judged: np.ndarray) -> Explanation | None:
+    if not _any_flag(fr, REJECTED, REJECTED_AUX):  # nothing rejected: no epoch without a used one
+        return None
     d = res.data
     present = np.isfinite(d.z[:, 1:])  # (B, K, m)
     fl = fr.flags[:, 1:]
@@ -207,6 +215,8 @@ def _lockout(res: Results, fr: FilterRun, group: str, judged: np.ndarray) -> Exp
 def _runaway(res: Results, fr: FilterRun, group: str) -> Explanation | None:
     from navlab.filters import registry
 
+    if not _any_flag(fr, REPLACED):  # no replacement: no chain of them
+        return None
     d = res.data
     replaced = (fr.flags[:, 1:] == REPLACED).any(axis=2)
     length, _ = longest_run(replaced)
@@ -246,6 +256,8 @@ def _runaway(res: Results, fr: FilterRun, group: str) -> Explanation | None:
 def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
     from navlab.filters import registry
 
+    if not _any_flag(fr, NUMERICAL_FIX):  # no fix: 0 % of the measurements
+        return None
     d = res.data
     present = np.isfinite(d.z[ok, 1:])
     if not present.any():

@@ -2,6 +2,7 @@
 
 import io
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -135,6 +136,25 @@ def test_broken_config_file(tmp_path, capsys):
     rc, _, err = run_cli(capsys, "run", "--config", str(bad))
     assert rc == 2
     assert "JSON" in err or "json" in err
+
+
+@pytest.mark.parametrize(("env", "want"), [(None, False), ("1", True)])
+def test_module_entry_point_turns_numpy_huge_pages_off_unless_asked(env, want):
+    """python -m navlab sets NUMPY_MADVISE_HUGEPAGE=0 before numpy is imported (see
+    navlab/__main__.py); an explicit setting wins."""
+    code = (
+        "import runpy, sys\n"
+        "sys.argv = ['navlab', 'list', 'outliers']\n"
+        "try:\n    runpy.run_module('navlab', run_name='__main__')\nexcept SystemExit:\n    pass\n"
+        "from numpy._core import multiarray as m\n"
+        "print('HUGEPAGE', m._get_madvise_hugepage())\n"
+    )
+    environ = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    if env is not None:
+        environ["NUMPY_MADVISE_HUGEPAGE"] = env
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=environ)
+    assert p.returncode == 0, p.stderr
+    assert f"HUGEPAGE {want}" in p.stdout
 
 
 def test_module_entry_point():

@@ -189,3 +189,13 @@ def test_the_library_does_not_import_streamlit():
     names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import | ast.ImportFrom) for a in n.names}
     mods = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
     assert "streamlit" not in names and "streamlit" not in mods
+
+
+def test_the_no_flag_shortcut_finds_what_the_full_rules_find(r_step, quiet, monkeypatch):
+    """A filter without flags 2/3, 4 or 9 skips the run-length rules: the same explanations as
+    applying them to every filter."""
+    shortcut = [D.explain(r_step), D.explain(quiet)]
+    assert any(not D._any_flag(fr, REJECTED) for fr in r_step.runs.values())  # the shortcut is taken
+    monkeypatch.setattr(D, "_any_flag", lambda fr, *codes: True)
+    full = [D.explain(r_step), D.explain(quiet)]
+    assert [[e.to_dict() for e in x] for x in shortcut] == [[e.to_dict() for e in x] for x in full]
