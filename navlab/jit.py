@@ -127,12 +127,12 @@ class RunStep:
         self.fn, self.n_runs, self.outs = fn, n_runs, outs
         self._loop: Any = None
 
-    def __call__(self, runs: tuple, params: tuple) -> tuple:
+    def __call__(self, runs: tuple, params: tuple) -> list[np.ndarray]:
         if len(runs) != self.n_runs:
             raise TypeError(f"{self.fn.__name__} takes {self.n_runs} arrays over the runs")
-        runs = tuple(_contiguous(a) for a in runs)
+        runs = [_contiguous(a) for a in runs]
         B = runs[0].shape[0]
-        outs = tuple(np.empty((B, *(() if i is None else runs[i].shape[1:])), dt) for i, dt in self.outs)
+        outs = [np.empty((B,) if i is None else (B, *runs[i].shape[1:]), dt) for i, dt in self.outs]
         loop = self._compiled(len(params))
         if loop is not None:
             loop(*runs, *params, *outs)
@@ -184,6 +184,10 @@ def _runs_loop(
 
 def _contiguous(a: Any) -> np.ndarray:
     """``a`` C-contiguous and writeable with its own dtype (floats as float64: one signature)."""
+    if type(a) is np.ndarray and a.dtype.char in "d?":
+        flags = a.flags
+        if flags.c_contiguous and flags.writeable:
+            return a  # the usual case: as it is
     a = np.asarray(a)
     return carray(a) if a.dtype.kind in "fiu" else np.require(a, requirements=["C", "W"])
 
