@@ -1,6 +1,6 @@
 """Write docs/CLAIMS.md (the claims register) from the claims the reproductions declare.
 
-    python tools/claims_register.py          # rewrites docs/CLAIMS.md
+python tools/claims_register.py          # rewrites docs/CLAIMS.md
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from navlab.reproduce.report import register_markdown  # noqa: E402
+from navlab.reproduce.report import register_markdown
 
 PATH = pathlib.Path(__file__).resolve().parents[1] / "docs" / "CLAIMS.md"
 

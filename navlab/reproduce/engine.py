@@ -22,6 +22,11 @@ base seed, so set 0 is the old single-seed result), reduced chunk by chunk to pe
 
 Every filter is judged on the same runs (navlab.metrics' divergence rule, per experiment).
 
+A claim may carry documented :class:`Alternative` settings or readings: judged under each too, it
+is *setup-dependent* when the decisive verdict flips between them. A claim the paper gives too
+little to test is an :class:`Untested` row, and a claim that ``needs`` a reconstruction of lost
+equations which fails (diverges in more than 5 % of the runs) is *not testable* (:func:`combine`).
+
 The runs of every experiment are computed in fixed blocks of whole seeds (seeds 0, 1, 2–3, 4–7,
 …: :func:`seed_ranges`; a range larger than :data:`BLOCK_BYTES` of per-epoch arrays is split), in
 ``jobs`` worker processes (``--jobs``, ``NAVLAB_JOBS``; default the cores available; one BLAS

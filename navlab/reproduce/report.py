@@ -291,7 +291,15 @@ def register_markdown() -> str:
                 scope.append(f"needs navlab's reconstruction of {', '.join(c.needs)}")
             for a in c.alternatives:
                 scope.append(f"alternative{'' if a.decides else ' (shown only)'}: {a.label}")
-            cells = (i, f"`{c.id}`", claim_cell(c.text, c.chosen), _form(c), c.where, c.quote, "; ".join(scope))
+            cells = (
+                i,
+                f"`{c.id}`",
+                claim_cell(c.text, c.chosen),
+                _form(c),
+                c.where,
+                c.quote,
+                "; ".join(scope),
+            )
             out.append("| " + " | ".join(_md(v) for v in cells) + " |")
         out.append("")
     return "\n".join(out)
