@@ -243,7 +243,9 @@ def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
     assert flat == [(0, 3), (3, 6), (6, 10)]
     seen = []
     two = rep.evaluate(runs=5, seeds=2, jobs=2, on_progress=lambda d, t: seen.append((d, t)))
-    assert seen[0] == (0, 20) and seen[-1] == (20, 20) and len(seen) == 1 + 2 * len(flat)
+    total = 5 * 2 * len(rep.experiments)
+    tasks = engine._plan(rep, 5, 2, 1, stream=False)
+    assert seen[0] == (0, total) and seen[-1] == (total, total) and len(seen) == 1 + len(tasks)
     serial = rep.evaluate(runs=5, seeds=2, jobs=1)
     streamed = rep.evaluate(runs=5, seeds=2, jobs=1, stream=True)
     for o in (two, serial, streamed):
