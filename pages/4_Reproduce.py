@@ -6,7 +6,7 @@ import streamlit as st
 
 from navlab.params import SEED_MAX
 from navlab.reproduce import REPRODUCTIONS
-from navlab.reproduce.report import RULES
+from navlab.reproduce.report import RULES_FOOT, rules_text
 from navlab.ui import reproduce as ui
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame
@@ -89,7 +89,8 @@ with st.expander("Why each verdict (notes per claim) and the rules"):
     for i, note in enumerate(out.verdicts["note"], 1):
         if note:
             st.markdown(f"{i}. {note}")
-    st.caption(RULES)
+    st.markdown("**Verdict kinds** (docs/STATISTICS.md §4):\n" + rules_text())
+    st.caption(RULES_FOOT)
 csv_download(out.verdicts, "Verdicts (CSV)", f"navlab-reproduce-{key}-verdicts.csv", "dl_verdicts")
 
 readings = st.expander(

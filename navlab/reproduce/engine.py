@@ -22,6 +22,11 @@ base seed, so set 0 is the old single-seed result), reduced chunk by chunk to pe
 
 Every filter is judged on the same runs (navlab.metrics' divergence rule, per experiment).
 
+A claim may carry documented :class:`Alternative` settings or readings: judged under each too, it
+is *setup-dependent* when the decisive verdict flips between them. A claim the paper gives too
+little to test is an :class:`Untested` row, and a claim that ``needs`` a reconstruction of lost
+equations which fails (diverges in more than 5 % of the runs) is *not testable* (:func:`combine`).
+
 The runs of every experiment are computed in fixed blocks of whole seeds (seeds 0, 1, 2–3, 4–7,
 …: :func:`seed_ranges`; a range larger than :data:`BLOCK_BYTES` of per-epoch arrays is split), in
 ``jobs`` worker processes (``--jobs``, ``NAVLAB_JOBS``; default the cores available; one BLAS
@@ -208,6 +213,11 @@ class Number:
     quantity: str
     paper: float
     note: str = ""
+    where: str = ""  # where in the paper: section, figure, table
+    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
+    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
+    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
+    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
@@ -221,6 +231,11 @@ class Bound:
     bound: float
     above: bool = True
     note: str = ""
+    where: str = ""  # where in the paper: section, figure, table
+    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
+    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
+    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
+    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
@@ -233,6 +248,12 @@ class Ranking:
     than: tuple[Ref, ...]
     quantity: str
     note: str = ""
+    worst: bool = False  # the claim is the reverse: ``better`` is WORSE than every one of ``than``
+    where: str = ""  # where in the paper: section, figure, table
+    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
+    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
+    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
+    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
@@ -247,6 +268,11 @@ class Margin:
     paper: float  # the paper's relative difference (a − b)/b, or the ratio a/b if as_ratio
     as_ratio: bool = False
     note: str = ""
+    where: str = ""  # where in the paper: section, figure, table
+    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
+    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
+    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
+    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
@@ -261,9 +287,48 @@ class Close:
     quantity: str
     within: float = 0.10
     note: str = ""
+    where: str = ""  # where in the paper: section, figure, table
+    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
+    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
+    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
+    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
-Claim = Number | Bound | Ranking | Margin | Close
+@dataclass(frozen=True)
+class Untested:
+    """A claim of the paper navlab cannot test: its row's verdict is "not testable", ``reason``
+    says why (the paper gives too little, or what it needs is out of the reproduction's scope).
+    """
+
+    id: str
+    text: str
+    reason: str
+    where: str = ""
+    quote: str = ""
+    chosen: str = ""
+    note: str = ""
+    alternatives: tuple[Alternative, ...] = ()
+    needs: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A documented alternative setting or reading of a claim: ``claim`` is the same claim judged
+    under it (other experiment, filter variant or quantity). ``decides``: a flip of the verdict
+    under it makes the claim *setup-dependent*; False: shown beside the verdict only (e.g. navlab's
+    own variant of a filter, which is not the paper's).
+    """
+
+    label: str
+    claim: Claim
+    decides: bool = True
+
+
+Claim = Number | Bound | Ranking | Margin | Close | Untested
+
+#: every verdict a row can carry (docs/STATISTICS.md §4; the rules: navlab.reproduce.report.RULES)
+VERDICTS = ("reproduced", "contradicted", "inconclusive", "setup-dependent", "not testable")
+DECISIVE = ("reproduced", "contradicted")
 
 
 # --------------------------------------------------------------------------- the reproduction
@@ -503,7 +568,10 @@ def _block_key(rep: Reproduction, t: _Task) -> str:
     """The results store's key of a block: everything that decides its numbers."""
     d = t.spec.to_dict()
     d.pop("runs")
-    return key_of({"reproduction": rep.key, "experiment": t.experiment, "spec": d, "runs": [t.start, t.stop]})
+    held = {"quantities": [q.name for q in rep.quantities], "curves": [c.name for c in rep.curves]}
+    return key_of(
+        {"reproduction": rep.key, "experiment": t.experiment, "spec": d, "runs": [t.start, t.stop]} | held
+    )
 
 
 def _encode(b: _Block) -> tuple[dict[str, Any], dict[str, Array]]:
@@ -808,6 +876,9 @@ def _row(claim: Claim, kind: str, **kw) -> dict:
         p_bound="",  # "<": p_value is a bound (at the bootstrap's floor)
         verdict="",
         note=claim.note,
+        where=claim.where,
+        quote=claim.quote,
+        chosen=claim.chosen,
     )
     base.update(kw)
     return base
@@ -891,7 +962,8 @@ def _judge_bound(ev: _Evaluator, c: Bound, unit: str) -> dict:
 
 def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
     q = _quantity(ev.rep, c.quantity)
-    sign = 1.0 if q.lower_is_better else -1.0
+    # c.worst: the claim is that c.better is worse than each of c.than (the sign turns round)
+    sign = (1.0 if q.lower_is_better else -1.0) * (-1.0 if c.worst else 1.0)
     # the share of sets on which the claim holds (point estimates of each set)
     mine = ev.per_set(c.better, c.quantity)
     others = np.array([ev.per_set(r, c.quantity) for r in c.than])
@@ -919,9 +991,9 @@ def _judge_ranking(ev: _Evaluator, c: Ranking, unit: str) -> dict:
         rel_b = ev.m[r.experiment].reliable[r.filter]
         p = adj[str(i)]
         if rel_b and not rel_a:
-            worse[r] = 0.0
+            (better if c.worst else worse)[r] = 0.0
         elif rel_a and not rel_b:
-            better[r] = 0.0
+            (worse if c.worst else better)[r] = 0.0
         elif cm is not None and np.isfinite(p) and p < S.ALPHA:
             (better if sign * cm.value < 0 else worse)[r] = p
         if cm is not None:
@@ -1159,9 +1231,7 @@ def _judge(
 ) -> Outcome:
     """Every claim judged on the first ``seeds`` seeds."""
     ev = _Evaluator(rep, measured, runs, seeds, seed)
-    units = {q.name: q.unit for q in rep.quantities}
-    judges = {Number: _judge_number, Bound: _judge_bound, Ranking: _judge_ranking, Close: _judge_close}
-    rows = [judges.get(type(c), _judge_margin)(ev, c, units[c.quantity]) for c in rep.claims]
+    rows = [_judge_claim(ev, c) for c in rep.claims]
     evidence = [e for r in rows for e in r.pop("evidence", [])]
     return Outcome(
         rep,
@@ -1174,6 +1244,108 @@ def _judge(
         asked,
         ev,
     )
+
+
+def claim_refs(c: Claim) -> tuple[Ref, ...]:
+    """The (experiment, filter) pairs a claim is judged on."""
+    if isinstance(c, Number | Bound):
+        return (c.ref,)
+    if isinstance(c, Ranking):
+        return (c.better, *c.than)
+    if isinstance(c, Margin):
+        return (c.a, c.b)
+    if isinstance(c, Close):
+        return c.refs
+    return ()
+
+
+def _judge_one(ev: _Evaluator, c: Claim) -> dict:
+    """The row of one claim under one setting (its verdict by its form's rule)."""
+    if isinstance(c, Untested):
+        return _row(c, "untested", verdict="not testable", note=_join(f"not testable: {c.reason}", c.note))
+    unit = _quantity(ev.rep, c.quantity).unit
+    judges = {Number: _judge_number, Bound: _judge_bound, Ranking: _judge_ranking, Close: _judge_close}
+    return judges.get(type(c), _judge_margin)(ev, c, unit)
+
+
+def failed_reconstruction(ev: _Evaluator, c: Claim) -> str:
+    """Why the reconstruction a claim needs failed ('' if it did not): a filter of ``c.needs``
+    (navlab's reconstruction of equations the paper's text lost) that diverges in more than 5 % of
+    the runs (navlab.metrics' reliability rule) cannot stand for the paper's algorithm.
+    """
+    bad = []
+    for r in claim_refs(c):
+        if r.filter in c.needs and not ev.m[r.experiment].reliable[r.filter]:
+            bad.append(f"{ev.name(r)} diverges in {ev.m[r.experiment].lost[r.filter]} of {ev.N * ev.S} runs")
+    return "; ".join(dict.fromkeys(bad))
+
+
+def combine(verdict: str, failed: str, alternatives: Sequence[tuple[Alternative, str]]) -> str:
+    """The row's verdict from the verdict under navlab's setting, a failed reconstruction ('' if
+    none) and the verdicts under the claim's documented alternatives (docs/STATISTICS.md §4):
+    *not testable* when the reconstruction the claim needs failed; *setup-dependent* when the
+    verdict is decisive (reproduced or contradicted) and a deciding alternative gives the other
+    decisive verdict; else the verdict under navlab's setting.
+    """
+    if failed:
+        return "not testable"
+    if verdict in DECISIVE:
+        for alt, v in alternatives:
+            if alt.decides and v in DECISIVE and v != verdict:
+                return "setup-dependent"
+    return verdict
+
+
+def _judge_claim(ev: _Evaluator, c: Claim) -> dict:
+    """A claim's row: judged under navlab's setting, under each documented alternative, and
+    combined (:func:`combine`); the note says what every alternative gave.
+    """
+    row = _judge_one(ev, c)
+    alts = []
+    for alt in c.alternatives:
+        r = _judge_one(ev, alt.claim)
+        r.pop("evidence", None)
+        alts.append((alt, r))
+    failed = failed_reconstruction(ev, c) if c.needs else ""
+    primary = row["verdict"]
+    verdict = combine(primary, failed, [(a, r["verdict"]) for a, r in alts])
+    parts = []
+    if failed:
+        parts.append(
+            f"not testable: the reconstruction this claim needs fails ({failed}); what the failed "
+            f"reconstruction gives would read '{primary}'"
+        )
+    elif verdict != primary:
+        parts.append(f"{verdict}: '{primary}' under navlab's setting, another verdict under an alternative")
+    if c.chosen:
+        parts.append(f"‡ {c.chosen}")
+    for a, r in alts:
+        tag = "" if a.decides else " (shown only: not the paper's)"
+        parts.append(f"alternative — {a.label}{tag}: {r['verdict']} ({_alt_value(r)})")
+    row.update(
+        verdict=verdict,
+        verdict_navlab=primary,
+        alternatives="; ".join(f"{a.label}: {r['verdict']}" for a, r in alts),
+        note=_join(*parts, row["note"]),
+    )
+    return row
+
+
+def _alt_value(r: dict) -> str:
+    """What an alternative's row found, briefly."""
+    if r["kind"] == "untested":
+        return "not testable"
+    if r["kind"] in ("ranking",):
+        if np.isfinite(r["mean"]):
+            return f"Δ {S.sig3(r['mean'])} [{S.sig3(r['ci_lo'])}, {S.sig3(r['ci_hi'])}] {r['unit']}".strip()
+        return r["note"].split("; ")[0] if r["note"] else "see the paired tests"
+    if r["kind"] == "close":
+        return f"spread {100 * r['mean']:.1f} %" if np.isfinite(r["mean"]) else "no value"
+    if r["kind"] == "margin" and r["unit"] == "relative":
+        return f"{100 * r['mean']:+.1f} % [{100 * r['ci_lo']:+.1f}, {100 * r['ci_hi']:+.1f}]"
+    if np.isfinite(r["ci_lo"]):
+        return f"{S.sig3(r['mean'])} [{S.sig3(r['ci_lo'])}, {S.sig3(r['ci_hi'])}] {r['unit']}".strip()
+    return f"{S.sig3(r['mean'])} {r['unit']}".strip()
 
 
 def _readings(rep: Reproduction, ev: _Evaluator) -> pd.DataFrame:

@@ -24,15 +24,27 @@ import streamlit as st
 from navlab import stats as S
 from navlab.reproduce import DEFAULT_SEEDS, REPRODUCTIONS, Outcome
 from navlab.reproduce.engine import TOLERANCE, iter_evaluate, workers
-from navlab.reproduce.report import claims_table, verdict_table
+from navlab.reproduce.report import VERDICT_RULES, claims_table, counts, verdict_table
 from navlab.ui import sweep as U
 from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
 from navlab.ui.figures import readable, title_layout
 from navlab.ui.share import literal
 from navlab.ui.views import chart
 
-VERDICT_COLORS = {"reproduced": "#d9f2d9", "inconclusive": "#fff1c2", "contradicted": "#f8d0d0"}
-DOT_COLORS = {"reproduced": "#2ca02c", "contradicted": "#d62728", "inconclusive": "#f0a500"}
+VERDICT_COLORS = {
+    "reproduced": "#d9f2d9",
+    "inconclusive": "#fff1c2",
+    "contradicted": "#f8d0d0",
+    "setup-dependent": "#dbe4f8",
+    "not testable": "#e6e6e6",
+}
+DOT_COLORS = {
+    "reproduced": "#2ca02c",
+    "contradicted": "#d62728",
+    "inconclusive": "#f0a500",
+    "setup-dependent": "#1f5fbf",
+    "not testable": "#7f7f7f",
+}
 MAX_CURVE_POINTS = 2000
 CELL_NAMES = {"#": "no."}  # st.table writes its cells as Markdown: "#" alone is an empty heading
 # The page opens on the paper that answers fastest, at a seed count that answers in seconds
@@ -255,12 +267,11 @@ def show_verdicts(container: Any, o: Outcome) -> None:
     """The counts, the verdict table and the claims' charts of ``o`` (drawn into ``container``,
     e.g. an ``st.empty()`` that each provisional outcome replaces).
     """
-    counts = o.verdicts["verdict"].value_counts()
     with container.container():
-        cols = st.columns(4)
+        cols = st.columns(1 + len(VERDICT_RULES))
         cols[0].metric("claims", len(o.verdicts))
-        for c, v in zip(cols[1:], ("reproduced", "contradicted", "inconclusive"), strict=True):
-            c.metric(v, int(counts.get(v, 0)))
+        for c, (v, n) in zip(cols[1:], counts(o).items(), strict=True):
+            c.metric(v, n, help=VERDICT_RULES[v])
         (st.caption if o.complete else st.warning)(progress_note(o))
         # a static table: its long claims wrap (no sideways scrolling for the verdict) and it
         # needs no data-grid code in the browser (on a busy machine the grid's first load took

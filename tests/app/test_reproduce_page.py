@@ -13,6 +13,7 @@ from apphelpers import assert_clean, plotly_figs
 from navlab.experiment import ExperimentSpec
 from navlab.reproduce import REPRODUCTIONS
 from navlab.reproduce.engine import (
+    VERDICTS,
     Close,
     Curve,
     Experiment,
@@ -20,6 +21,7 @@ from navlab.reproduce.engine import (
     Ranking,
     Ref,
     Reproduction,
+    Untested,
     component_error,
     pooled_rmse,
 )
@@ -42,6 +44,7 @@ FAKE = Reproduction(
         Ranking(
             "oracle-best", "the oracle beats the KF", Ref("exp", "oracle-kf"), (Ref("exp", "kf"),), "rmse_x"
         ),
+        Untested("shape", "the KF fluctuates", "the paper gives no measure", where="Fig. 1", quote="…"),
     ),
     curves=(Curve("x", "m", component_error((0,))),),
     paper_runs=4,
@@ -99,7 +102,10 @@ def test_opens_on_the_fastest_paper_and_says_what_the_seeds_mean(open_page):
     assert "answers in seconds" in captions and "`python -m navlab reproduce irakf --seeds 20`" in captions
     assert any("Press **Run**" in i.value for i in at.info)  # nothing computed before Run
     claims = at.table[0].value  # the claims, listed before they are judged
-    assert len(claims) == 15 and set(claims["verdict"]) == {"not judged yet"}
+    n_untested = sum(isinstance(c, Untested) for c in REPRODUCTIONS["irakf"].claims)
+    assert len(claims) == len(REPRODUCTIONS["irakf"].claims) and n_untested
+    assert (claims["verdict"] == "not testable").sum() == n_untested  # known before any run
+    assert set(claims["verdict"]) == {"not judged yet", "not testable"}
 
 
 def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake, monkeypatch):
@@ -109,11 +115,11 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     at.button(key="rep_run").click().run()
     assert_clean(at)
     table = at.table[0].value
-    assert list(table["claim"]) == ["KF x RMSE 1 m", "the oracle beats the KF"]
-    assert set(table["verdict"]) <= {"reproduced", "contradicted", "inconclusive"}
+    assert list(table["claim"]) == ["KF x RMSE 1 m", "the oracle beats the KF", "the KF fluctuates"]
+    assert set(table["verdict"]) <= set(VERDICTS) and table["verdict"].iloc[-1] == "not testable"
     assert "Judged on 3 seeds × 4 runs" in " ".join(c.value for c in at.caption)
     assert not at.warning  # complete: no "provisional"
-    assert {m.label for m in at.metric} >= {"claims", "reproduced", "contradicted", "inconclusive"}
+    assert {m.label for m in at.metric} >= {"claims", *VERDICTS}  # every verdict kind counted
     figs = plotly_figs(at)
     assert len(figs) == 3  # the number claim, the ranking's evidence, one curve tab
     names = {t["name"] for t in figs[2]["data"]}
@@ -186,5 +192,5 @@ def test_a_registered_reproduction_small_run(open_page):
     at.button(key="rep_run").click().run()
     assert_clean(at)
     claims = at.table[0].value["claim"].tolist()
-    assert "EKF/VB-EKF RMSE ratio 1.75" in claims
+    assert "EKF/VB-EKF RMSE ratio 1.75 ‡" in claims  # ‡: τ_P = 10 was chosen on this scenario
     R._CACHE.clear()

@@ -15,6 +15,8 @@ from navlab.experiment import ExperimentSpec, run_experiment
 from navlab.metrics import summarize
 from navlab.reproduce import REPRODUCTIONS
 from navlab.reproduce.engine import (
+    VERDICTS,
+    Alternative,
     Bound,
     Experiment,
     Margin,
@@ -22,12 +24,14 @@ from navlab.reproduce.engine import (
     Ranking,
     Ref,
     Reproduction,
+    Untested,
+    combine,
     component_error,
     iter_evaluate,
     pooled_rmse,
     replace_spec,
 )
-from navlab.reproduce.report import markdown, text
+from navlab.reproduce.report import VERDICT_RULES, counts, markdown, register_markdown, text
 
 SPEC = ExperimentSpec(filters=("kf", "oracle-kf"), runs=12, epochs=40, outliers="mixture", contamination=0.2)
 
@@ -72,6 +76,79 @@ def test_verdict_rules_on_claims_with_a_known_truth():
     assert (v["seeds"] == 8).all() and (v["runs_per_seed"] == 12).all()
 
 
+def test_setup_dependent_and_not_testable_verdicts():
+    """A verdict that flips under a documented alternative is setup-dependent (both shown); an
+    alternative that does not decide, or agrees, leaves it; an untestable claim and a failed
+    reconstruction give 'not testable'; a 'worst' ranking turns the claim round.
+    """
+    e = lambda k: Ref("e", k)  # noqa: E731
+    oracle_better = Ranking("", "", e("oracle-kf"), (e("kf"),), "rmse_x")
+    rep = _rep(
+        [
+            Ranking(
+                "flips",
+                "the KF beats the oracle",
+                e("kf"),
+                (e("oracle-kf"),),
+                "rmse_x",
+                alternatives=(Alternative("swapped reading", oracle_better),),
+            ),
+            Ranking(
+                "shown-only",
+                "the KF beats the oracle",
+                e("kf"),
+                (e("oracle-kf"),),
+                "rmse_x",
+                alternatives=(Alternative("not the paper's", oracle_better, decides=False),),
+            ),
+            Ranking(
+                "kf-worst", "the KF worse than the oracle", e("kf"), (e("oracle-kf"),), "rmse_x", worst=True
+            ),
+            Ranking("needs-ok", "oracle better", e("oracle-kf"), (e("kf"),), "rmse_x", needs=("oracle-kf",)),
+            Untested(
+                "untested", "a shape the paper gives no measure of", "no measure is given", where="Fig. 9"
+            ),
+        ]
+    )
+    v = rep.evaluate(seeds=4).verdicts.set_index("claim")
+    assert (
+        v.loc["flips", "verdict"] == "setup-dependent" and v.loc["flips", "verdict_navlab"] == "contradicted"
+    )
+    assert "swapped reading: reproduced" in v.loc["flips", "note"]
+    assert (
+        v.loc["shown-only", "verdict"] == "contradicted" and "not the paper's" in v.loc["shown-only", "note"]
+    )
+    assert v.loc["kf-worst", "verdict"] == "reproduced"
+    assert v.loc["needs-ok", "verdict"] == "reproduced"  # the reconstruction did not fail
+    assert v.loc["untested", "verdict"] == "not testable" and "no measure" in v.loc["untested", "note"]
+    alt = Alternative("x", oracle_better)
+    assert combine("reproduced", "X diverges in 400 of 400 runs", []) == "not testable"
+    assert combine("inconclusive", "", [(alt, "contradicted")]) == "inconclusive"  # no flip: not decisive
+    assert combine("reproduced", "", [(alt, "reproduced")]) == "reproduced"
+    assert set(VERDICT_RULES) == set(VERDICTS)
+
+
+def test_claims_register_is_the_doc_and_every_entry_has_a_source():
+    """docs/CLAIMS.md is generated from the declared claims (python tools/claims_register.py), and
+    every entry names where in the paper it comes from and quotes it; an untested one says why.
+    """
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "CLAIMS.md").read_text(encoding="utf-8")
+    assert doc == register_markdown(), "docs/CLAIMS.md is stale: run python tools/claims_register.py"
+    for key in REPRODUCTIONS:
+        claims = REPRODUCTIONS[key].claims
+        ids = [c.id for c in claims]
+        assert len(set(ids)) == len(ids), key
+        for c in claims:
+            assert c.where and c.quote, f"{key}:{c.id} has no source"
+            assert f"`{c.id}`" in doc
+            if isinstance(c, Untested):
+                assert len(c.reason) > 20
+            for a in c.alternatives:
+                assert a.label and not a.claim.alternatives
+
+
 def test_seed_sets_are_the_single_seed_runs():
     """Set s of the base seed is runs s·N … s·N + N − 1: set 0 is the old single-seed result."""
     rep = _rep([Number("n", "x", Ref("e", "kf"), "rmse_x", 1.0)])
@@ -94,7 +171,9 @@ def test_every_reproduction_gives_a_verdict_per_claim(key):
         rep = replace_spec(rep, epochs=short[key])
     o = rep.evaluate(runs=3, seeds=2)
     v = o.verdicts
-    assert len(v) == len(rep.claims) and set(v["verdict"]) <= {"reproduced", "contradicted", "inconclusive"}
+    assert list(v["claim"]) == [c.id for c in rep.claims]  # one row per register entry, in order
+    assert set(v["verdict"]) <= set(VERDICTS) and sum(counts(o).values()) == len(v)
+    assert (v.loc[v["verdict"] == "not testable", "note"].str.contains("not testable")).all()
     assert v["text"].str.len().min() > 10
     assert len(o.readings) >= len(rep.quantities) and o.curves
     out = text(o)
@@ -164,7 +243,9 @@ def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
     assert flat == [(0, 3), (3, 6), (6, 10)]
     seen = []
     two = rep.evaluate(runs=5, seeds=2, jobs=2, on_progress=lambda d, t: seen.append((d, t)))
-    assert seen[0] == (0, 20) and seen[-1] == (20, 20) and len(seen) == 1 + 2 * len(flat)
+    total = 5 * 2 * len(rep.experiments)
+    tasks = engine._plan(rep, 5, 2, 1, stream=False)
+    assert seen[0] == (0, total) and seen[-1] == (total, total) and len(seen) == 1 + len(tasks)
     serial = rep.evaluate(runs=5, seeds=2, jobs=1)
     streamed = rep.evaluate(runs=5, seeds=2, jobs=1, stream=True)
     for o in (two, serial, streamed):
