@@ -26,8 +26,6 @@ LONG = "rep=irakf&rep_seeds=16&rep_seed=7"  # a base seed of its own: nothing of
 # seed blocks 0, 1, 2–3, 4–7: Stop pressed at the first provisional verdict lands before the last
 # block (four seeds) is done, and Run then computes only what is left
 STOPPED = 8
-# the module's tests share one server and its store (under xdist, on one worker: --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("reproduce-server")
 
 
 @pytest.fixture(scope="module")
