@@ -27,6 +27,7 @@ def test_renders_without_running(open_page):
 
 
 @needs_data
+@pytest.mark.slow
 def test_short_drive_segment_runs(open_page):
     at = open_page(PAGE)
     at.number_input(key="rd_ep_drive0708").set_value(15).run()

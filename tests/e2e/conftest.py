@@ -5,8 +5,11 @@
   container started by ``KEEP=1 ../shared/tools/verify-docker.sh .``) it uses that server instead.
 * ``fresh_server`` starts a separate, never-visited server for one test (first-visitor checks).
 * ``base_url`` is the same URL, so ``page.goto("/?seed=42")`` works in tests.
-* Every test under tests/e2e is marked ``e2e`` and is skipped when /usr/bin/chromium is missing
+* Every test under tests/e2e is marked ``e2e`` and ``slow`` (a browser and a server: seconds each,
+  so ``-m "not slow"`` leaves them out) and is skipped when /usr/bin/chromium is missing
   (``apt-get install -y chromium``; ``playwright install`` cannot download browsers here).
+* Under pytest-xdist every worker starts its own servers (free ports, logs named after the worker,
+  the worker's own results store: tests/conftest.py) and its own browser.
 """
 
 from __future__ import annotations
@@ -51,6 +54,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if E2E_DIR in Path(item.path).parents:
             item.add_marker(pytest.mark.e2e)
+            item.add_marker(pytest.mark.slow)
             if not CHROMIUM.exists():
                 item.add_marker(skip)
 
@@ -96,6 +100,12 @@ def _long_waits(request: pytest.FixtureRequest) -> None:
             obj = request.getfixturevalue(name)
             obj.set_default_timeout(WAIT_MS)
             obj.set_default_navigation_timeout(WAIT_MS)
+
+
+def log_name(stem: str) -> str:
+    """``stem``.log, or ``stem``-gw0.log in xdist worker gw0 (each worker has its own servers)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    return f"{stem}-{worker}.log" if worker else f"{stem}.log"
 
 
 @pytest.fixture(scope="session")
@@ -151,7 +161,7 @@ def app_server(artifacts_dir: Path) -> Iterator[str]:
         _wait_healthy(url, None, None)
         yield url
         return
-    with serve(artifacts_dir / "streamlit-server.log") as url:
+    with serve(artifacts_dir / log_name("streamlit-server")) as url:
         yield url
 
 
@@ -165,7 +175,7 @@ def fresh_server(artifacts_dir: Path) -> Iterator[str]:
         _wait_healthy(url, None, None)
         yield url
         return
-    with serve(artifacts_dir / "streamlit-server-fresh.log") as url:
+    with serve(artifacts_dir / log_name("streamlit-server-fresh")) as url:
         yield url
 
 

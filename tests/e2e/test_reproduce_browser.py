@@ -15,7 +15,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from conftest import serve
+from conftest import log_name, serve
 from playwright.sync_api import Browser, Page, expect
 
 T = 90_000
@@ -23,6 +23,9 @@ VIEWPORT = {"width": 1440, "height": 900}
 VERDICT = re.compile(r"^(reproduced|contradicted|inconclusive)$")
 # long enough to run in worker processes and to be still computing seconds after the first verdict
 LONG = "rep=irakf&rep_seeds=16&rep_seed=7"  # a base seed of its own: nothing of it in the store
+# seed blocks 0, 1, 2–3, 4–7: Stop pressed at the first provisional verdict lands before the last
+# block (four seeds) is done, and Run then computes only what is left
+STOPPED = 8
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +35,7 @@ def server(artifacts_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Ite
     saved = os.environ.get("NAVLAB_STORE")
     os.environ["NAVLAB_STORE"] = str(store)
     try:
-        with serve(artifacts_dir / "streamlit-server-reproduce.log") as url:
+        with serve(artifacts_dir / log_name("streamlit-server-reproduce")) as url:
             yield url, store
     finally:
         if saved is None:
@@ -115,19 +118,20 @@ def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server
 
 def test_stop_keeps_the_seed_blocks_and_run_resumes(browser: Browser, server):
     url, _ = server
-    page = _open(browser, url, "rep=irakf&rep_seeds=15&rep_seed=3")
+    page = _open(browser, url, f"rep=irakf&rep_seeds={STOPPED}&rep_seed=3")
     _button(page, "Run").click()
-    expect(page.get_by_text(re.compile(r"^Provisional: judged on \d+ seeds? of 15"))).to_be_visible(timeout=T)
+    provisional = re.compile(rf"^Provisional: judged on \d+ seeds? of {STOPPED}")
+    expect(page.get_by_text(provisional)).to_be_visible(timeout=T)
     stop = _button(page, "Stop")
     assert abs(stop.bounding_box()["y"] - _button(page, "Run").bounding_box()["y"]) < 20  # beside Run
     stop.click()
-    kept = page.get_by_text(re.compile(r"^\d+ of 15 seeds judged and kept"))
+    kept = page.get_by_text(re.compile(rf"^\d+ of {STOPPED} seeds judged and kept"))
     expect(kept).to_be_visible(timeout=T)
     done = int(kept.inner_text().split()[0])
-    assert 1 <= done < 15
+    assert 1 <= done < STOPPED
     assert _idle_within(url, 30)  # Stop ended the work, worker processes included
     _button(page, "Run").click()  # resumes: the kept seeds' verdicts come at once
-    expect(page.get_by_text(re.compile(r"^Judged on 15 seeds"))).to_be_visible(timeout=3 * T)
+    expect(page.get_by_text(re.compile(rf"^Judged on {STOPPED} seeds"))).to_be_visible(timeout=3 * T)
     expect(page.locator('[data-testid="stException"]')).to_have_count(0)
     page.close()
 

@@ -1,6 +1,8 @@
 """#16 in a real browser: the single-run view and its player, Learn side by side, presentation
-mode on every page, settings carried from Compare to Noise, a rejected link value's notice, the
-SVG download, and the downloaded notebook executed (nbclient) reproducing the run's RMSE.
+mode on every page, settings carried from Compare to Noise, and every download of one run: the
+configuration, the CSVs, the SVG and PNG figure, the script, and the notebook executed (nbclient)
+reproducing the run's RMSE. What needs no browser is AppTest's
+(tests/app/test_compare_page.py: choosing the single run's number, a rejected link value's notice).
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ import pandas as pd
 import pytest
 from playwright.sync_api import Page, expect
 from test_browser import CHART, COMPLETE, SMALL, T, assert_no_exception, button, expect_value, settle
+
+from navlab.experiment import ExperimentSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 ONE_RUN = f"{CHART}:has(.updatemenu-button)"  # the single-run chart (it has the play button)
@@ -50,12 +54,6 @@ def test_single_run_view_plays_one_run(page: Page):
     chart.locator(".updatemenu-button").filter(has_text="play").click()
     page.wait_for_function(f"({active})() < {n - 5}", timeout=T)  # it restarted from the first epoch
     page.wait_for_function(f"({active})() === {n - 1}", timeout=T)  # and plays to the end
-    # a run the user picks
-    page.get_by_text("run number", exact=True).click()
-    runs = page.get_by_label("Monte Carlo run (0 … B−1)", exact=True)
-    runs.fill("3")
-    runs.press("Enter")
-    expect(page.locator(".gtitle").filter(has_text="Monte Carlo run 3,")).to_have_count(1, timeout=T)
     assert_no_exception(page)
 
 
@@ -159,40 +157,35 @@ def test_settings_carry_from_compare_to_noise(page: Page):
     expect(page.get_by_role("combobox", name="Outlier model")).to_have_value(want, timeout=T)
 
 
-def test_rejected_link_value_shows_a_notice(page: Page):
-    page.goto("/Compare?runs=-1&flt=kf&flt=unknown&ol.mixture.contamination=5")
-    settle(page)
-    assert_no_exception(page)
-    note = page.get_by_text("Some settings of this link were not used")
-    expect(note).to_be_visible(timeout=T)
-    for part in ("runs=-1", "flt=unknown", "ol.mixture.contamination=5", "must be from 0 to 0.5"):
-        expect(page.locator('[data-testid="stAlert"]').filter(has_text=part)).to_have_count(1, timeout=T)
-    expect_value(page, "Monte Carlo runs", "100")
-
-
 def _download(page: Page, label: str, nth: int = 0) -> Path:
     with page.expect_download(timeout=T) as d:
         page.get_by_role("button", name=label, exact=True).nth(nth).click()
     return Path(d.value.path())
 
 
-def test_svg_download_is_a_publication_figure(page: Page):
-    page.goto(f"/Compare?{SMALL}&seed=43&go=1")
+def test_downloads_parse_and_the_notebook_reproduces_the_rmse(page: Page, tmp_path: Path, monkeypatch):
+    """Every download of one Compare run: the configuration, the metrics and RMSE-per-epoch CSVs,
+    the SVG (a publication figure, text kept as text) and PNG figure, the script, and the notebook,
+    executed, reproducing the run's RMSE."""
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    page.goto(f"/Compare?{SMALL}&seed=3&go=1")
     wait_complete(page)
+    spec = ExperimentSpec.from_json(_download(page, "Configuration (JSON)").read_text())
+    assert spec.runs == 8 and spec.seed == 3 and spec.scenario_params == {"epochs": 40}
+    assert spec.filters == ("kf", "oracle-kf", "chi2-kf")
+    metrics = pd.read_csv(_download(page, "Metrics (CSV)"))
+    assert {"filter", "metric", "value", "unit"} <= set(metrics.columns)
+    assert set(metrics["filter"]) == {"kf", "oracle-kf", "chi2-kf"}
+    assert (metrics[metrics.metric == "runs"].value == 8).all()
+    curves = pd.read_csv(_download(page, "RMSE per epoch (CSV)"))
+    assert {"filter", "group", "epoch", "rmse"} <= set(curves.columns)
+    assert curves.epoch.max() == 40
     svg = _download(page, "SVG").read_text()
-    root = ET.fromstring(svg)
-    assert root.tag.endswith("svg")
+    assert ET.fromstring(svg).tag.endswith("svg")
     assert "Position error over time" in svg and "KF" in svg  # text kept as text
     png = _download(page, "PNG").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def test_notebook_download_executes_and_reproduces_the_rmse(page: Page, tmp_path: Path, monkeypatch):
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    page.goto(f"/Compare?{SMALL}&seed=44&go=1")
-    wait_complete(page)
-    metrics = pd.read_csv(_download(page, "Metrics (CSV)"))
     nb_path = _download(page, "Notebook (.ipynb)")
     script = _download(page, "Script (.py)").read_text()
     assert "run_experiment(SPEC)" in script

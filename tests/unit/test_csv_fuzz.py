@@ -220,6 +220,7 @@ def plain_body(draw) -> tuple[str, int]:
     return draw(st.sampled_from(["\n", "\r\n"])).join(lines) + "\n", ncol
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None, derandomize=True)
 @given(case=plain_body())
 def test_the_fast_parse_gives_the_line_parsers_numbers_or_leaves_it_to_it(case):

@@ -152,6 +152,7 @@ def test_replacement_runaway_threshold(quiet):
             assert ex[0].value == n and ex[0].runs == 1 and "random walk" in ex[0].sentence
 
 
+@pytest.mark.slow
 def test_nnmfukf_runs_away_and_its_guarded_variant_does_not():
     r = run_experiment(
         ExperimentSpec(scenario="gps-ins-rtk", filters=("nnmfukf", "nnmfukf-guarded"), runs=2, seed=1)

@@ -112,6 +112,7 @@ def _python(code: str, *args: str, **env: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_navlab_runs_without_numba():
     """With numba unimportable, navlab runs its numpy paths (a broken or missing install)."""
     code = (
@@ -137,6 +138,7 @@ def test_navlab_runs_without_numba():
     assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
 
 
+@pytest.mark.slow
 @needs_numba
 def test_without_numba_the_numbers_are_the_same_to_round_off(tmp_path):
     """NAVLAB_NUMBA=0 (numpy paths) and the compiled paths give one experiment's numbers."""

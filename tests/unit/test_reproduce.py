@@ -163,7 +163,11 @@ def test_seed_sets_are_the_single_seed_runs():
     assert measured["e"].judged["kf"].shape == (36,)
 
 
-@pytest.mark.parametrize("key", sorted(REPRODUCTIONS))
+@pytest.mark.parametrize(
+    "key",
+    # nnmfukf trains its RBF network: 9 s on this machine
+    [pytest.param(k, marks=pytest.mark.slow) if k == "nnmfukf" else k for k in sorted(REPRODUCTIONS)],
+)
 def test_every_reproduction_gives_a_verdict_per_claim(key):
     rep = REPRODUCTIONS[key]
     short = {"hakf": 120, "nnmfukf": 700, "irakf": 100, "vbekf": 200}
@@ -223,6 +227,7 @@ def test_cli_reproduce_json_and_details(capsys):
     assert rc == 2 and "--seeds" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_worker_processes_and_blocks_give_the_same_numbers(monkeypatch):
     """Run r draws the same numbers in any block and any process: the verdicts and readings of
     2 worker processes over blocks of a few runs equal those of one process over one block.
@@ -357,6 +362,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_closing_the_run_kills_its_worker_processes(monkeypatch, tmp_path):
     """A closed browser session closes the generator: the blocks not started are cancelled and
     the worker processes killed at once (not after the blocks in flight); the finished blocks are

@@ -113,6 +113,7 @@ def test_paired_difference_is_much_narrower_than_unpaired_and_covers():
     assert paired < 0.2 * unpaired  # pairing removes the shared variation
 
 
+@pytest.mark.slow
 def test_quantile_interval_covers_the_median():
     rng = np.random.default_rng(11)
     hits = 0
