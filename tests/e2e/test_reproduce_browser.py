@@ -18,9 +18,12 @@ import pytest
 from conftest import log_name, serve
 from playwright.sync_api import Browser, Page, expect
 
+from navlab.reproduce import REPRODUCTIONS
+
 T = 90_000
 VIEWPORT = {"width": 1440, "height": 900}
-VERDICT = re.compile(r"^(reproduced|contradicted|inconclusive)$")
+# the verdicts a run gives ("not testable" rows are listed before any run)
+VERDICT = re.compile(r"^(reproduced|contradicted|inconclusive|setup-dependent)$")
 # long enough to run in worker processes and to be still computing seconds after the first verdict
 LONG = "rep=irakf&rep_seeds=16&rep_seed=7"  # a base seed of its own: nothing of it in the store
 # seed blocks 0, 1, 2–3, 4–7: Stop pressed at the first provisional verdict lands before the last
@@ -92,8 +95,11 @@ def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server
     _button(page, "Run").click()
     expect(_verdicts(page).first).to_be_visible(timeout=T)
     expect(page.get_by_text(re.compile(r"^Judged on 5 seeds"))).to_be_visible(timeout=T)
-    expect(page.get_by_text(re.compile(r"^1000/1000 runs"))).to_be_visible()  # progress ends at 100 %
-    expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(8, timeout=T)  # 2 claims + 6 curves
+    r = REPRODUCTIONS["irakf"]
+    runs = 5 * r.default_runs * len(r.experiments)  # 5 seeds of every experiment
+    expect(page.get_by_text(re.compile(rf"^{runs}/{runs} runs"))).to_be_visible()  # progress ends at 100 %
+    charts = 2 + len(r.experiments) * len(r.curves)  # the claims, the evidence, one per curve
+    expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(charts, timeout=T)
     expect(_button(page, "Stop")).to_have_count(0)  # nothing to stop any more
     expect(page.locator('[data-testid="stException"]')).to_have_count(0)
     # every table fits its container (no sideways scrolling for the verdict); no None/NaN cell
@@ -111,7 +117,7 @@ def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server
     # presentation mode: the judged reproduction is shown (from the server), without downloads
     page = _open(browser, url, "present=1")
     expect(_verdicts(page).first).to_be_visible()
-    expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(8, timeout=T)
+    expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(charts, timeout=T)
     expect(page.locator('[data-testid="stDownloadButton"]')).to_have_count(0)
     page.close()
 

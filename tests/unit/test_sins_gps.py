@@ -228,7 +228,7 @@ def test_reproduction_claims_and_readings():
     from navlab.reproduce.engine import replace_spec
 
     o = replace_spec(REPRODUCTIONS["hakf"], epochs=110).evaluate(runs=2, seeds=2)
-    assert set(o.readings.experiment) == {"case1", "case2", "case3", "case4"}
+    assert set(o.readings.experiment) == {"case1", "case2", "case3", "case4", "case3-mild"}
     att = o.readings[o.readings.quantity == "rmse_att"]
     assert set(att.label) == {"KF", "HKF", "AKF", "HAKF", "Oracle KF"}
     assert att.paper.isna().all()  # the paper gives figures only
