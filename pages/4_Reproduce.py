@@ -20,7 +20,8 @@ frame(
     ":material/article:",
     "Each reproduction runs a paper's experiment with navlab on many Monte Carlo sets ('seeds') and "
     "turns every claim of the paper — a number, a ranking, a margin — into one verdict: reproduced, "
-    "contradicted or inconclusive. The URL keeps the selection.",
+    "contradicted, inconclusive, setup-dependent (another documented setting gives the other answer) "
+    "or not testable. The URL keeps the selection.",
 )
 
 keys = sorted(REPRODUCTIONS)

@@ -291,6 +291,11 @@ def show_claims(container: Any, rep: Any) -> None:
         st.info("Press **Run** to judge the paper's claims; the first verdicts come after one seed.")
         table = _cells(claims_table(rep))
         st.table(table, hide_index=True, alt=f"the claims of {rep.key}")
+        st.caption(
+            "‡: a setting navlab chose where the paper is silent or with the judged scenario in view. "
+            "Not testable: the paper gives too little to test, or the claim needs a reconstruction "
+            "that fails; the reasons come with the verdicts."
+        )
 
 
 # --------------------------------------------------------------------------- running
