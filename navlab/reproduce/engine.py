@@ -203,16 +203,10 @@ class Ref:
     filter: str
 
 
-@dataclass(frozen=True)
-class Number:
-    """The paper gives a number for ``ref``'s ``quantity``."""
+@dataclass(frozen=True, kw_only=True)
+class Source:
+    """Where a claim of the register comes from and what navlab chose for it (keywords only)."""
 
-    id: str
-    text: str
-    ref: Ref
-    quantity: str
-    paper: float
-    note: str = ""
     where: str = ""  # where in the paper: section, figure, table
     quote: str = ""  # the sentence (or figure/table caption) the claim comes from
     chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
@@ -221,7 +215,19 @@ class Number:
 
 
 @dataclass(frozen=True)
-class Bound:
+class Number(Source):
+    """The paper gives a number for ``ref``'s ``quantity``."""
+
+    id: str
+    text: str
+    ref: Ref
+    quantity: str
+    paper: float
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class Bound(Source):
     """The paper says ``ref``'s ``quantity`` is above (or below) ``bound``."""
 
     id: str
@@ -231,15 +237,10 @@ class Bound:
     bound: float
     above: bool = True
     note: str = ""
-    where: str = ""  # where in the paper: section, figure, table
-    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
-    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
-    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
-    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
-class Ranking:
+class Ranking(Source):
     """The paper says ``better`` beats every one of ``than`` on ``quantity`` ("best" if several)."""
 
     id: str
@@ -249,15 +250,10 @@ class Ranking:
     quantity: str
     note: str = ""
     worst: bool = False  # the claim is the reverse: ``better`` is WORSE than every one of ``than``
-    where: str = ""  # where in the paper: section, figure, table
-    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
-    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
-    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
-    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
-class Margin:
+class Margin(Source):
     """The paper says (a − b)/b = ``paper`` on ``quantity`` (``as_ratio``: it states a/b)."""
 
     id: str
@@ -268,15 +264,10 @@ class Margin:
     paper: float  # the paper's relative difference (a − b)/b, or the ratio a/b if as_ratio
     as_ratio: bool = False
     note: str = ""
-    where: str = ""  # where in the paper: section, figure, table
-    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
-    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
-    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
-    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
-class Close:
+class Close(Source):
     """The paper says the filters ``refs`` are close on ``quantity``; navlab reads "close" as
     every relative difference to the best within ±``within``.
     """
@@ -287,15 +278,10 @@ class Close:
     quantity: str
     within: float = 0.10
     note: str = ""
-    where: str = ""  # where in the paper: section, figure, table
-    quote: str = ""  # the sentence (or figure/table caption) the claim comes from
-    chosen: str = ""  # a setting of navlab's chosen where the paper is silent / on this scenario
-    alternatives: tuple[Alternative, ...] = ()  # documented alternative settings or readings
-    needs: tuple[str, ...] = ()  # filters that are navlab's reconstruction of lost equations
 
 
 @dataclass(frozen=True)
-class Untested:
+class Untested(Source):
     """A claim of the paper navlab cannot test: its row's verdict is "not testable", ``reason``
     says why (the paper gives too little, or what it needs is out of the reproduction's scope).
     """
@@ -303,12 +289,7 @@ class Untested:
     id: str
     text: str
     reason: str
-    where: str = ""
-    quote: str = ""
-    chosen: str = ""
     note: str = ""
-    alternatives: tuple[Alternative, ...] = ()
-    needs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
