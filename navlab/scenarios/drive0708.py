@@ -319,7 +319,7 @@ def _gnss_aiding(own, p, setup, sigma, rx_sigma, std, noise, var, mask) -> tuple
         clean_var = (rx_sigma if rx_sigma is not None else sigma) ** 2
         var = np.where(mask, var + (0.0 if p.add_noise else clean_var), np.broadcast_to(clean_var, var.shape))
         return z, var, np.broadcast_to(clean_var, (K + 1, 3)).copy()
-    return setup.p_true[None] + (noise if p.add_noise else 0.0), var, std**2
+    return setup.p_true[None] + (noise if p.add_noise else np.zeros_like(noise)), var, std**2  # (B, K+1, 3)
 
 
 def _cut_outage(z: Array, setup, p: Drive0708Params) -> None:

@@ -170,3 +170,23 @@ def test_velocity_truth_is_aligned_with_the_positions():
     rms = lambda v: np.sqrt(np.mean((vd - v) ** 2))  # noqa: E731
     assert rms(setup.v_true[:, :2]) < 0.04
     assert rms(v_at_epoch) > 2 * rms(setup.v_true[:, :2])
+
+
+@needs_rtkx
+def test_aiding_without_synthetic_noise_runs_for_every_run():
+    """add_noise=False gives every run the RTK positions themselves (it used to give one run and
+    fail on joining the NHC channels of B runs)."""
+    from navlab.experiment import ExperimentSpec, run_experiment
+
+    spec = ExperimentSpec(
+        scenario="drive0708",
+        filters=("kf",),
+        runs=2,
+        outliers="none",
+        scenario_params={"epochs": 30, "add_noise": False},
+    )
+    res = run_experiment(spec)
+    z = res.data.z
+    assert z.shape[0] == 2
+    np.testing.assert_array_equal(z[0], z[1])  # no synthetic noise: the same fixes in every run
+    assert np.isfinite(res.runs["kf"].x[:, 1:]).all()
