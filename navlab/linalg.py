@@ -104,6 +104,11 @@ def bcast(a: Array, shape: tuple[int, ...]) -> Array:
     return np.broadcast_to(a, shape)
 
 
+def zero_columns(K: Array, reject: Array) -> Array:
+    """The gain K (n, m) or (B, n, m) with column i zeroed where ``reject[b, i]``: (B, n, m)."""
+    return bcast(K, (reject.shape[0], *K.shape[-2:])) * ~reject[:, None, :]
+
+
 def select(mask: Array | None, new: Array, old: Array | float) -> Array:
     """``np.where(mask, new, old)``, with ``mask`` None meaning "everywhere": the usual case —
     every channel present, every run still iterating — then costs no ``np.where`` at all.

@@ -385,8 +385,12 @@ class _VBBase(KalmanUpdate):
         p, mk = self.params, pr.mk
         B = z.shape[0]
         alpha = state.alpha + 0.5 * mk.ok if p.adapt else state.alpha  # α = α⁻ + 1/2 (kept over it)
-        flag = float(getattr(p, "gamma", 1.0)), bool(getattr(p, "irls", False))
-        opts = (self.huber, *flag, bool(getattr(p, "robust_beta", False)), p.adapt, p.iters, p.tol)
+        huber = (
+            float(getattr(p, "gamma", 1.0)),
+            bool(getattr(p, "irls", False)),
+            bool(getattr(p, "robust_beta", False)),
+        )
+        opts = (self.huber, *huber, p.adapt, p.iters, p.tol)  # the AKF has no Huber options
         runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta)
         beta, Rt, w, iters, delta, fixed = VB_ITERATIONS(runs, opts)
         return Noise(

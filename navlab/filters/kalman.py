@@ -48,7 +48,6 @@ from navlab.linalg import (
     Array,
     Masked,
     PHt,
-    bcast,
     chi2_threshold,
     diag,
     joseph_from_gain,
@@ -57,6 +56,7 @@ from navlab.linalg import (
     mv,
     quad,
     sym,
+    zero_columns,
 )
 from navlab.params import param
 
@@ -175,7 +175,7 @@ class KalmanUpdate(Filter):
         """4  K = P⁻ Hᵀ S⁻¹, with a zero column for every rejected channel (weight 0)."""
         K, fixed = kf_gain(mk.U, S)
         if nz.weights is not None and not np.all(nz.weights):
-            K = bcast(K, (*nz.weights.shape[:1], *K.shape[-2:])) * (nz.weights != 0)[:, None, :]
+            K = zero_columns(K, nz.weights == 0)
         return K, fixed
 
 

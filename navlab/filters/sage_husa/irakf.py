@@ -22,7 +22,7 @@ import numpy as np
 
 from navlab.filters.base import KFLimit, Model, Teaching, register
 from navlab.filters.kalman import measurement_prediction
-from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag, zero_columns
+from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag
 from navlab.filters.sage_husa.rrae import RRAE, Robust
 from navlab.linalg import (
     Array,
@@ -33,6 +33,7 @@ from navlab.linalg import (
     mv,
     predict_cov,
     sym,
+    zero_columns,
 )
 from navlab.params import param
 

@@ -270,11 +270,6 @@ def sage_husa_R(
 # ------------------------------------------------------------------------------ small helpers
 
 
-def zero_columns(K: Array, reject: Array) -> Array:
-    """The gain K (n, m) or (B, n, m) with column i zeroed where ``reject[b, i]``: (B, n, m)."""
-    return bcast(K, (reject.shape[0], *K.shape[-2:])) * ~reject[:, None, :]
-
-
 def scale_diag(A: Array, f: Array) -> Array:
     """A ((m, m) or (B, m, m)) with A_ii multiplied by f_i (B, m); off-diagonal entries unchanged."""
     B, m = f.shape

@@ -175,7 +175,7 @@ class RRAE(Filter):
 
     def rhat(self, model: Model, state: RAEState, H: Array, M: Array, det: Any, flags: Array) -> Array:
         """R̂_k = (1/M) Σ η_j η_jᵀ + H P_ref Hᵀ (S1 eqs. 3/4), R0 until the window is full, clamped."""
-        B = M.shape[0] if M.ndim == 3 else state.x.shape[0]
+        B = state.x.shape[0]
         if not state.win.full:
             return batched(np.asarray(model.R0, dtype=float), B).copy()
         use_prior = self.use_prior(det, B)
