@@ -21,8 +21,9 @@ def test_most_filters_have_a_reference():
 
     missing = sorted(set(registry()) - set(REFERENCES))
     # wls is plain already; the NNMFUKF's network is tested on its own (tests/unit/test_nnmfukf.py);
-    # the VB filters' one-run step is their implementation (tests/unit/test_jit_kernels.py)
-    one_run = {"vb-akf", "hakf", "student-t-kf"}
+    # the VB and Sage–Husa filters' one-run steps are their implementation, compiled and not
+    # (tests/unit/test_jit_kernels.py), their numbers pinned (tests/unit/test_linear_pinned.py)
+    one_run = {"vb-akf", "hakf", "student-t-kf", "sage-husa", "irakf", "rrae", "rakf", "rsshakf"}
     assert set(missing) <= {"wls", "nnmfukf", "nnmfukf-guarded", *one_run}, missing
 
 
