@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from navlab import jit
-from navlab.filters.sage_husa import clamp_eigenvalues, igg3_weights, irakf_weights, rae_rhat
-from navlab.filters.sage_husa.kernels import CLAMP_EIGENVALUES
+from navlab.filters.sage_husa import clamp_to_band, igg3_weights, irakf_weights, rae_rhat
+from navlab.filters.sage_husa.kernels import CLAMP_TO_BAND
 from navlab.linalg import eigh_clamp, sym
 
 
@@ -37,7 +37,12 @@ def _clamp_reference(R, lo, hi):
 def test_clamp_equals_eigh_everywhere(m, compiled):
     if compiled and not jit.enabled():
         pytest.skip("numba not available")
-    clamp = CLAMP_EIGENVALUES.get() if compiled else clamp_eigenvalues
+    fn = CLAMP_TO_BAND.get() if compiled else clamp_to_band
+    s0 = 0.7  # R0 = s0 I: the band [lo, hi] × R0 is [lo s0, hi s0] on the eigenvalues
+
+    def clamp(R, lo, hi):
+        return fn(R, s0 * np.eye(m), np.sqrt(s0) * np.eye(m), lo / s0, hi / s0)
+
     rng = np.random.default_rng(m)
     R = _random_sym(rng, 400, m)
     lo, hi = 0.3, 6.0  # many runs outside on either side, many inside
@@ -61,12 +66,13 @@ def test_rae_with_missing_channels_stays_psd_and_falls_back_to_r0():
     eta = np.array([[1.0, 2.0], [3.0, 0.0]])
     ok = np.array([[True, True], [True, False]])
     r0 = np.array([4.0, 9.0])
-    R = rae_rhat(eta, ok, np.zeros((2, 2)), r0, 1e-12, 1e12)[0]
+    band = (np.diag(r0), np.diag(np.sqrt(r0)), 1e-6, 1e6)
+    R = rae_rhat(eta, ok, np.zeros((2, 2)), r0, *band)[0]
     assert R[0, 0] == pytest.approx((1 + 9) / 2)
     assert R[1, 1] == pytest.approx(4.0)  # only one epoch with channel 1
     assert R[0, 1] == pytest.approx(2.0 / np.sqrt(2.0))  # D Σηηᵀ D, D = diag(1/√c_i): PSD
     assert np.linalg.eigvalsh(R).min() >= 0
-    R = rae_rhat(eta, np.zeros_like(ok), np.zeros((2, 2)), r0, 1e-12, 1e12)[0]
+    R = rae_rhat(eta, np.zeros_like(ok), np.zeros((2, 2)), r0, *band)[0]
     np.testing.assert_allclose(R, np.diag(r0))  # a channel never present: R0_ii
 
 
@@ -92,3 +98,23 @@ def test_weight_functions_match_their_three_segment_definitions(k0, k1):
         np.testing.assert_array_equal(got[1], ref[1])
         assert got[1].dtype == np.int8
         np.testing.assert_array_equal(got[0], ref[0])
+
+
+def test_band_is_relative_to_the_nominal_r0():
+    """With unequal nominal variances each channel's band is its own: [r_min, r_max] × R0_ii."""
+    R0 = np.diag([1.0, 100.0])
+    L0 = np.sqrt(R0)
+    R, changed = clamp_to_band(np.diag([0.5, 0.5]), R0, L0, 0.25, 16.0)
+    np.testing.assert_allclose(np.diag(R), [0.5, 25.0])  # channel 1 raised to 0.25 × 100
+    np.testing.assert_array_equal(changed, [False, True])
+    R, changed = clamp_to_band(np.diag([20.0, 50.0]), R0, L0, 0.25, 16.0)
+    np.testing.assert_allclose(np.diag(R), [16.0, 50.0])
+    np.testing.assert_array_equal(changed, [True, False])
+    # correlated R0: the band is on the eigenvalues of L0⁻¹ R̂ L0⁻ᵀ, so R̂ = c R0 is kept as it is
+    R0 = np.array([[4.0, 1.8], [1.8, 1.0]])
+    L0 = np.linalg.cholesky(R0)
+    R, changed = clamp_to_band(3.0 * R0, R0, L0, 0.25, 16.0)
+    np.testing.assert_allclose(R, 3.0 * R0)
+    assert not changed.any()
+    R, _ = clamp_to_band(0.01 * R0, R0, L0, 0.25, 16.0)
+    np.testing.assert_allclose(R, 0.25 * R0)

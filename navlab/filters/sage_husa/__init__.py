@@ -44,12 +44,12 @@ from navlab.filters.sage_husa.rsshakf import RSSHAKF, RSSHAKFParams
 from navlab.filters.sage_husa.kernels import (
     RState,
     Window,
-    clamp_eigenvalues,
+    band,
+    clamp_to_band,
     forgetting_weight,
     igg3_weights,
     irakf_weights,
     rae_rhat,
-    rhat_bounds,
     sage_husa_rhat,
 )
 
@@ -71,11 +71,11 @@ __all__ = [
     "SageHusa",
     "SageHusaParams",
     "Window",
-    "clamp_eigenvalues",
+    "band",
+    "clamp_to_band",
     "forgetting_weight",
     "igg3_weights",
     "irakf_weights",
     "rae_rhat",
-    "rhat_bounds",
     "sage_husa_rhat",
 ]

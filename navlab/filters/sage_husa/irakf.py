@@ -22,7 +22,7 @@ import numpy as np
 
 from navlab.filters.base import REJECTED, REJECTED_AUX, KFLimit, Model, Teaching, register
 from navlab.filters.kalman import KalmanUpdate, Noise, measurement_prediction
-from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag
+from navlab.filters.sage_husa.kernels import Window, band_param, irakf_weights, scale_diag
 from navlab.filters.sage_husa.rrae import RRAE
 from navlab.linalg import Array, Masked, diag, joseph_from_gain, kf_gain, mv, predict_cov, sym, zero_columns
 from navlab.params import param
@@ -70,6 +70,8 @@ class IRAKFParams:
     skf_gated: bool = param(
         False, help="also zero the parallel SKF's gain on its detections (locks out; spec §4.5)"
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class IRAKFState(NamedTuple):

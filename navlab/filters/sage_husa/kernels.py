@@ -4,18 +4,19 @@ The weight functions (S1 eq. 7, IGG-III) and the fading-memory weight, elementwi
 channels; the residual window; and the two R̂ steps, written for ONE run, one equation a line, and
 looped over the runs by :class:`navlab.jit.RunStep` (compiled by numba; the same Python
 uncompiled without it, and as the tests' oracle): the Sage–Husa R̂ (§4.1 steps 3–4) and the
-residual-window R̂ of RAE (S1 eqs. 3–4), both behind the eigenvalue guard of §4.1 step 4.
+residual-window R̂ of RAE (S1 eqs. 3–4), both kept in a band around the nominal R0 (§4.1 step 4).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from navlab.errors import NavlabError
 from navlab.jit import Kernel, RunStep
-from navlab.linalg import Array, bcast
+from navlab.linalg import CHOLESKY_LOWER, FORWARD_SUBSTITUTE, Array, bcast, cholesky_lower, forward_substitute
+from navlab.params import param
 
 # ------------------------------------------------------------------------------ weights
 
@@ -109,58 +110,74 @@ class Window(NamedTuple):
         return Window(e, o, self.pushes + 1)
 
 
-def rhat_bounds(R0: Array) -> tuple[float, float]:
-    """Eigenvalue clamp [r_min, r_max] = [0.01·min diag R0, 1e4·max diag R0] (§4.1 step 4)."""
-    d = np.diagonal(np.asarray(R0, dtype=float))
-    return 0.01 * float(d.min()), 1e4 * float(d.max())
+def band_param(bound: str) -> Any:
+    """A parameter of the band R̂ is kept in, [r_min, r_max] × R0 (§4.1 step 4): "r_min" or "r_max"."""
+    what = "R̂ kept within [r_min, r_max] × R0 (R̂ relative to the nominal R0: on real data, the receiver's σ²)"
+    if bound == "r_min":
+        return param(0.01, lo=1e-6, hi=1.0, help=f"lower bound of the band: {what}")
+    return param(1e4, lo=1.0, hi=1e8, help=f"upper bound of the band: {what}")
+
+
+def band(model: Any, params: Any) -> tuple[Array, Array, float, float]:
+    """The nominal R0, its Cholesky factor L0 and the band [r_min, r_max] R̂ is kept in (§4.1 step 4)."""
+    R0 = np.asarray(model.R0, dtype=float)
+    try:
+        L0 = np.linalg.cholesky(R0)
+    except np.linalg.LinAlgError:
+        raise NavlabError("the nominal measurement noise R0 must be positive definite") from None
+    return R0, L0, float(params.r_min), float(params.r_max)
 
 
 # The R̂ steps, written for ONE run (navlab.jit.RunStep loops them over the runs, compiled) -------
 
 
-def clamp_eigenvalues(R, lo, hi):  # pragma: no cover - compiled by numba
-    """R̂ symmetrised, its eigenvalues clamped into [lo, hi] (§4.1 step 4), for ONE run.
+def clamp_to_band(R, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
+    """R̂ symmetrised and kept within [lo, hi] × R0 (§4.1 step 4), for ONE run.
 
-    Returns ``(R', changed (m,))``: ``changed`` marks the channels whose variance R_ii the clamp
-    moved (flag 9). A diverged run's non-finite R̂ comes back NaN, every channel marked (the
-    experiment loop records the divergence) instead of stopping the whole batch.
+    The eigenvalues of R̂ relative to the nominal R0 = L0 L0ᵀ (those of L0⁻¹ R̂ L0⁻ᵀ) are clamped
+    into [lo, hi]: with R0 = σ² I, R̂'s eigenvalues into [lo σ², hi σ²]. Returns ``(R', changed
+    (m,))``: ``changed`` marks the channels whose variance R_ii the clamp moved (flag 9). A
+    diverged run's non-finite R̂ comes back NaN, every channel marked (the experiment loop records
+    the divergence) instead of stopping the whole batch.
     """
     m = R.shape[0]
     out = np.empty((m, m))
     changed = np.zeros(m, dtype=np.bool_)
-    finite = True
     for i in range(m):
         for j in range(m):
             out[i, j] = 0.5 * (R[i, j] + R[j, i])
-            finite = finite and np.isfinite(out[i, j])
-    if not finite:
+    if not np.all(np.isfinite(out)):
         out[:] = np.nan
         changed[:] = True
         return out, changed
-    w, V = np.linalg.eigh(out)
-    if w.min() >= lo and w.max() <= hi:  # nothing to clamp
+    L = np.empty((m, m))
+    if cholesky_lower(out - lo * R0, L) and cholesky_lower(hi * R0 - out, L):
+        return out, changed  # lo R0 ≺ R̂ ≺ hi R0: inside the band, nothing to clamp
+    W = out.copy()
+    forward_substitute(L0, W)  # L0⁻¹ R̂
+    W = W.T.copy()
+    forward_substitute(L0, W)  # L0⁻¹ R̂ L0⁻ᵀ (symmetric up to round-off)
+    w, V = np.linalg.eigh(0.5 * (W + W.T))
+    if w.min() >= lo and w.max() <= hi:
         return out, changed
     w = np.minimum(np.maximum(w, lo), hi)
-    for i in range(m):  # R' = V diag(w) Vᵀ
-        for j in range(i, m):
-            s = 0.0
-            for c in range(m):
-                s += V[i, c] * w[c] * V[j, c]
-            if i == j:
-                changed[i] = abs(s - out[i, i]) > 1e-9 * max(abs(out[i, i]), lo)
-            out[i, j] = s
-            out[j, i] = s
+    C = (V * w) @ np.ascontiguousarray(V.T)  # the clamped L0⁻¹ R̂ L0⁻ᵀ
+    new = L0 @ C @ np.ascontiguousarray(L0.T)  # back: L0 (…) L0ᵀ
+    for i in range(m):
+        changed[i] = abs(new[i, i] - out[i, i]) > 1e-9 * max(abs(out[i, i]), lo * R0[i, i])
+        for j in range(m):
+            out[i, j] = 0.5 * (new[i, j] + new[j, i])
     return out, changed
 
 
-CLAMP_EIGENVALUES = Kernel(clamp_eigenvalues)
+CLAMP_TO_BAND = Kernel(clamp_to_band, uses=(CHOLESKY_LOWER, FORWARD_SUBSTITUTE))
 
 
-def sage_husa_rhat(R_prev, nu, M, ok, d, lo, hi, diagonal):  # pragma: no cover - compiled by numba
-    """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), clamped into [lo, hi] (§4.1 steps 3–4), ONE run.
+def sage_husa_rhat(R_prev, nu, M, ok, R0, L0, lo, hi, d, diagonal):  # pragma: no cover - compiled by numba
+    """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), kept in [lo, hi] × R0 (§4.1 steps 3–4), ONE run.
 
     M = H P⁻ Hᵀ; the entries of a channel not in ``ok`` keep R̂_{k−1}. ``diagonal``: the
-    simplified per-channel form of §4.9 (off-diagonals 0, each variance clamped on its own).
+    simplified per-channel form of §4.9 (off-diagonals 0, each variance in [lo, hi] × R0_ii).
     Returns ``(R̂_k, clamped (m,))``.
     """
     m = nu.shape[0]
@@ -170,20 +187,20 @@ def sage_husa_rhat(R_prev, nu, M, ok, d, lo, hi, diagonal):  # pragma: no cover 
             if ok[i] and ok[j]:
                 R[i, j] = (1.0 - d) * R_prev[i, j] + d * (nu[i] * nu[j] - M[i, j])  # (3)
     if not diagonal:
-        return clamp_eigenvalues(R, lo, hi)  # (4)
+        return clamp_to_band(R, R0, L0, lo, hi)  # (4)
     clamped = np.zeros(m, dtype=np.bool_)
-    for i in range(m):  # §4.9: a diagonal R̂, each variance clamped
-        clamped[i] = R[i, i] < lo or R[i, i] > hi
-        r = min(max(R[i, i], lo), hi)
+    for i in range(m):  # §4.9: a diagonal R̂, each variance in its band
+        clamped[i] = R[i, i] < lo * R0[i, i] or R[i, i] > hi * R0[i, i]
+        r = min(max(R[i, i], lo * R0[i, i]), hi * R0[i, i])
         R[i, :] = 0.0
         R[i, i] = r
     return R, clamped
 
 
-SAGE_HUSA_RHAT = RunStep(sage_husa_rhat, n_runs=4, outs=((0, float), (1, bool)), uses=(CLAMP_EIGENVALUES,))
+SAGE_HUSA_RHAT = RunStep(sage_husa_rhat, n_runs=4, outs=((0, float), (1, bool)), uses=(CLAMP_TO_BAND,))
 
 
-def rae_rhat(eta, ok, HPH_ref, r0, lo, hi):  # pragma: no cover - compiled by numba
+def rae_rhat(eta, ok, HPH_ref, r0, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
     """R̂ = (1/M) Σ η_j η_jᵀ + H P_ref Hᵀ over the window, clamped (S1 eqs. 3/4, §4.2–4.3), ONE run.
 
     eta (M, m): the last M posterior residuals (0 where missing), ok (M, m): channel present,
@@ -210,10 +227,10 @@ def rae_rhat(eta, ok, HPH_ref, r0, lo, hi):  # pragma: no cover - compiled by nu
             R[i, j] = s * dinv[i] * dinv[j] + HPH_ref[i, j]  # (3) R̂ = Ŝ + H P_ref Hᵀ
         if dinv[i] == 0.0:
             R[i, i] += r0[i]
-    return clamp_eigenvalues(R, lo, hi)
+    return clamp_to_band(R, R0, L0, lo, hi)
 
 
-RAE_RHAT = RunStep(rae_rhat, n_runs=4, outs=((2, float), (3, bool)), uses=(CLAMP_EIGENVALUES,))
+RAE_RHAT = RunStep(rae_rhat, n_runs=4, outs=((2, float), (3, bool)), uses=(CLAMP_TO_BAND,))
 
 
 # ------------------------------------------------------------------------------ small helpers

@@ -19,10 +19,11 @@ import numpy as np
 from navlab.filters.base import KFLimit, Model, Teaching, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
-    CLAMP_EIGENVALUES,
+    CLAMP_TO_BAND,
     RState,
+    band,
+    band_param,
     forgetting_weight,
-    rhat_bounds,
     sage_husa_rhat,
 )
 from navlab.jit import Kernel, RunStep
@@ -50,6 +51,8 @@ class RAKFParams:
         tune=(0.5, 10.0),
         help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 @register
@@ -105,10 +108,9 @@ class RAKF(KalmanUpdate):
     def noise(self, model: Model, state: RState, pr: Prior, z: Array) -> Noise:
         """2–4  Sage–Husa R̂, P⁻ inflated on an abnormal epoch, the clipped innovation (5: KF update)."""
         p, mk, kk = self.params, pr.mk, state.k + 1
-        lo, hi = rhat_bounds(model.R0)
         step = (pr.P, mk.nu, mk.M, mk.ok, state.R)
         R, Rm, lam, nu_c, w, flags = RAKF_STEP(
-            step, (forgetting_weight(kk, p.b), lo, hi, p.adapt, p.gamma_s, p.c)
+            step, (*band(model, p), forgetting_weight(kk, p.b), p.adapt, p.gamma_s, p.c)
         )
         if not np.all(lam == 1.0):  # 3  P⁻ ← λ_k P⁻ (and with it U = P⁻Hᵀ, M = H P⁻ Hᵀ)
             s = lam[:, None, None]
@@ -119,7 +121,9 @@ class RAKF(KalmanUpdate):
         )
 
 
-def rakf_step(P, nu, M, ok, R_prev, d, lo, hi, adapt, gamma_s, c):  # pragma: no cover - compiled by numba
+def rakf_step(
+    P, nu, M, ok, R_prev, R0, L0, lo, hi, d, adapt, gamma_s, c
+):  # pragma: no cover - compiled by numba
     """§4.8 steps 2–4 for ONE run: R̂_k, the inflation λ_k of P⁻ and the clipped innovation ν'.
 
     P = P⁻, nu = ν and M = H P⁻ Hᵀ with missing channels masked (ok False). Returns R̂_k, R̂_k
@@ -129,7 +133,7 @@ def rakf_step(P, nu, M, ok, R_prev, d, lo, hi, adapt, gamma_s, c):  # pragma: no
     m = nu.shape[0]
     R, clamped = R_prev.copy(), np.zeros(m, dtype=np.bool_)
     if adapt:  # 2  Sage–Husa R̂_k with its guard
-        R, clamped = sage_husa_rhat(R_prev, nu, M, ok, d, lo, hi, False)
+        R, clamped = sage_husa_rhat(R_prev, nu, M, ok, R0, L0, lo, hi, d, False)
     Rm = R.copy()  # R̂_k with a unit, uncorrelated variance on a missing channel
     nn, trM, trR = 0.0, 0.0, 0.0
     for i in range(m):
@@ -185,5 +189,5 @@ RAKF_STEP = RunStep(
     rakf_step,
     n_runs=5,
     outs=((4, float), (4, float), (None, float), (1, float), (1, float), (1, np.int8)),
-    uses=(Kernel(sage_husa_rhat, uses=(CLAMP_EIGENVALUES,)), Kernel(sqrt_factor, uses=(CHOLESKY_LOWER,))),
+    uses=(Kernel(sage_husa_rhat, uses=(CLAMP_TO_BAND,)), Kernel(sqrt_factor, uses=(CHOLESKY_LOWER,))),
 )

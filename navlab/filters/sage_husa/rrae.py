@@ -22,9 +22,10 @@ from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     RAE_RHAT,
     Window,
+    band,
+    band_param,
     check_k0_k1,
     igg3_weights,
-    rhat_bounds,
     scale_diag,
 )
 from navlab.linalg import Array, Masked, PHt, batched, diag, kf_gain, mask_missing, mT, predict_cov, sym
@@ -50,6 +51,8 @@ class RRAEParams:
         help="middle zone as an inflated variance R̂ᵢᵢ/wᵢ (default) or ν scaled by w "
         "(literal; locks out on clean data, spec uses k1 = 3 for it)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class RAEState(NamedTuple):
@@ -144,9 +147,8 @@ class RRAE(KalmanUpdate):
         if not state.win.full:
             return batched(np.asarray(model.R0, dtype=float), B).copy(), np.zeros((B, m), dtype=bool)
         P_ref = np.where(self.use_prior(det, B)[:, None, None], pr.P, state.P_post)
-        lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
         r0 = np.broadcast_to(np.diag(np.asarray(model.R0, dtype=float)), (B, m))
-        return RAE_RHAT((state.win.eta, state.win.ok, PHt(P_ref, pr.H)[1], r0), (lo, hi))
+        return RAE_RHAT((state.win.eta, state.win.ok, PHt(P_ref, pr.H)[1], r0), band(model, self.params))
 
     def weigh(self, mk: Masked, R: Array, S: Array, nt: Array, sig: Array, det: Any) -> Noise:
         """3–4  IGG-III weights; middle zone R̄_ii = R̂_ii / w_i, rejection zone ν_i ← 0 (flags 1, 2)."""

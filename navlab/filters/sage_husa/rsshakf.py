@@ -22,8 +22,9 @@ from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     SAGE_HUSA_RHAT,
     RState,
+    band,
+    band_param,
     forgetting_weight,
-    rhat_bounds,
     scale_diag,
 )
 from navlab.linalg import Array, batched, diag, mask_missing
@@ -47,6 +48,8 @@ class RSSHAKFParams:
         False,
         help="skip the Sage–Husa update on outlier channels (variant; inverts S1's ranking, §4.9)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 @register
@@ -103,10 +106,9 @@ class RSSHAKF(KalmanUpdate):
         infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)  # 3  R_ii · |ν̃_i|/c_r (4: the KF update)
         R_hat, clamped = state.R, np.zeros(z.shape, dtype=bool)
         if p.adapt:  # 5  simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
-            lo, hi = rhat_bounds(model.R0)
             upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok
             step = (state.R, mk.nu, mk.M, upd)
-            R_hat, clamped = SAGE_HUSA_RHAT(step, (forgetting_weight(kk, p.b), lo, hi, True))
+            R_hat, clamped = SAGE_HUSA_RHAT(step, (*band(model, p), forgetting_weight(kk, p.b), True))
         return Noise(
             scale_diag(R, infl),
             R_hat=R_hat,

@@ -19,7 +19,7 @@ import numpy as np
 
 from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, SideInfo, Teaching, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
-from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, forgetting_weight, rhat_bounds
+from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, band_param, forgetting_weight
 from navlab.linalg import Array, batched, eigh_clamp, mask_missing, mT, predict_cov
 from navlab.params import param
 
@@ -37,6 +37,8 @@ class SageHusaParams:
     )
     adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")
     full: bool = param(False, help="full Sage–Husa: also estimate r̂, q̂ and Q̂ (ill-posed, may diverge)")
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class SHState(NamedTuple):
@@ -109,8 +111,7 @@ class SageHusa(KalmanUpdate):
         d = forgetting_weight(kk, self.params.b)  # d_k, k counted from 1 at the first update
         R, clamped = state.R, np.zeros(z.shape, dtype=bool)
         if self.params.adapt:
-            lo, hi = rhat_bounds(model.R0)
-            R, clamped = SAGE_HUSA_RHAT((state.R, mk.nu, mk.M, mk.ok), (d, lo, hi, False))
+            R, clamped = SAGE_HUSA_RHAT((state.R, mk.nu, mk.M, mk.ok), (*band(model, self.params), d, False))
         return Noise(
             mask_missing(z, mk.nu, R).R,
             R_hat=R,
