@@ -511,7 +511,13 @@ class Drive0708(Scenario):
             extras=_drive_extras(rec, setup, rx_sigma, sigma),
         )
         data.extras["notes"] = [aiding_note(self, setup, rx_sigma), *setup.notes]
-        data.extras["findings"] = check_drive(rec, setup) if self.own else []
+        data.extras["findings"] = check_drive(rec, setup, p.sigma_m) if self.own else []
+        if (
+            self.own
+        ):  # fixes the pre-run check calls outliers: the trust check leaves them out of the raw figure
+            from navlab.data.checks import raw_outlier_epochs
+
+            data.extras["raw_outliers"] = raw_outlier_epochs(rec, setup, p.sigma_m)
         return data
 
 
