@@ -435,8 +435,9 @@ def _outlier_findings(
         Finding(
             level,
             f"outliers: {k} of {len(tg)} raw fixes ({100 * k / len(tg):.1f} %) lie more than "
-            f"{OUTLIER_SIGMAS:g} σ from what their neighbours predict: prefer a robust filter (χ²-gated KF, Huber KF, HAKF, "
-            "IRAKF); the check after the run compares the filters with the other fixes",
+            f"{OUTLIER_SIGMAS:g} σ from what their neighbours predict: prefer a robust filter "
+            "(χ²-gated KF, Huber KF, HAKF, IRAKF); the check after the run compares the filters "
+            "with the other fixes",
         )
     ], flags
 
