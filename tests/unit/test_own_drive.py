@@ -370,3 +370,18 @@ def test_bad_recordings_give_one_line_and_exit_2(tmp_path, moving, capsys, files
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1, err
     assert err[0].startswith("navlab: error: ") and re.search(says, err[0]), err[0]
+
+
+@pytest.mark.parametrize("with_velocity", [True, False])
+def test_outlier_check_flags_moved_fixes_and_little_else(with_velocity):
+    from navlab.data.checks import fix_outliers
+
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.07, 0.2, 600))
+    v = np.c_[10 * np.sin(t / 20), 10 * np.cos(t / 20), 0 * t]  # E, N, U of the curve p (N, E, U)
+    p = np.c_[200 * np.sin(t / 20), -200 * np.cos(t / 20), 0 * t] + rng.standard_normal((600, 3))
+    moved = rng.random(600) < 0.1
+    d = rng.standard_normal((moved.sum(), 3))
+    p[moved] += d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(30, 100, (moved.sum(), 1))
+    flags = fix_outliers(t, p, v if with_velocity else None, np.ones((600, 3)))
+    assert flags[moved].all() and flags[~moved].mean() < 0.01
