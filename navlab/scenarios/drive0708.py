@@ -439,7 +439,12 @@ class Drive0708(Scenario):
     default_filters = ("kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "sage-husa", "irakf")
     # each epoch holds three GNSS axes and the two NHC channels: a whole-epoch χ² gate rejects
     # the clean channels with an outlying axis and loses lock; gate each channel instead
-    filter_defaults: ClassVar[dict] = {"chi2-kf": {"per_channel": True}}
+    # the χ² gate per channel (one bad axis does not drop a fix); the Sage–Husa family's R̂ kept
+    # within σ ∈ [0.5, 4] × the receiver's reported σ (ALGORITHMS.md §4.1 step 4, docs/REAL_DATA.md)
+    filter_defaults: ClassVar[dict] = {
+        "chi2-kf": {"per_channel": True},
+        **{key: {"r_min": 0.25, "r_max": 16.0} for key in ("sage-husa", "irakf", "rrae", "rakf", "rsshakf")},
+    }
     default_runs = 10
     simulated = False
     linear = False  # nonlinear model (no probe run needed by the app)
