@@ -9,6 +9,7 @@ residual-window R̂ of RAE (S1 eqs. 3–4), both kept in a band around the nomin
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -121,11 +122,15 @@ def band_param(bound: str) -> Any:
 def band(model: Any, params: Any) -> tuple[Array, Array, float, float]:
     """The nominal R0, its Cholesky factor L0 and the band [r_min, r_max] R̂ is kept in (§4.1 step 4)."""
     R0 = np.asarray(model.R0, dtype=float)
+    return R0, _cholesky(R0.tobytes(), R0.shape[0]), float(params.r_min), float(params.r_max)
+
+
+@functools.lru_cache(maxsize=32)
+def _cholesky(R0: bytes, m: int) -> Array:
     try:
-        L0 = np.linalg.cholesky(R0)
+        return np.linalg.cholesky(np.frombuffer(R0).reshape(m, m))
     except np.linalg.LinAlgError:
         raise NavlabError("the nominal measurement noise R0 must be positive definite") from None
-    return R0, L0, float(params.r_min), float(params.r_max)
 
 
 # The R̂ steps, written for ONE run (navlab.jit.RunStep loops them over the runs, compiled) -------
@@ -143,16 +148,25 @@ def clamp_to_band(R, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
     m = R.shape[0]
     out = np.empty((m, m))
     changed = np.zeros(m, dtype=np.bool_)
+    finite = True
     for i in range(m):
         for j in range(m):
             out[i, j] = 0.5 * (R[i, j] + R[j, i])
-    if not np.all(np.isfinite(out)):
+            finite = finite and np.isfinite(out[i, j])
+    if not finite:
         out[:] = np.nan
         changed[:] = True
         return out, changed
-    L = np.empty((m, m))
-    if cholesky_lower(out - lo * R0, L) and cholesky_lower(hi * R0 - out, L):
-        return out, changed  # lo R0 ≺ R̂ ≺ hi R0: inside the band, nothing to clamp
+    A, L = np.empty((2, m, m))  # work arrays
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = out[i, j] - lo * R0[i, j]
+    if cholesky_lower(A, L):
+        for i in range(m):
+            for j in range(m):
+                A[i, j] = hi * R0[i, j] - out[i, j]
+        if cholesky_lower(A, L):
+            return out, changed  # lo R0 ≺ R̂ ≺ hi R0: inside the band, nothing to clamp
     W = out.copy()
     forward_substitute(L0, W)  # L0⁻¹ R̂
     W = W.T.copy()

@@ -146,7 +146,8 @@ class RRAE(KalmanUpdate):
         B, m = pr.mk.nu.shape
         if not state.win.full:
             return batched(np.asarray(model.R0, dtype=float), B).copy(), np.zeros((B, m), dtype=bool)
-        P_ref = np.where(self.use_prior(det, B)[:, None, None], pr.P, state.P_post)
+        use_prior = self.use_prior(det, B)  # P_ref = P⁻ (eq. 4) there, P⁺_{k−1} (eq. 3) elsewhere
+        P_ref = np.where(use_prior[:, None, None], pr.P, state.P_post) if use_prior.any() else state.P_post
         r0 = np.broadcast_to(np.diag(np.asarray(model.R0, dtype=float)), (B, m))
         return RAE_RHAT((state.win.eta, state.win.ok, PHt(P_ref, pr.H)[1], r0), band(model, self.params))
 
