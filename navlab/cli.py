@@ -1,7 +1,8 @@
-"""Command-line interface: ``python -m navlab list|run|reproduce|sweep|tune|app``.
+"""Command-line interface: ``python -m navlab list|run|reproduce|sweep|tune|check-filter|app``.
 
 Exit codes: 0 success; 2 a problem with the arguments, the configuration or an input file (one
-line on stderr saying what to change); 1 an unexpected internal error.
+line on stderr saying what to change); 1 an unexpected internal error, or (check-filter) a
+contract the filter breaks.
 """
 
 from __future__ import annotations
@@ -30,16 +31,23 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _list(what: str) -> pd.DataFrame:
-    from navlab.filters.base import registry
+    from navlab.filters.base import FILTERS, registry
     from navlab.noise import OUTLIERS, SCHEDULES
     from navlab.scenarios.base import scenario_registry
 
     if what == "filters":
         rows = [
-            (k, c.label, c.family, ("reconstruction" if c.reconstruction else ""), c.summary)
+            (
+                k,
+                c.label,
+                c.family,
+                ("reconstruction" if c.reconstruction else ""),
+                FILTERS.plugin_sources.get(k, "navlab"),
+                c.summary,
+            )
             for k, c in registry().items()
         ]
-        return pd.DataFrame(rows, columns=["key", "label", "family", "note", "summary"])
+        return pd.DataFrame(rows, columns=["key", "label", "family", "note", "from", "summary"])
     if what == "scenarios":
         rows = [(k, c.label, c.paper, c.summary) for k, c in scenario_registry().items()]
         return pd.DataFrame(rows, columns=["key", "label", "paper", "summary"])
@@ -489,6 +497,46 @@ def _add_list_command(sub: Any) -> None:
     pl.add_argument("--format", choices=["table", "json", "csv"], default="table")
 
 
+def _add_check_filter_command(sub: Any) -> None:
+    """The ``check-filter`` subcommand: the contract suite on one filter."""
+    pc = sub.add_parser(
+        "check-filter",
+        help="check a filter against the contracts (batched = run by run, PSD, NaN channel, reference, …)",
+    )
+    pc.add_argument("name", help="the filter's key (navlab list filters), e.g. one of your plugin's")
+    pc.add_argument(
+        "--scenario",
+        action="append",
+        help="check on this scenario only (repeatable; default: every compatible scenario)",
+    )
+    pc.add_argument("--verbose", "-v", action="store_true", help="also list the checks that pass")
+
+
+def _check_filter(a: argparse.Namespace) -> int:
+    from navlab.contracts import check_filter
+
+    counts = {"pass": 0, "fail": 0, "skip": 0}
+    skipped: dict[str, list[Any]] = {}
+
+    def show(o) -> None:
+        counts[o.status] += 1
+        if o.status == "fail":
+            print(f"FAIL  {o.contract} [{o.scenario}]: {o.message}", flush=True)
+        elif o.status == "skip":
+            skipped.setdefault(o.message, []).append(o)
+        elif a.verbose:
+            print(f"pass  {o.contract} [{o.scenario}]", flush=True)
+
+    check_filter(a.name, a.scenario, on_outcome=show)
+    for why, outs in skipped.items():
+        where = sorted({o.scenario for o in outs})
+        what = outs[0].contract if len(outs) == 1 else f"{len(outs)} checks"
+        print(f"skip  {what} [{', '.join(where)}]: {why}")
+    verdict = "FAILED" if counts["fail"] else "passed"
+    print(f"{a.name}: {verdict} — {counts['pass']} passed, {counts['fail']} failed, {counts['skip']} skipped")
+    return 1 if counts["fail"] else 0
+
+
 def _add_run_command(sub: Any) -> None:
     """The ``run`` subcommand: a Monte Carlo experiment and its metrics."""
     pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
@@ -593,7 +641,10 @@ def _add_tune_command(sub: Any) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from navlab import __version__
+
     p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
+    p.add_argument("--version", action="version", version=f"navlab {__version__}")
     p.add_argument(
         "--debug", action="store_true", help="show tracebacks of internal errors (also after the subcommand)"
     )
@@ -604,6 +655,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_reproduce_command,
         _add_sweep_command,
         _add_tune_command,
+        _add_check_filter_command,
     ):
         add(sub)
     sub.add_parser(
@@ -634,6 +686,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _sweep(a)
         if a.cmd == "tune":
             return _tune(a)
+        if a.cmd == "check-filter":
+            return _check_filter(a)
         return 2
     except NavlabError as exc:
         print(f"navlab: error: {exc}", file=sys.stderr)

@@ -152,10 +152,11 @@ def state_sigma(run: Run, B: int) -> np.ndarray:
     return np.sqrt(np.abs(np.stack([np.diagonal(batched_P(o.P, B), axis1=-2, axis2=-1) for o in run.outs])))
 
 
-def _where(err: np.ndarray) -> str:
-    """'epoch k=…, run …' of the largest entry of a (K, B, …) array."""
+def _where(err: np.ndarray, tol: float) -> str:
+    """Where a (K, B, …) error array is largest and first exceeds ``tol``, in words."""
     k, r = np.unravel_index(int(np.nanargmax(err)), err.shape)[:2]
-    return f"epoch k={k + 1}, run {r}"
+    first = int(np.argmax((~(err <= tol)).reshape(err.shape[0], -1).any(axis=1))) + 1
+    return f"largest at epoch k={k + 1}, run {r}; first above tolerance at k={first}"
 
 
 def assert_same_estimates(a: Run, b: Run, B: int, rel: float, what: str) -> None:
@@ -165,8 +166,8 @@ def assert_same_estimates(a: Run, b: Run, B: int, rel: float, what: str) -> None
     err = np.abs(xa - xb) / (sig + np.abs(xb) + 1e-300)
     _require(
         np.all(err <= rel),
-        f"{what}: the state estimate x differs by {np.nanmax(err):.2e} of its σ at {_where(err)} "
-        f"(tolerance {rel:g})",
+        f"{what}: the state estimate x differs by {np.nanmax(err):.2e} of its σ ({_where(err, rel)}; "
+        f"tolerance {rel:g})",
     )
     Pa = np.stack([batched_P(o.P, B) for o in a.outs])
     Pb = np.stack([batched_P(o.P, B) for o in b.outs])
@@ -175,8 +176,8 @@ def assert_same_estimates(a: Run, b: Run, B: int, rel: float, what: str) -> None
     perr = np.abs(Pa - Pb) / scale
     _require(
         np.all(perr <= rel),
-        f"{what}: the covariance P differs by {np.nanmax(perr):.2e} relative at {_where(perr)} "
-        f"(tolerance {rel:g})",
+        f"{what}: the covariance P differs by {np.nanmax(perr):.2e} relative ({_where(perr, rel)}; "
+        f"tolerance {rel:g})",
     )
 
 

@@ -65,5 +65,8 @@ def test_a_failed_check_says_what_differs():
     a = C.cached_run("kf", "cv2d", "clean")
     b = C.Run([C._run_slice(o, 0) for o in a.outs], [])
     b.outs[2].x = b.outs[2].x + 1.0
-    with pytest.raises(C.ContractError, match=r"x differs by .* of its σ at epoch k=3, run 0 \(tolerance"):
+    with pytest.raises(
+        C.ContractError,
+        match=r"x differs by .* σ \(largest at epoch k=3, run 0; first above tolerance at k=3; tolerance",
+    ):
         C.assert_same_estimates(C.Run([C._run_slice(o, 0) for o in a.outs], []), b, 1, 1e-6, "here")
