@@ -173,6 +173,10 @@ def _run(a: argparse.Namespace) -> int:
         from navlab.tables import headline
 
         _write(headline(res, compare_to=a.compare_to).text(), a.out)
+    elif a.format in ("markdown", "latex"):
+        from navlab.tables import run_table
+
+        _write(run_table(res, a.format, compare_to=a.compare_to), a.out)
     else:
         from navlab.tables import summary_rows
 
@@ -251,6 +255,8 @@ def _reproduce(a: argparse.Namespace) -> int:
         _write(table.to_string(index=False) + "\n" if a.details else R.text(o), a.out)
     elif a.format == "markdown":
         _write(R.markdown(o), a.out)
+    elif a.format == "latex":
+        _write(R.latex(o), a.out)
     else:
         _emit(table, a.format, a.out)
     if a.outdir:
@@ -368,7 +374,7 @@ def _sweep(a: argparse.Namespace) -> int:
     out = SW.run_sweep(sw, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
     _ran(ex, a.quiet)
     df = out.rows
-    if a.format != "table":
+    if a.format not in ("table", "markdown", "latex"):
         _emit(df, a.format, a.out)
         return 0
     metric = a.metric or _headline_metric(spec)
@@ -378,25 +384,39 @@ def _sweep(a: argparse.Namespace) -> int:
             f"--metric {metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
         )
     d = d.assign(cell=[tables.cell(v, lo, hi) for v, lo, hi in zip(d.value, d.ci_lo, d.ci_hi, strict=True)])
+    unit = next((u for u in d.unit if isinstance(u, str) and u), "")
     p1 = axes[0].param
-    lines = [f"{metric} [95 % interval] against {p1.cli} — {p1.label}"]
+    title = f"{metric}{f' ({unit})' if unit else ''} [95 % interval] against {p1.cli} — {p1.label}"
+    parts: list[tuple[str, pd.DataFrame]] = []  # (filter label or "", its table)
     if len(axes) == 1:
         wide = d.pivot_table(index="param_value", columns="label", values="cell", aggfunc="first", sort=False)
         wide.index.name = p1.cli
-        lines.append(tables.text_table(wide))
+        parts.append(("", wide))
     else:
         p2 = axes[1].param
-        lines[0] += f", and {p2.cli} — {p2.label}"
+        title += f", and {p2.cli} — {p2.label}"
         for label, g in d.groupby("label", sort=False):
             wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
             wide.index.name = f"{p1.cli} \\ {p2.cli}"
             wide.columns = [f"{c:.4g}" for c in wide.columns]
-            lines += ["", str(label), tables.text_table(wide)]
-    lines.append(
-        f"  {out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
-        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed}; intervals: BCa bootstrap "
-        "over runs (navlab run's)."
+            parts.append((str(label), wide))
+    how = (
+        f"{out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
+        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed} (runs 0 to {spec.runs - 1} "
+        f"at every point); {tables.interval_note(spec.runs)}"
     )
+    if a.format in ("markdown", "latex"):
+        texts = []
+        for i, (label, wide) in enumerate(parts):
+            cap = f"{label + ': ' if label else ''}{title}. {how} No bold: sweep points carry no paired test."
+            t = tables.Table(wide.fillna(""))
+            texts.append(tables.render(t, a.format, cap, label=f"tab:navlab-sweep-{i + 1}"))
+        _write("\n".join(texts), a.out)
+        return 0
+    lines = [title]
+    for label, wide in parts:
+        lines += (["", label] if label else []) + [tables.text_table(wide)]
+    lines.append(f"  {how}")
     _write("\n".join(lines) + "\n", a.out)
     return 0
 
@@ -427,6 +447,15 @@ def _tune(a: argparse.Namespace) -> int:
     _ran(ex, a.quiet)
     if a.format == "table":
         _write(TU.report(r).text(), a.out)
+    elif a.format in ("markdown", "latex"):
+        from navlab.tables import render
+
+        t = TU.report(r)
+        cap = (
+            f"Default and tuned filters on {spec.scenario}, {TU.caption(r)} No bold: the best tuned "
+            "filter, where the paired test backs one, is named in the last column and the notes."
+        )
+        _write(render(t, a.format, cap, label="tab:navlab-tune"), a.out)
     else:
         _emit(r.rows, a.format, a.out)
     if a.outdir:
@@ -461,7 +490,7 @@ def _engine_options(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="results store folder (default NAVLAB_STORE or ~/.cache/navlab/store; 'off': none)",
     )
-    p.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    p.add_argument("--format", choices=["table", "json", "csv", "markdown", "latex"], default="table")
     p.add_argument("--out", help="write the output to this file instead of stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
@@ -547,7 +576,13 @@ def _add_run_command(sub: Any) -> None:
         help="reference filter: add each other filter's paired difference (95 %% interval, "
         "p-value, verdict) per headline metric",
     )
-    pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    pr.add_argument(
+        "--format",
+        choices=["table", "json", "csv", "markdown", "latex"],
+        default="table",
+        help="markdown, latex: the headline table for a paper (booktabs; value [95 %% interval]; bold "
+        "only where the paired test backs it; caption with runs, seeds and interval method)",
+    )
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
     pr.add_argument(
@@ -577,7 +612,7 @@ def _add_reproduce_command(sub: Any) -> None:
     )
     pp.add_argument("--runs", type=int, default=None, help="runs per seed (default: the paper's)")
     pp.add_argument("--seed", type=int, default=1, help="base seed")
-    pp.add_argument("--format", choices=["table", "json", "csv", "markdown"], default="table")
+    pp.add_argument("--format", choices=["table", "json", "csv", "markdown", "latex"], default="table")
     pp.add_argument(
         "--details",
         action="store_true",

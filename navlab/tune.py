@@ -820,6 +820,18 @@ def changed(r: TuneResult, key: str) -> bool:
     return any(r.tuned[key][d.name] != d.default for d in dims)
 
 
+def caption(r: TuneResult) -> str:
+    """The seeds and runs of a tuning and the interval method of its test table, one sentence."""
+    from navlab import tables
+
+    st = r.setup
+    return (
+        f"objective {st.objective.name} scored on training seeds {', '.join(map(str, st.train_seeds))}, "
+        f"reported on test seeds {', '.join(map(str, st.test_seeds))} x {st.test_runs} runs "
+        f"({r.test.data.B} Monte Carlo runs). " + tables.interval_note(r.test.data.B)
+    )
+
+
 def report(r: TuneResult) -> Any:
     """The fair-tuning table (:class:`navlab.tables.Table`): per filter the tuned values, the
     objective on the training seeds, the metric on the test seeds for default and tuned with

@@ -234,6 +234,25 @@ def markdown(o: Outcome) -> str:
     return "\n".join(lines) + "\n"
 
 
+def latex(o: Outcome) -> str:
+    """The verdict table as a booktabs LaTeX table (navlab.tables.latex_table): the caption names
+    the reproduction, seeds and runs and the interval method; the claims' notes under it.
+    """
+    from navlab.tables import Table, latex_table
+
+    rep = o.reproduction
+    cells = verdict_table(o).set_index("#")
+    notes = [f"{i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    summary = ", ".join(f"{n} {v}" for v, n in counts(o).items())
+    caption = (
+        f"{rep.title} ({rep.paper}): navlab's reproduction {rep.key}, {o.seeds} seeds x {o.runs} Monte "
+        f"Carlo runs per seed (base seed {o.seed}; seed s = runs s*{o.runs} to s*{o.runs} + {o.runs - 1}). "
+        "navlab: mean over the seeds with its 95 % t interval over seeds; verdicts as in navlab's "
+        f"docs/STATISTICS.md section 4. {len(o.verdicts)} claims: {summary}."
+    )
+    return latex_table(Table(cells, notes), caption, label=f"tab:navlab-{rep.key}")
+
+
 # --------------------------------------------------------------------------- the claims register
 
 REGISTER_HEAD = """# Claims register
