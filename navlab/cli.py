@@ -181,6 +181,15 @@ def _run(a: argparse.Namespace) -> int:
         from navlab.tables import summary_rows
 
         _emit(summary_rows(res, compare_to=a.compare_to), a.format, a.out)
+    if a.save_results:
+        from navlab.experiment import Results, save_results
+
+        if not isinstance(res, Results):
+            raise NavlabError(
+                "--save-results needs the per-epoch arrays, which --summary drops: run without --summary"
+            )
+        save_results(res, a.save_results)
+        print(f"wrote {a.save_results} (navlab.load_results reads it)", file=sys.stderr)
     if a.save_spec:
         try:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
@@ -585,6 +594,12 @@ def _add_run_command(sub: Any) -> None:
     )
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument(
+        "--save-results",
+        metavar="FILE.nc",
+        help="also write the result cube (filter × run × epoch × channel: truth, estimates, R̂, flags; "
+        "the spec and navlab's version as attributes) as netCDF; navlab.load_results reads it",
+    )
     pr.add_argument(
         "--summary",
         action="store_true",
