@@ -1,4 +1,4 @@
-"""Text of a reproduction's verdicts: the CLI table, Markdown for the README, the rules.
+"""Text of a reproduction's verdicts: the CLI table, Markdown for the docs, LaTeX for a paper, the rules.
 
 Pure (no streamlit); the Reproduce page shows the same rows.
 """
@@ -211,8 +211,8 @@ def text(o: Outcome) -> str:
 
 
 def markdown(o: Outcome) -> str:
-    """The verdict table and its notes as Markdown (the README's reproduction summary is made
-    from this: ``tools/readme_reproductions.py``).
+    """The verdict table and its notes as Markdown (docs/reproductions.md's summary is made from
+    this: ``tools/readme_reproductions.py``).
     """
     t = verdict_table(o)
     cols = list(t.columns)

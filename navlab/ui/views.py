@@ -488,7 +488,7 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
 
     spec = res.spec
     figs = default_figures(group, view.channel or 0)
-    cols = st.columns([2, 2, 2, 2, 2, 2])
+    cols = st.columns([13, 20, 13, 16, 17, 12])  # about the labels' lengths: none is cut
     csv_download(
         lambda: tables.summary_rows(res, compare_to=view.ref),
         "Metrics (CSV)",
