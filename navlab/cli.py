@@ -457,14 +457,7 @@ def _tune(a: argparse.Namespace) -> int:
     if a.format == "table":
         _write(TU.report(r).text(), a.out)
     elif a.format in ("markdown", "latex"):
-        from navlab.tables import render
-
-        t = TU.report(r)
-        cap = (
-            f"Default and tuned filters on {spec.scenario}, {TU.caption(r)} No bold: the best tuned "
-            "filter, where the paired test backs one, is named in the last column and the notes."
-        )
-        _write(render(t, a.format, cap, label="tab:navlab-tune"), a.out)
+        _write(TU.paper_table(r, a.format), a.out)
     else:
         _emit(r.rows, a.format, a.out)
     if a.outdir:

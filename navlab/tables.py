@@ -433,7 +433,9 @@ def _rows(t: Table) -> tuple[list[str], list[list[str]], list[list[bool]]]:
     """Header, body cells and which cells are bold (Table.best) of a display table."""
     df = t.cells.reset_index() if t.cells.index.name else t.cells
     cols = [str(c) for c in df.columns]
-    body = [["" if v is None else str(v) for v in row] for row in df.itertuples(index=False)]
+    body = [
+        ["" if v is None else str(v).replace("\n", " ") for v in row] for row in df.itertuples(index=False)
+    ]
     labels = [str(v) for v in t.cells.index] if t.cells.index.name else [""] * len(body)
     bold = [[t.best.get(c) == lab and bool(lab) for c in cols] for lab in labels]
     return cols, body, bold

@@ -832,6 +832,19 @@ def caption(r: TuneResult) -> str:
     )
 
 
+def paper_table(r: TuneResult, fmt: str) -> str:
+    """:func:`report` as Markdown or a LaTeX booktabs table (``navlab tune --format``, the Tune
+    page's download) with a caption naming the seeds, runs and interval method.
+    """
+    from navlab import tables
+
+    cap = (
+        f"Default and tuned filters on {r.setup.spec.scenario}, {caption(r)} No bold: the best tuned "
+        "filter, where the paired test backs one, is named in the last column and the notes."
+    )
+    return tables.render(report(r), fmt, cap, label="tab:navlab-tune")
+
+
 def report(r: TuneResult) -> Any:
     """The fair-tuning table (:class:`navlab.tables.Table`): per filter the tuned values, the
     objective on the training seeds, the metric on the test seeds for default and tuned with
