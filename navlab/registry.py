@@ -26,6 +26,7 @@ that fails to load does not take navlab down: the failure is logged, kept in
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.metadata
 import logging
@@ -40,6 +41,14 @@ from navlab.errors import NavlabError
 T = TypeVar("T")
 
 log = logging.getLogger(__name__)
+
+
+@functools.cache
+def installed_entry_points() -> importlib.metadata.EntryPoints:
+    """Every entry point of the installed distributions, read once per process (one scan of the
+    distributions' metadata, ~15 ms, instead of one per registry).
+    """
+    return importlib.metadata.entry_points()
 
 
 class Registry(MutableMapping[str, T], Generic[T]):
@@ -106,7 +115,7 @@ class Registry(MutableMapping[str, T], Generic[T]):
                 importlib.import_module(f"{self.package}.{info.name}")
         self._loaded = True  # before the plugins: a plugin module may read this registry
         if self.plugins is not None:
-            for ep in importlib.metadata.entry_points(group=self.plugins):
+            for ep in installed_entry_points().select(group=self.plugins):
                 self._load_plugin(ep)
 
     def _load_plugin(self, ep: importlib.metadata.EntryPoint) -> None:

@@ -109,9 +109,10 @@ def _entry_points(monkeypatch, group: str, *specs: tuple[str, str]) -> None:
     """Make importlib.metadata report entry points ``(name, "module:attr")`` in ``group``."""
     import importlib.metadata as md
 
+    import navlab.registry
+
     eps = md.EntryPoints([md.EntryPoint(name, value, group) for name, value in specs])
-    real = md.entry_points
-    monkeypatch.setattr(md, "entry_points", lambda **kw: eps if kw.get("group") == group else real(**kw))
+    monkeypatch.setattr(navlab.registry, "installed_entry_points", lambda: eps)
 
 
 def test_entry_points_register_objects_and_a_broken_one_is_named(monkeypatch, caplog):

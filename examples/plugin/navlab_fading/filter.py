@@ -16,7 +16,7 @@ class FadingParams:
 
 @register
 class FadingKF(Filter):
-    key, label, family = "fading-kf", "Fading-memory KF", "adaptive"
+    key, label, family = "fading-kf", "Fading-memory KF", "baseline"
     summary = "The KF with P⁻ = α² F P Fᵀ + Q: a fixed inflation that trusts recent data more."
     paper = "H. W. Sorenson, J. E. Sacks, Inform. Sci. 3 (1971)"
     Params = FadingParams
