@@ -45,6 +45,7 @@ def test_mkdocs_build_strict(tmp_path):
     assert "--save-results" in cli and "latex" in cli
     tutorial = (site / "add-a-filter" / "index.html").read_text()
     assert "FadingKF" in tutorial and "fading_kf" in tutorial  # the example package's code, included
+    assert "--8&lt;--" not in tutorial  # every snippet include resolved
     filters = (site / "filters" / "index.html").read_text()
     assert "huber-kf" in filters and "<table>" in filters  # every filter with its Params
     api = (site / "api" / "index.html").read_text()
