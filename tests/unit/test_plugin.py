@@ -66,7 +66,7 @@ def test_the_plugin_is_listed_and_passes_check_filter(plugin_python, tmp_path):
         assert any(line.startswith("pass") and name in line for line in verbose.stdout.splitlines()), name
 
 
-def test_the_plugin_is_on_the_compare_page(plugin_python, tmp_path):
+def test_the_plugin_is_on_the_compare_page_and_the_others(plugin_python, tmp_path):
     script = textwrap.dedent(
         f"""
         from streamlit.testing.v1 import AppTest
@@ -84,6 +84,16 @@ def test_the_plugin_is_on_the_compare_page(plugin_python, tmp_path):
         assert not at.exception, [e.value for e in at.exception]
         assert not at.error, [e.value for e in at.error]
         print("ROWS", list(at.table[0].value.index))
+        learn = ("pages/5_Learn.py", {{"filter": "fading-kf"}})
+        others = (learn, ("pages/3_Sweep.py", {{"flt": ["kf", "fading-kf"]}}))
+        for page, q in others:
+            other = AppTest.from_file({str(ROOT / "app.py")!r}, default_timeout=300)
+            other.run()
+            other.switch_page(page)
+            for k, v in q.items():
+                other.query_params[k] = v
+            other.run()
+            assert not other.exception and not other.error, (page, [e.value for e in other.exception])
         """
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NAVLAB_STORE": str(tmp_path / "store")}
