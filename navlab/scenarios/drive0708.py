@@ -123,12 +123,12 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
         if d is None:
             raise NavlabError(
                 "own-drive needs a folder: set scenario.data_dir=FOLDER holding imu.csv, gnss.csv and "
-                "optionally truth.csv (the generic CSV format, see the README 'Your own drive')"
+                "optionally truth.csv (the generic CSV format, see docs/data.md, 'Your own drive')"
             )
         if not generic:
             raise NavlabError(
                 f"{d}: no imu.csv or gnss.csv in this folder; own-drive reads the generic CSV format "
-                "(README 'Your own drive')"
+                "(docs/data.md, 'Your own drive')"
             )
         truth = d / "truth.csv"
         rec = load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None, name=d.name)
