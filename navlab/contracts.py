@@ -418,7 +418,8 @@ def check_reference(fkey: str, scenario: str) -> None:
     if fkey not in REFERENCES:
         raise ContractSkipped(
             f"{fkey} has no reference: write the filter's plain one-run transcription and register "
-            f"it with @navlab.filters.reference.reference({fkey!r}) (see docs: add your own filter)"
+            f"it with @navlab.filters.reference.reference({fkey!r}) (see docs: add your own filter); "
+            "a filter written as one-run steps (navlab.jit.RunStep) is checked by 'compiled = uncompiled'"
         )
     data = scenario_data(scenario, "normal")
     f = filter_for(fkey, scenario)
@@ -460,6 +461,20 @@ def check_reference(fkey: str, scenario: str) -> None:
             _require(np.array_equal(fl[keep], tr.flags[keep]), f"run {r}: flags differ from the reference")
 
 
+def check_compiled(fkey: str, scenario: str) -> None:
+    """The compiled kernels (navlab.jit: a filter's one-run step looped by RunStep, the shared
+    linear algebra) give the numbers of the same Python uncompiled, to round-off.
+    """
+    from navlab import jit
+
+    if not jit.enabled():
+        raise ContractSkipped("numba is not available: there is nothing compiled to compare")
+    data = scenario_data(scenario, "normal")
+    with jit.numpy_paths():
+        plain = drive(filter_for(fkey, scenario), data)
+    assert_same_estimates(cached_run(fkey, scenario, "normal"), plain, RUNS, 1e-8, "compiled vs uncompiled")
+
+
 @dataclass(frozen=True)
 class Contract:
     """One named check: ``run(fkey, scenario)``; ``per_scenario`` False: run once (on cv2d)."""
@@ -481,6 +496,7 @@ CONTRACTS: tuple[Contract, ...] = (
     Contract("declared KF limit", check_declared_limit),
     Contract("KF limit not vacuous", check_limit_not_vacuous, per_scenario=False),
     Contract("equals its reference", check_reference),
+    Contract("compiled = uncompiled", check_compiled),
 )
 
 

@@ -70,3 +70,14 @@ def test_a_failed_check_says_what_differs():
         match=r"x differs by .* σ \(largest at epoch k=3, run 0; first above tolerance at k=3; tolerance",
     ):
         C.assert_same_estimates(C.Run([C._run_slice(o, 0) for o in a.outs], []), b, 1, 1e-6, "here")
+
+
+@pytest.mark.parametrize("fkey", ["irakf", "hakf"])
+def test_compiled_equals_uncompiled_check(fkey):
+    """The check `navlab check-filter` runs for a filter written as one-run steps (the full
+    compiled-vs-uncompiled comparison of every option is tests/unit/test_jit_kernels.py)."""
+    from navlab import jit
+
+    if not jit.enabled():
+        pytest.skip("numba not available")
+    C.check_compiled(fkey, "cv2d")
