@@ -139,7 +139,9 @@ def text_download(
     help: str,
     container=None,
 ) -> None:
-    """Download button for generated text (made only when clicked)."""
+    """Download button for generated text (made only when clicked); none in presentation mode."""
+    if presenting():
+        return
     c = container if container is not None else st
     c.download_button(label, make, file_name=name, mime=mime, key=key, on_click="ignore", help=help)
 
