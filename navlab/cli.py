@@ -362,7 +362,6 @@ def _ran(ex: Any, quiet: bool) -> None:
 
 def _sweep(a: argparse.Namespace) -> int:
     from navlab import sweep as SW
-    from navlab import tables
 
     spec = _spec_from_args(a)
     axes = []
@@ -387,46 +386,10 @@ def _sweep(a: argparse.Namespace) -> int:
         _emit(df, a.format, a.out)
         return 0
     metric = a.metric or _headline_metric(spec)
-    d = df[df.metric == metric]
-    if d.empty:
-        raise NavlabError(
-            f"--metric {metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
-        )
-    d = d.assign(cell=[tables.cell(v, lo, hi) for v, lo, hi in zip(d.value, d.ci_lo, d.ci_hi, strict=True)])
-    unit = next((u for u in d.unit if isinstance(u, str) and u), "")
-    p1 = axes[0].param
-    title = f"{metric}{f' ({unit})' if unit else ''} [95 % interval] against {p1.cli} — {p1.label}"
-    parts: list[tuple[str, pd.DataFrame]] = []  # (filter label or "", its table)
-    if len(axes) == 1:
-        wide = d.pivot_table(index="param_value", columns="label", values="cell", aggfunc="first", sort=False)
-        wide.index.name = p1.cli
-        parts.append(("", wide))
-    else:
-        p2 = axes[1].param
-        title += f", and {p2.cli} — {p2.label}"
-        for label, g in d.groupby("label", sort=False):
-            wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
-            wide.index.name = f"{p1.cli} \\ {p2.cli}"
-            wide.columns = [f"{c:.4g}" for c in wide.columns]
-            parts.append((str(label), wide))
-    how = (
-        f"{out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
-        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed} (runs 0 to {spec.runs - 1} "
-        f"at every point); {tables.interval_note(spec.runs)}"
-    )
     if a.format in ("markdown", "latex"):
-        texts = []
-        for i, (label, wide) in enumerate(parts):
-            cap = f"{label + ': ' if label else ''}{title}. {how} No bold: sweep points carry no paired test."
-            t = tables.Table(wide.fillna(""))
-            texts.append(tables.render(t, a.format, cap, label=f"tab:navlab-sweep-{i + 1}"))
-        _write("\n".join(texts), a.out)
-        return 0
-    lines = [title]
-    for label, wide in parts:
-        lines += (["", label] if label else []) + [tables.text_table(wide)]
-    lines.append(f"  {how}")
-    _write("\n".join(lines) + "\n", a.out)
+        _write(SW.paper_tables(out, sw, metric, a.format), a.out)
+    else:
+        _write(SW.text(out, sw, metric), a.out)
     return 0
 
 

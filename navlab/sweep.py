@@ -295,3 +295,77 @@ def run_sweep(
     cached = sum(1 for r in got.values() if r.cached)
     unique = len({t.key for t in tasks})
     return SweepResult(rows, done, len(sw.points), len(got), unique, cached)
+
+
+# --------------------------------------------------------------------------- the sweep's tables
+
+
+def metric_tables(
+    out: SweepResult, sw: Sweep, metric: str
+) -> tuple[str, list[tuple[str, pd.DataFrame]], str]:
+    """One metric of a sweep as display tables: (title, [(filter label or "", table)], how).
+
+    One parameter: a table point × filter; two: a table point × point per filter. Cells are
+    "value [lo, hi]"; ``how`` says how many tasks, points, runs and seeds, and the interval method.
+    """
+    from navlab import tables
+
+    spec, axes = sw.spec, sw.axes
+    df = out.rows
+    d = df[df.metric == metric]
+    if d.empty:
+        raise NavlabError(
+            f"--metric {metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
+        )
+    d = d.assign(cell=[tables.cell(v, lo, hi) for v, lo, hi in zip(d.value, d.ci_lo, d.ci_hi, strict=True)])
+    unit = next((u for u in d.unit if isinstance(u, str) and u), "")
+    p1 = axes[0].param
+    title = f"{metric}{f' ({unit})' if unit else ''} [95 % interval] against {p1.cli} — {p1.label}"
+    parts: list[tuple[str, pd.DataFrame]] = []
+    if len(axes) == 1:
+        wide = d.pivot_table(index="param_value", columns="label", values="cell", aggfunc="first", sort=False)
+        wide.index.name = p1.cli
+        parts.append(("", wide))
+    else:
+        p2 = axes[1].param
+        title += f", and {p2.cli} — {p2.label}"
+        for label, g in d.groupby("label", sort=False):
+            wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
+            wide.index.name = f"{p1.cli} \\ {p2.cli}"
+            wide.columns = [f"{c:.4g}" for c in wide.columns]
+            parts.append((str(label), wide))
+    how = (
+        f"{out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
+        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed} (runs 0 to {spec.runs - 1} "
+        f"at every point); {tables.interval_note(spec.runs)}"
+    )
+    return title, parts, how
+
+
+def text(out: SweepResult, sw: Sweep, metric: str) -> str:
+    """The CLI's sweep table(s) as plain text, with the line that says how they were made."""
+    from navlab import tables
+
+    title, parts, how = metric_tables(out, sw, metric)
+    lines = [title]
+    for label, wide in parts:
+        lines += (["", label] if label else []) + [tables.text_table(wide)]
+    lines.append(f"  {how}")
+    return "\n".join(lines) + "\n"
+
+
+def paper_tables(out: SweepResult, sw: Sweep, metric: str, fmt: str) -> str:
+    """The sweep table(s) as Markdown or LaTeX booktabs (``navlab sweep --format``, the Sweep
+    page's download): one table per filter for two parameters, captions naming runs, seeds and
+    the interval method; no bold (the sweep's points carry no paired test).
+    """
+    from navlab import tables
+
+    title, parts, how = metric_tables(out, sw, metric)
+    texts = []
+    for i, (label, wide) in enumerate(parts):
+        cap = f"{label + ': ' if label else ''}{title}. {how} No bold: sweep points carry no paired test."
+        texts.append(
+            tables.render(tables.Table(wide.fillna("")), fmt, cap, label=f"tab:navlab-sweep-{i + 1}")
+        )
+    return "\n".join(texts)

@@ -8,6 +8,7 @@ not apply is empty and its reason is in a footnote — never ``NaN`` or ``None``
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -479,8 +480,8 @@ _TEX_TEXT = {
     "_": r"\_",
     "{": r"\{",
     "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
+    "~": r"\~{}",
+    "^": r"\^{}",
     "<": r"\textless{}",
     ">": r"\textgreater{}",
     "−": "$-$",
@@ -489,7 +490,7 @@ _TEX_TEXT = {
     "…": r"\ldots{}",
     "§": r"\S{}",
     "‡": r"\ddag{}",
-    "°": r"\textdegree{}",
+    "°": "$^\\circ$",
     "’": "'",
     "“": "``",
     "”": "''",
@@ -549,6 +550,8 @@ def _greek(ch: str) -> str | None:
     return None
 
 
+_TEX_MATH.update({c: f"^{i}" for i, c in enumerate("⁰¹²³⁴⁵⁶⁷⁸⁹")})
+_TEX_MATH.update({c: f"_{i}" for i, c in enumerate("₀₁₂₃₄₅₆₇₈₉")})
 _ACCENT = {"\u0302": r"\hat", "\u0303": r"\tilde", "\u0304": r"\bar", "\u0307": r"\dot"}
 
 
@@ -559,29 +562,42 @@ def latex_escape(text: str) -> str:
     """
     import unicodedata
 
-    out: list[str] = []
+    out: list[tuple[bool, str]] = []  # (math?, text): adjacent math joins, σ² → $\sigma^2$
     i = 0
     while i < len(text):
         ch = text[i]
         nxt = text[i + 1] if i + 1 < len(text) else ""
         if nxt in _ACCENT:  # a letter with a combining accent: R̂ → $\hat{R}$
             base = _TEX_MATH.get(ch) or _greek(ch) or (ch if ch.isascii() and ch.isalnum() else "?")
-            out.append(f"${_ACCENT[nxt]}{{{base}}}$")
+            out.append((True, f"{_ACCENT[nxt]}{{{base}}}"))
             i += 2
             continue
         if ch in _TEX_TEXT:
-            out.append(_TEX_TEXT[ch])
+            t = _TEX_TEXT[ch]
+            out.append((True, t[1:-1]) if t.startswith("$") else (False, t))
         elif ch in _TEX_MATH:
-            out.append(f"${_TEX_MATH[ch]}$")
+            out.append((True, _TEX_MATH[ch]))
         elif (g := _greek(ch)) is not None:
-            out.append(f"${g}$" if g.startswith("\\") else g)
+            out.append((g.startswith("\\"), g))
         elif ch.isascii():
-            out.append(ch)
+            out.append((False, " " if ch == "\n" else ch))
         else:
             plain = "".join(c for c in unicodedata.normalize("NFKD", ch) if c.isascii())
-            out.append(plain if plain else "?")
+            out.append((False, plain if plain else "?"))
         i += 1
-    return "".join(out).replace("$$", "")  # adjacent math runs merge: σ² → $\sigma^2$
+    parts: list[str] = []
+    for k, (math, t) in enumerate(out):
+        if math and k > 0 and out[k - 1][0]:  # the previous math run goes on
+            prev = parts[-1][1:-1]
+            sup = re.fullmatch(r"(.*)([\^_])(\{[^{}]*\}|[^{}])", prev, flags=re.S)
+            if sup and t[:1] == sup.group(2):  # ⁻¹: one superscript ^{-1}, not ^-^1 (and subscripts)
+                prev = f"{sup.group(1)}{t[0]}{{{sup.group(3).strip('{}')}{t[1:]}}}"
+                parts[-1] = f"${prev}$"
+            else:
+                parts[-1] = f"${prev}{t}$"
+        else:
+            parts.append(f"${t}$" if math else t)
+    return "".join(parts)
 
 
 def latex_table(t: Table, caption: str, label: str = "tab:navlab") -> str:
@@ -607,6 +623,8 @@ def latex_table(t: Table, caption: str, label: str = "tab:navlab") -> str:
     for row, b in zip(body, bold, strict=True):
         cells = [latex_escape(v) for v in row]
         cells = [f"\\textbf{{{c}}}" if bb and c else c for c, bb in zip(cells, b, strict=True)]
+        if cells and cells[0].startswith("["):  # not \\[length] after the previous row's \\
+            cells[0] = "{}" + cells[0]
         lines.append(" & ".join(cells) + " \\\\")
     lines += ["\\bottomrule", "\\end{tabular}"]
     if t.notes:

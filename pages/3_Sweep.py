@@ -8,7 +8,7 @@ from navlab.errors import NavlabError
 from navlab.ui import figures as F
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame, plural
-from navlab.ui.share import config_download, csv_download
+from navlab.ui.share import config_download, csv_download, text_download
 from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import chart
 from navlab.ui.widgets import BIND, PageDefaults
@@ -191,4 +191,15 @@ if out is not None and len(out.rows):
             for r in diverged.itertuples()
         ]
         st.warning("Diverged runs (excluded from the metrics): " + "; ".join(where))
-    csv_download(df, "Sweep results (CSV)", "navlab-sweep.csv", "dl_sweep")
+    e1, e2, _ = st.columns([1, 1, 3])
+    csv_download(df, "Sweep results (CSV)", "navlab-sweep.csv", "dl_sweep", container=e1)
+    text_download(
+        lambda: U.paper_tables(out, sw, metric, "latex"),
+        "Table (LaTeX)",
+        "navlab-sweep.tex",
+        "dl_sweep_tex",
+        "application/x-tex",
+        "the chosen metric at every point for a paper: booktabs, values with their 95 % intervals, "
+        "a caption naming the runs, seed and interval method",
+        container=e2,
+    )

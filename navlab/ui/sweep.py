@@ -32,6 +32,7 @@ from navlab.sweep import (  # noqa: F401  (the pages import them from here)
     default_range,
     grid,
     make_sweep,
+    paper_tables,
     run_sweep,
     sweepables,
 )

@@ -14,6 +14,7 @@ def test_sweep_contamination_small(open_page):
     # the axis in words, not the widget id
     title = lines["layout"]["xaxis"]["title"]["text"]
     assert "outlier ratio" in title and "ol.mixture" not in title
+    assert {"Sweep results (CSV)", "Table (LaTeX)"} <= {b.label for b in at.get("download_button")}
     at.selectbox(key="sw_v_metric").set_value("anis").run()
     assert_clean(at)
     assert plotly_figs(at)[0]["layout"]["yaxis"]["title"]["text"] == "ANIS"

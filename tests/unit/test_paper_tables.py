@@ -83,6 +83,17 @@ def test_latex_escape_is_ascii_and_safe():
     assert "$\\mu$" in s and "$\\sigma^2$" in s and "$\\Delta$" in s and "$-$1" in s and "?" in s
 
 
+def test_latex_escape_math_runs_and_scripts():
+    L = tables.latex_escape
+    assert L("S⁻¹, 10⁻⁶, σ₀²") == "S$^{-1}$, 10$^{-6}$, $\\sigma_0^2$"  # one script, not ^-^1
+    assert L("costs $3 $σ ~ 30°") == "costs \\$3 \\$$\\sigma$ \\~{} 30$^\\circ$"
+
+
+def test_a_row_starting_with_a_bracket_is_not_a_row_skip():
+    t = tables.Table(pd.DataFrame({"a": ["y", "[x]"], "b": ["1", "2"]}))
+    assert "\\\\\n{}[x] & 2" in tables.latex_table(t, "c")  # not read as \\[length]
+
+
 def test_cli_run_format_latex(capsys, tmp_path, monkeypatch):
     monkeypatch.setenv("NAVLAB_STORE", str(tmp_path))
     rc = main(

@@ -91,10 +91,18 @@ def test_two_d_sweep_rows():
         SW.Axis(SW.resolve(spec, "outliers.contamination"), (0.0, 0.2)),
         SW.Axis(SW.resolve(spec, "huber-kf.gamma"), (1.0, 3.0)),
     ]
-    out = SW.run_sweep(SW.make_sweep(spec, axes))
+    sw = SW.make_sweep(spec, axes)
+    out = SW.run_sweep(sw)
     r = out.rows[out.rows.metric == "rmse_pos"]
     assert len(r) == 2 * 2 * 2
     assert set(r.param2) == {"huber-kf.gamma"} and set(r.param2_value) == {1.0, 3.0}
+    # for a paper: one booktabs table per filter, 2 × 2 cells with intervals, no bold, runs named
+    tex = SW.paper_tables(out, sw, "rmse_pos", "latex")
+    assert tex.count("\\begin{table}") == 2 and "\\textbf" not in tex and tex.isascii()
+    assert "6 runs, seed" in tex and "no paired test" in tex
+    md = SW.paper_tables(out, sw, "rmse_pos", "markdown")
+    assert md.count("Table: ") == 2 and "rmse_pos (m)" in md
+    assert SW.text(out, sw, "rmse_pos").startswith("rmse_pos (m) [95 % interval] against")
 
 
 class Counting:
