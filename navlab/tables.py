@@ -243,10 +243,14 @@ def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
 
 
 def summary_rows(res: Results, compare_to: str | None = None) -> pd.DataFrame:
-    """The tidy table of :func:`navlab.metrics.summarize` (every metric of every filter), with the
-    paired ``_diff`` rows against ``compare_to`` on the :func:`comparison_metrics` appended.
+    """The tidy table of :func:`navlab.metrics.summarize` (every metric of every filter), the
+    posterior Cramér–Rao bound's ``pcrb_*`` rows and each filter's ``gap_*`` to it
+    (:func:`navlab.pcrb.rows`, simulated scenarios), with the paired ``_diff`` rows against
+    ``compare_to`` on the :func:`comparison_metrics` appended.
     """
-    df = M.summarize(res)
+    from navlab.pcrb import rows as pcrb_rows
+
+    df = pd.concat([M.summarize(res), pcrb_rows(res)], ignore_index=True)
     if compare_to is None:
         return df
     return pd.concat([df, M.compare(res, compare_to, comparison_metrics(res))], ignore_index=True)

@@ -17,6 +17,7 @@ import streamlit as st
 from navlab import tables
 from navlab.diagnostics import explain
 from navlab.metrics import summary
+from navlab.pcrb import floor_text
 from navlab.scenarios import scenario_registry
 from navlab.ui import figures as F
 
@@ -272,6 +273,10 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
                 + ("" if t.best else " — no column has one at this run count")
                 + "; no highlight where the best point estimate is not backed by the test."
             )
+        if res.complete:
+            floor = floor_text(res, headline_groups(res)[0])
+            if floor:
+                st.markdown(floor)
         divergence_warnings(res)
         for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
