@@ -180,7 +180,7 @@ class ProblemResult:
     tune: TU.TuneResult
     floor: tuple[float, float, float] | None  # pcrb of the headline group (value, lo, hi)
     group: str
-    tuned: Any = None  # the tuned variants alone (navlab.tune.tuned_only), oracles left out
+    tuned: Any = None  # every filter's tuned variant (:func:`tuned_all`)
     table: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
@@ -237,8 +237,25 @@ def _headline_group(res: Any) -> str:
     return next((g for g in head if g in res.data.groups), next(iter(res.data.groups)))
 
 
+def tuned_all(r: TU.TuneResult) -> Any:
+    """Every filter's tuned variant (the oracles' too), keyed by filter: the problem's
+    experiment with the tuned parameters — what :meth:`navlab.tune.TuneResult.tuned_spec` gives
+    Compare, so a Compare run of it shows these numbers (the judged runs are those every
+    reliable filter of THIS set kept, STATISTICS.md §5).
+    """
+    from dataclasses import replace
+
+    from navlab.experiment import FilterInfo
+
+    res = r.test
+    keys = list(r.setup.spec.filters)
+    stats = {k: replace(res.stats[k + TU.TEST_SUFFIX], key=k) for k in keys}
+    runs = {k: FilterInfo(k, res.runs[k + TU.TEST_SUFFIX].label) for k in keys}
+    return replace(res, stats=stats, runs=runs)
+
+
 def _judge(p: Problem, r: TU.TuneResult) -> ProblemResult:
-    tres = TU.tuned_only(r)
+    tres = tuned_all(r)
     g = _headline_group(tres)
     b = pcrb.bound(r.test.spec)
     floor = None
@@ -258,13 +275,15 @@ def problem_table(pr: ProblemResult) -> pd.DataFrame:
     sm = M.summary(tres)
     jd = sm.judgement
     best, vs = best_filter(tres, metric) if len(tres.stats) > 1 else (None, pd.DataFrame())
-    cand = str(vs["vs"].iloc[0]) if len(vs) else (next(iter(tres.stats)) if tres.stats else "")
+    among = [k for k in tres.stats if registry()[k].family != "oracle"]
+    cand = str(vs["vs"].iloc[0]) if len(vs) else (among[0] if among else "")
     vs = vs.set_index("filter") if len(vs) else vs
     unit = tres.data.groups[g].unit
     B, K = tres.data.B, tres.data.K
     steps = M.timed_steps(B, K)
     rows = []
     fl = pr.floor
+    reg = registry()
     for k, st in tres.stats.items():
         e = sm.estimate(k, metric) if metric in sm.metrics_of(k) else S.Estimate(math.nan)
         row = dict(
@@ -284,7 +303,9 @@ def problem_table(pr: ProblemResult) -> pd.DataFrame:
         )
         if fl is not None and fl[0] > 0:
             row.update(gap=e.value / fl[0], gap_lo=row["ci_lo"] / fl[2], gap_hi=row["ci_hi"] / fl[1])
-        if k == cand:
+        if reg[k].family == "oracle":  # the genie: shown, never ranked
+            row.update(label=reg[k].label, verdict="genie (told the outliers and the true R): not ranked")
+        elif k == cand:
             row.update(verdict="best" if best else "lowest (not significantly)")
         elif len(vs) and k in vs.index:
             v = vs.loc[k]
@@ -297,24 +318,6 @@ def problem_table(pr: ProblemResult) -> pd.DataFrame:
                 vs_text=verdict_cell(v, tres.runs[cand].label, short=True),
             )
         rows.append(row)
-    reg = registry()
-    for k in r.setup.spec.filters:  # the genie: shown, never ranked
-        if reg[k].family == "oracle":
-            e = M.summary(r.test).estimate(k, metric)
-            row = dict(
-                problem=pr.problem.name,
-                filter=k,
-                label=reg[k].label,
-                metric=metric,
-                unit=unit,
-                value=e.value,
-                ci_lo=e.lo if e.has_ci else math.nan,
-                ci_hi=e.hi if e.has_ci else math.nan,
-                verdict="genie (told the outliers and the true R): not ranked",
-            )
-            if fl is not None and fl[0] > 0:
-                row.update(gap=e.value / fl[0], gap_lo=row["ci_lo"] / fl[2], gap_hi=row["ci_hi"] / fl[1])
-            rows.append(row)
     df = pd.DataFrame(rows)
     ranked = df[~df["verdict"].astype(str).str.startswith("genie")].copy()
     ranked["_u"] = ~ranked["reliable"].astype(bool)
@@ -556,7 +559,7 @@ def to_json(b: BenchResult) -> dict[str, Any]:
                 "spec": json.loads(spec.to_json()),
                 "group": pr.group,
                 "floor": list(pr.floor) if pr.floor is not None else None,
-                "rows": json.loads(pr.table.to_json(orient="records")),
+                "rows": json.loads(pr.table.to_json(orient="records", double_precision=15)),
             }
         )
     return {
@@ -565,7 +568,9 @@ def to_json(b: BenchResult) -> dict[str, Any]:
         "description": b.suite.describe(),
         "created": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
         "problems": probs,
-        "overall": json.loads(b.overall.to_json(orient="records")) if len(b.overall) else [],
+        "overall": json.loads(b.overall.to_json(orient="records", double_precision=15))
+        if len(b.overall)
+        else [],
         "notes": notes(b),
         "wall_s": b.wall_s,
         "tasks": {"computed": b.computed, "cached": b.cached},

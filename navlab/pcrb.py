@@ -187,9 +187,9 @@ def rows(res: Any, groups: list[str] | None = None) -> pd.DataFrame:
     return pd.DataFrame(out, columns=M.COLUMNS)
 
 
-def floor_text(res: Any, group: str) -> str:
-    """One sentence for the Compare page: the floor of ``rmse_<group>``, the oracle's value and
-    what the gap means; '' when there is no bound.
+def floor_text(res: Any, group: str, markdown: bool = True) -> str:
+    """One sentence (Compare page; a table's footnote with ``markdown`` off): the floor of
+    ``rmse_<group>``, the oracle's value and each filter's gap; '' when there is no bound.
     """
     df = rows(res, [group])
     f = df[df.metric == f"pcrb_{group}"]
@@ -210,7 +210,12 @@ def floor_text(res: Any, group: str) -> str:
     orc = [r for r in gaps.itertuples() if oracle(r.filter)]
     if orc:
         txt += f"; the oracle (a genie, told them) is at {orc[0].value:.3g} × the floor"
-    parts = [f"{r.label} {r.value:.3g}×" for r in gaps.itertuples() if not oracle(r.filter)]
+    parts = [
+        f"{r.label} {r.value:.3g}×" + (f" [{r.ci_lo:.3g}, {r.ci_hi:.3g}]" if np.isfinite(r.ci_lo) else "")
+        for r in gaps.itertuples()
+        if not oracle(r.filter)
+    ]
     if parts:
         txt += ". Gap (RMSE / floor): " + ", ".join(parts)
-    return txt + "."
+    txt += "."
+    return txt if markdown else txt.replace("**", "")

@@ -265,6 +265,7 @@ def headline(
     metrics: list[str] | None = None,
     explanations: bool = True,
     best: bool = False,
+    floor: bool = True,
 ) -> Table:
     """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
     the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
@@ -277,6 +278,9 @@ def headline(
     those that flag outliers): ``Table.best`` maps the column to that row; a column where no
     filter is better than all others (a point-estimate winner the test does not back) has no
     entry.
+
+    ``floor``: a footnote with the posterior Cramér–Rao bound of the first error column and each
+    filter's gap to it (:func:`navlab.pcrb.floor_text`; simulated scenarios).
     """
     sm = M.summary(res)
     data = res.data
@@ -326,6 +330,11 @@ def headline(
                 winners[metric_name(m, data)] = res.runs[key].label
     notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
+    if floor and metrics and metrics[0].startswith("rmse_"):  # the PCRB of the first error column
+        from navlab.pcrb import floor_text
+
+        line = floor_text(res, metrics[0][len("rmse_") :], markdown=False)
+        notes += [line] if line else []
     helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
     helps.update(COLUMN_HELP)
     if compare_to is not None and compare_to in res.runs and metrics:

@@ -28,19 +28,13 @@ NO_BENCH = (
 )
 
 
-def compare_link(problem: dict[str, Any], key: str) -> str | None:
-    """The Compare page's URL (relative) for filter ``key`` on ``problem``: that filter, the
-    problem's lowest filter and the oracle, with their tuned parameters, on the test seed.
+def compare_link(problem: dict[str, Any]) -> str | None:
+    """The Compare page's URL (relative) of ``problem``'s experiment: every filter with its tuned
+    parameters, on the test seed — a run there shows the numbers of the bench's table.
     """
     spec = ExperimentSpec.from_dict(problem["spec"])
-    ranked = [r for r in problem["rows"] if r.get("rank") is not None]
-    keep = [key]
-    if ranked and ranked[0]["filter"] != key:
-        keep.append(ranked[0]["filter"])
-    keep += [k for k in spec.filters if k.startswith("oracle") and k not in keep]
-    fp = {k: v for k, v in spec.filter_params.items() if k in keep}
     try:
-        q = spec_query(spec.replace(filters=tuple(k for k in keep if k in spec.filters), filter_params=fp))
+        q = spec_query(spec)
     except NavlabError:  # a filter no longer registered (a plugin removed since the bench)
         return None
     return "Compare?" + urlencode({**q, "go": "1"}, doseq=True)
@@ -61,7 +55,9 @@ def heat_color(gap: float, top: float) -> str:
 
 
 def heat_map_html(bench: dict[str, Any]) -> str:
-    """Problems × filters: each filter's gap to the floor (tuned, test seed) as a linked cell."""
+    """Filters (in overall order) × problems: each filter's gap to the floor (tuned, test seed) as a
+    linked cell; a wide suite scrolls sideways.
+    """
     probs = bench["problems"]
     keys: list[str] = []
     labels: dict[str, str] = {}
@@ -75,17 +71,18 @@ def heat_map_html(bench: dict[str, Any]) -> str:
     gaps = [r.get("gap") for p in probs for r in p["rows"]]
     fin = [g for g in gaps if g is not None and np.isfinite(g)]
     top = max(fin) if fin else 2.0
-    head = "".join(f"<th>{html.escape(labels[k])}</th>" for k in keys)
+    by = [{r["filter"]: r for r in p["rows"]} for p in probs]
+    links = [compare_link(p) for p in probs]
+    head = "".join(f'<th style="padding:2px 6px">{html.escape(p["name"])}</th>' for p in probs)
     out = [
-        '<table style="border-collapse:collapse;font-size:0.85em">',
-        f"<tr><th>problem</th>{head}</tr>",
+        '<div style="overflow-x:auto"><table style="border-collapse:collapse;font-size:0.85em">',
+        f"<tr><th>filter</th>{head}</tr>",
     ]
-    for p in probs:
-        by = {r["filter"]: r for r in p["rows"]}
+    for k in keys:
         tds = []
-        for k in keys:
-            r = by.get(k)
-            g = float(r["gap"]) if r is not None and r.get("gap") is not None else math.nan
+        for p, rows, link in zip(probs, by, links, strict=True):
+            r = rows.get(k)
+            g = _num(r.get("gap")) if r is not None else math.nan
             style = f"background:{heat_color(g, top)};padding:2px 6px;text-align:right"
             if r is None or not np.isfinite(g):
                 tds.append(f'<td style="{style}">—</td>')
@@ -93,11 +90,10 @@ def heat_map_html(bench: dict[str, Any]) -> str:
             txt = f"{sig3(g)}×" + (" ⚠" if r.get("reliable") is False else "")
             rmse = cell(r["value"], _num(r.get("ci_lo")), _num(r.get("ci_hi")))
             tip = html.escape(f"{labels[k]} on {p['name']}: RMSE {rmse} {r['unit']}; {r.get('verdict', '')}")
-            link = compare_link(p, k)
             inner = f'<a href="{html.escape(link)}" target="_self">{txt}</a>' if link else txt
             tds.append(f'<td style="{style}" title="{tip}">{inner}</td>')
-        out.append(f"<tr><td>{html.escape(p['name'])}</td>{''.join(tds)}</tr>")
-    out.append("</table>")
+        out.append(f"<tr><td>{html.escape(labels[k])}</td>{''.join(tds)}</tr>")
+    out.append("</table></div>")
     return "".join(out)
 
 
@@ -127,7 +123,7 @@ def problem_table(problem: dict[str, Any]) -> pd.DataFrame:
         div, runs = r.get("diverged"), r.get("runs")
         rows.append(
             {
-                "rank": "" if r.get("rank") is None else int(r["rank"]),
+                "rank": "" if r.get("rank") is None else str(int(r["rank"])),
                 "filter": r["label"],
                 f"RMSE ({r['unit']})": cell(
                     r["value"], r.get("ci_lo") or math.nan, r.get("ci_hi") or math.nan
@@ -157,7 +153,8 @@ def show(folder: str | None = None) -> None:
     st.caption(
         "Each cell: the tuned filter's RMSE / the posterior Cramér–Rao bound on that problem "
         "(1× = no estimator can do better; the oracle, a genie told the outliers, can go below). "
-        "Click a cell to open that experiment on Compare; hover for the RMSE and the verdict; "
+        "Click a cell to open its problem's experiment on Compare (every filter, tuned, on the test "
+        "seed: the same numbers); hover for the RMSE and the verdict; "
         "⚠: diverged in more than 5 % of the runs."
     )
     st.markdown(heat_map_html(bench), unsafe_allow_html=True)
@@ -166,9 +163,10 @@ def show(folder: str | None = None) -> None:
     prob = bench["problems"][names.index(pick)]
     if prob.get("floor"):
         v, lo, hi = prob["floor"]
+        unit = prob["rows"][0]["unit"] if prob["rows"] else ""
         st.caption(
-            f"Floor (PCRB of the {prob['group']} RMSE): {sig3(v)}"
-            + (f" [{sig3(lo)}, {sig3(hi)}]" if hi > lo else "")
+            f"Floor (posterior Cramér–Rao bound of the {prob['group']} RMSE): {sig3(v)} {unit}"
+            + (f" [{sig3(lo)}, {sig3(hi)}]" if hi > lo else " (exact)")
         )
     st.table(problem_table(prob))
     st.caption("  \n".join(bench.get("notes", [])))

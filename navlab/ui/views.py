@@ -259,7 +259,11 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
     """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
     ref = ref if ref in res.runs else None
     t = tables.headline(
-        res, compare_to=ref if len(res.runs) > 1 else None, explanations=False, best=res.complete
+        res,
+        compare_to=ref if len(res.runs) > 1 else None,
+        explanations=False,
+        best=res.complete,
+        floor=False,  # shown as its own paragraph below
     )
     # a static table: it wraps its cells to the page's width, so the verdict column is never
     # scrolled out of sight (a data grid sized its columns to their text and scrolled sideways)

@@ -29,7 +29,7 @@ def test_leaderboard_shows_the_last_bench_with_links_to_compare(open_page, tmp_p
     assert list(overall.value["filter"]) and "verdict" in overall.value.columns
     assert set(problem.value["filter"]) == {"KF (tuned)", "HKF (Huber) (tuned)", "Oracle KF"}
     heat = next(m.value for m in at.markdown if "<table" in m.value)
-    assert heat.count('href="Compare?') == 3 and "go=1" in heat
+    assert heat.count('href="Compare?') == 3 and "go=1" in heat and "flt=huber-kf" in heat
 
 
 def test_leaderboard_without_a_bench_says_what_to_run(open_page, tmp_path, monkeypatch):

@@ -126,3 +126,16 @@ def test_the_bench_on_a_two_worker_cluster_equals_serial(tmp_path):
     assert json.dumps(BN.to_json(par)["overall"][0]["score"]) == json.dumps(
         BN.to_json(serial)["overall"][0]["score"]
     )
+
+
+def test_the_problems_experiment_reproduces_its_table(tmp_path):
+    # what a Leaderboard cell opens on Compare: every filter tuned, the test seed
+    from navlab import metrics as M
+    from navlab.experiment import run_experiment
+
+    b = BN.run(_tiny(), filters=FILTERS, store=Store(tmp_path / "s"))
+    prob = BN.to_json(b)["problems"][0]
+    res = run_experiment(ExperimentSpec.from_dict(prob["spec"]))
+    sm = M.summary(res)
+    for r in prob["rows"]:
+        assert sm.estimate(r["filter"], r["metric"]).value == pytest.approx(r["value"], rel=1e-12)
