@@ -227,7 +227,7 @@ class CompareView:
         group = self.group if self.group in res.data.groups else headline_groups(res)[0]
         chart(
             self.err,
-            F.error_vs_time(res, group, log_y=self.log_err),
+            F.error_vs_time(res, group, log_y=self.log_err, floor=res.complete),
             "RMSE over time per filter with spread bands",
         )
         show_table(self.table, self.notes, res, self.ref)

@@ -140,3 +140,15 @@ def test_monte_carlo_bound_has_an_interval_and_a_scenario_without_a_model_has_no
     rtk = ExperimentSpec(scenario="gps-ins-rtk", filters=("kf",), runs=2)
     assert pcrb.bound(rtk) is None
     assert "gps-ins-rtk" in pcrb.why_none(rtk)
+
+
+def test_the_error_chart_draws_the_floor_per_epoch_when_asked():
+    from navlab.ui import figures as F
+
+    spec = ExperimentSpec(scenario="cv2d", filters=("kf", "oracle-kf"), runs=4, epochs=30)
+    res = run_experiment(spec)
+    assert "floor (PCRB)" not in [t.name for t in F.error_vs_time(res, "pos").data]
+    line = next(t for t in F.error_vs_time(res, "pos", floor=True).data if t.name == "floor (PCRB)")
+    P = pcrb.bound(spec).P
+    want = np.sqrt(P[:, 0, 0] + P[:, 2, 2])
+    assert np.allclose(line.y, want, rtol=1e-6)
