@@ -42,6 +42,7 @@ from navlab.experiment import ExperimentSpec, plan
 from navlab.filters import registry
 from navlab.linalg import Array
 from navlab.noise import OutlierModel
+from navlab.scenarios.base import get_scenario_class
 
 MC_RUNS = 200  # simulated truths a Monte Carlo bound averages over (at most the experiment's runs)
 MC_BOOT = 200  # bootstrap resamples of those runs (the bound's interval)
@@ -74,13 +75,13 @@ class Bound:
 
 def why_none(spec: ExperimentSpec) -> str:
     """'' when the experiment has a bound, else why not (one sentence)."""
-    p = plan(spec.replace(runs=1))
-    kind = type(p.scenario).pcrb
+    kind = get_scenario_class(spec.scenario).pcrb  # before planning: a recording is not read
     if not kind:
         return (
             f"no PCRB for scenario '{spec.scenario}': its truth or noise is not drawn from a model "
             "the bound knows"
         )
+    p = plan(spec.replace(runs=1))
     _, outliers = p.scenario.noise_models(p.schedule, p.outliers)
     if type(outliers).fisher is OutlierModel.fisher:  # the base: no density stated
         return f"no PCRB: outlier model '{outliers.key}' states no density"
@@ -145,8 +146,11 @@ def _bound(spec_json: str) -> Bound | None:
 
 def bound(spec: ExperimentSpec) -> Bound | None:
     """The PCRB of the experiment ``spec`` (None: no bound, :func:`why_none` says why). Cached."""
+    kind = get_scenario_class(spec.scenario).pcrb
+    if not kind:
+        return None
     keep = spec.replace(filters=("kf",), filter_params={})
-    if type(plan(spec.replace(runs=1)).scenario).pcrb == "linear":
+    if kind == "linear":
         keep = keep.replace(runs=1)  # an exact bound does not depend on the run count
     return _bound(keep.to_json())
 
