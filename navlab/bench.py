@@ -622,7 +622,8 @@ def _tasks_of(st: TU.Setup) -> list[list[tuple[str, int]]]:
         batches.append(b)
     test = []
     for k in st.spec.filters:
-        for _ in range(2 * len(st.test_seeds)):
+        variants = 2 if st.dims.get(k) else 1  # nothing to tune: the tuned variant is the same task
+        for _ in range(variants * len(st.test_seeds)):
             test += [(k, hi - lo) for lo, hi in T.blocks(0, st.test_runs)]
     batches.append(test)
     return batches
