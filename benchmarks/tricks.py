@@ -148,12 +148,6 @@ def _plain_quad():
     return swap("navlab.linalg", "quad", quad)
 
 
-def _plain_eig_inside():
-    return swap(
-        "navlab.filters.sage_husa.kernels", "eig_inside", lambda R, lo, hi: np.zeros(R.shape[0], dtype=bool)
-    )
-
-
 def _plain_select():
     """np.where with an all-true mask where the code passes None (every channel, every run)."""
 
@@ -278,12 +272,6 @@ TRICKS: list[Trick] = [
         "linalg.quad (closed form / LDLᵀ / Cholesky instead of LU)",
         {"cv2d": ("chi2-kf",), "sins-gps": ("chi2-kf",), "pseudorange": ("chi2-kf",)},
         _plain_quad,
-    ),
-    Trick(
-        "clamp-eig-inside",
-        "sage_husa.kernels.clamp_eig (eigh only where not certainly inside)",
-        {"cv2d": ("sage-husa", "rakf"), "sins-gps": ("sage-husa", "rakf"), "smartloc": ("irakf",)},
-        _plain_eig_inside,
     ),
     Trick(
         "select-none-masks",

@@ -1,7 +1,8 @@
-"""Command-line interface: ``python -m navlab list|run|reproduce|sweep|tune|app``.
+"""Command-line interface: ``python -m navlab list|run|reproduce|sweep|tune|check-filter|app``.
 
 Exit codes: 0 success; 2 a problem with the arguments, the configuration or an input file (one
-line on stderr saying what to change); 1 an unexpected internal error.
+line on stderr saying what to change); 1 an unexpected internal error, or (check-filter) a
+contract the filter breaks.
 """
 
 from __future__ import annotations
@@ -30,16 +31,23 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _list(what: str) -> pd.DataFrame:
-    from navlab.filters.base import registry
+    from navlab.filters.base import FILTERS, registry
     from navlab.noise import OUTLIERS, SCHEDULES
     from navlab.scenarios.base import scenario_registry
 
     if what == "filters":
         rows = [
-            (k, c.label, c.family, ("reconstruction" if c.reconstruction else ""), c.summary)
+            (
+                k,
+                c.label,
+                c.family,
+                ("reconstruction" if c.reconstruction else ""),
+                FILTERS.plugin_sources.get(k, "navlab"),
+                c.summary,
+            )
             for k, c in registry().items()
         ]
-        return pd.DataFrame(rows, columns=["key", "label", "family", "note", "summary"])
+        return pd.DataFrame(rows, columns=["key", "label", "family", "note", "from", "summary"])
     if what == "scenarios":
         rows = [(k, c.label, c.paper, c.summary) for k, c in scenario_registry().items()]
         return pd.DataFrame(rows, columns=["key", "label", "paper", "summary"])
@@ -165,10 +173,23 @@ def _run(a: argparse.Namespace) -> int:
         from navlab.tables import headline
 
         _write(headline(res, compare_to=a.compare_to).text(), a.out)
+    elif a.format in ("markdown", "latex"):
+        from navlab.tables import run_table
+
+        _write(run_table(res, a.format, compare_to=a.compare_to), a.out)
     else:
         from navlab.tables import summary_rows
 
         _emit(summary_rows(res, compare_to=a.compare_to), a.format, a.out)
+    if a.save_results:
+        from navlab.experiment import Results, save_results
+
+        if not isinstance(res, Results):
+            raise NavlabError(
+                "--save-results needs the per-epoch arrays, which --summary drops: run without --summary"
+            )
+        save_results(res, a.save_results)
+        print(f"wrote {a.save_results} (navlab.load_results reads it)", file=sys.stderr)
     if a.save_spec:
         try:
             Path(a.save_spec).write_text(spec.to_json(indent=1), encoding="utf-8")
@@ -243,6 +264,8 @@ def _reproduce(a: argparse.Namespace) -> int:
         _write(table.to_string(index=False) + "\n" if a.details else R.text(o), a.out)
     elif a.format == "markdown":
         _write(R.markdown(o), a.out)
+    elif a.format == "latex":
+        _write(R.latex(o), a.out)
     else:
         _emit(table, a.format, a.out)
     if a.outdir:
@@ -360,7 +383,7 @@ def _sweep(a: argparse.Namespace) -> int:
     out = SW.run_sweep(sw, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
     _ran(ex, a.quiet)
     df = out.rows
-    if a.format != "table":
+    if a.format not in ("table", "markdown", "latex"):
         _emit(df, a.format, a.out)
         return 0
     metric = a.metric or _headline_metric(spec)
@@ -370,25 +393,39 @@ def _sweep(a: argparse.Namespace) -> int:
             f"--metric {metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
         )
     d = d.assign(cell=[tables.cell(v, lo, hi) for v, lo, hi in zip(d.value, d.ci_lo, d.ci_hi, strict=True)])
+    unit = next((u for u in d.unit if isinstance(u, str) and u), "")
     p1 = axes[0].param
-    lines = [f"{metric} [95 % interval] against {p1.cli} — {p1.label}"]
+    title = f"{metric}{f' ({unit})' if unit else ''} [95 % interval] against {p1.cli} — {p1.label}"
+    parts: list[tuple[str, pd.DataFrame]] = []  # (filter label or "", its table)
     if len(axes) == 1:
         wide = d.pivot_table(index="param_value", columns="label", values="cell", aggfunc="first", sort=False)
         wide.index.name = p1.cli
-        lines.append(tables.text_table(wide))
+        parts.append(("", wide))
     else:
         p2 = axes[1].param
-        lines[0] += f", and {p2.cli} — {p2.label}"
+        title += f", and {p2.cli} — {p2.label}"
         for label, g in d.groupby("label", sort=False):
             wide = g.pivot_table(index="param_value", columns="param2_value", values="cell", aggfunc="first")
             wide.index.name = f"{p1.cli} \\ {p2.cli}"
             wide.columns = [f"{c:.4g}" for c in wide.columns]
-            lines += ["", str(label), tables.text_table(wide)]
-    lines.append(
-        f"  {out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
-        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed}; intervals: BCa bootstrap "
-        "over runs (navlab run's)."
+            parts.append((str(label), wide))
+    how = (
+        f"{out.tasks_total} tasks ({out.cached} from the results store), {len(sw.points)} points × "
+        f"{len(spec.filters)} filters × {spec.runs} runs, seed {spec.seed} (runs 0 to {spec.runs - 1} "
+        f"at every point); {tables.interval_note(spec.runs)}"
     )
+    if a.format in ("markdown", "latex"):
+        texts = []
+        for i, (label, wide) in enumerate(parts):
+            cap = f"{label + ': ' if label else ''}{title}. {how} No bold: sweep points carry no paired test."
+            t = tables.Table(wide.fillna(""))
+            texts.append(tables.render(t, a.format, cap, label=f"tab:navlab-sweep-{i + 1}"))
+        _write("\n".join(texts), a.out)
+        return 0
+    lines = [title]
+    for label, wide in parts:
+        lines += (["", label] if label else []) + [tables.text_table(wide)]
+    lines.append(f"  {how}")
     _write("\n".join(lines) + "\n", a.out)
     return 0
 
@@ -419,6 +456,8 @@ def _tune(a: argparse.Namespace) -> int:
     _ran(ex, a.quiet)
     if a.format == "table":
         _write(TU.report(r).text(), a.out)
+    elif a.format in ("markdown", "latex"):
+        _write(TU.paper_table(r, a.format), a.out)
     else:
         _emit(r.rows, a.format, a.out)
     if a.outdir:
@@ -487,7 +526,7 @@ def _engine_options(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="results store folder (default NAVLAB_STORE or ~/.cache/navlab/store; 'off': none)",
     )
-    p.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    p.add_argument("--format", choices=["table", "json", "csv", "markdown", "latex"], default="table")
     p.add_argument("--out", help="write the output to this file instead of stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress on stderr")
 
@@ -523,6 +562,46 @@ def _add_list_command(sub: Any) -> None:
     pl.add_argument("--format", choices=["table", "json", "csv"], default="table")
 
 
+def _add_check_filter_command(sub: Any) -> None:
+    """The ``check-filter`` subcommand: the contract suite on one filter."""
+    pc = sub.add_parser(
+        "check-filter",
+        help="check a filter against the contracts (batched = run by run, PSD, NaN channel, reference, …)",
+    )
+    pc.add_argument("name", help="the filter's key (navlab list filters), e.g. one of your plugin's")
+    pc.add_argument(
+        "--scenario",
+        action="append",
+        help="check on this scenario only (repeatable; default: every compatible scenario)",
+    )
+    pc.add_argument("--verbose", "-v", action="store_true", help="also list the checks that pass")
+
+
+def _check_filter(a: argparse.Namespace) -> int:
+    from navlab.contracts import check_filter
+
+    counts = {"pass": 0, "fail": 0, "skip": 0}
+    skipped: dict[str, list[Any]] = {}
+
+    def show(o) -> None:
+        counts[o.status] += 1
+        if o.status == "fail":
+            print(f"FAIL  {o.contract} [{o.scenario}]: {o.message}", flush=True)
+        elif o.status == "skip":
+            skipped.setdefault(o.message, []).append(o)
+        elif a.verbose:
+            print(f"pass  {o.contract} [{o.scenario}]", flush=True)
+
+    check_filter(a.name, a.scenario, on_outcome=show)
+    for why, outs in skipped.items():
+        where = sorted({o.scenario for o in outs})
+        what = outs[0].contract if len(outs) == 1 else f"{len(outs)} checks"
+        print(f"skip  {what} [{', '.join(where)}]: {why}")
+    verdict = "FAILED" if counts["fail"] else "passed"
+    print(f"{a.name}: {verdict} — {counts['pass']} passed, {counts['fail']} failed, {counts['skip']} skipped")
+    return 1 if counts["fail"] else 0
+
+
 def _add_run_command(sub: Any) -> None:
     """The ``run`` subcommand: a Monte Carlo experiment and its metrics."""
     pr = sub.add_parser("run", help="run a Monte Carlo experiment and print its metrics")
@@ -533,9 +612,21 @@ def _add_run_command(sub: Any) -> None:
         help="reference filter: add each other filter's paired difference (95 %% interval, "
         "p-value, verdict) per headline metric",
     )
-    pr.add_argument("--format", choices=["table", "json", "csv"], default="table")
+    pr.add_argument(
+        "--format",
+        choices=["table", "json", "csv", "markdown", "latex"],
+        default="table",
+        help="markdown, latex: the headline table for a paper (booktabs; value [95 %% interval]; bold "
+        "only where the paired test backs it; caption with runs, seeds and interval method)",
+    )
     pr.add_argument("--out", help="write the output to this file instead of stdout")
     pr.add_argument("--save-spec", help="also write the resolved spec JSON here")
+    pr.add_argument(
+        "--save-results",
+        metavar="FILE.nc",
+        help="also write the result cube (filter × run × epoch × channel: truth, estimates, R̂, flags; "
+        "the spec and navlab's version as attributes) as netCDF; navlab.load_results reads it",
+    )
     pr.add_argument(
         "--summary",
         action="store_true",
@@ -563,7 +654,7 @@ def _add_reproduce_command(sub: Any) -> None:
     )
     pp.add_argument("--runs", type=int, default=None, help="runs per seed (default: the paper's)")
     pp.add_argument("--seed", type=int, default=1, help="base seed")
-    pp.add_argument("--format", choices=["table", "json", "csv", "markdown"], default="table")
+    pp.add_argument("--format", choices=["table", "json", "csv", "markdown", "latex"], default="table")
     pp.add_argument(
         "--details",
         action="store_true",
@@ -648,7 +739,10 @@ def _add_bench_command(sub: Any) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from navlab import __version__
+
     p = _Parser(prog="navlab", description="navlab: robust and adaptive Kalman filters lab")
+    p.add_argument("--version", action="version", version=f"navlab {__version__}")
     p.add_argument(
         "--debug", action="store_true", help="show tracebacks of internal errors (also after the subcommand)"
     )
@@ -660,6 +754,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_sweep_command,
         _add_tune_command,
         _add_bench_command,
+        _add_check_filter_command,
     ):
         add(sub)
     sub.add_parser(
@@ -692,6 +787,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _tune(a)
         if a.cmd == "bench":
             return _bench(a)
+        if a.cmd == "check-filter":
+            return _check_filter(a)
         return 2
     except NavlabError as exc:
         print(f"navlab: error: {exc}", file=sys.stderr)

@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -567,6 +568,83 @@ class Results:
 
         return summarize(self)
 
+    def to_xarray(self):
+        """The result cube as an ``xarray.Dataset``: filter × run × epoch × channel (× state).
+
+        Truth and data: ``x_true`` (run, epoch, state), ``z``, ``R_true``, ``outlier`` (run, epoch,
+        channel), ``R_schedule`` (epoch, channel). Per filter: ``x``, ``P_diag`` (filter, run,
+        epoch, state); ``innov``, ``S_diag``, ``R_used`` (diagonals), ``R_hat`` (the filter's R̂
+        diagonal, NaN for a filter that does not estimate R), ``weights``, ``flags`` (codes of
+        ALGORITHMS.md §0.3) (filter, run, epoch, channel); ``nis``, ``nees`` (filter, run, epoch);
+        ``diverged_at`` (filter, run; −1: never). Coordinates: time ``t`` (s), channel units,
+        filter labels. Attributes: the experiment's spec (JSON, ``ExperimentSpec.from_dict``
+        reads it back) and navlab's version. :func:`save_results` writes it, :func:`load_results`
+        reads it back.
+        """
+        import xarray as xr
+
+        from navlab import __version__
+
+        d = self.data
+        keys = list(self.runs)
+        runs = [self.runs[k] for k in keys]
+        B, K1, m = d.B, d.K + 1, d.z.shape[2]
+
+        def per_filter(name: str, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+            out = np.full((len(keys), *shape), np.nan if dtype == np.float64 else 0, dtype=dtype)
+            for i, fr in enumerate(runs):
+                a = getattr(fr, name)
+                if a is not None:
+                    out[i] = np.broadcast_to(a, shape)
+            return out
+
+        fre, ch, stt = ("filter", "run", "epoch"), ("run", "epoch", "channel"), ("run", "epoch", "state")
+        n = d.x_true.shape[2]
+        data_vars = {
+            "x_true": (stt, np.asarray(d.x_true, dtype=np.float64), {"long_name": "true state"}),
+            "z": (ch, np.asarray(d.z, dtype=np.float64), {"long_name": "measurement (NaN: missing)"}),
+            "R_true": (ch, np.asarray(d.R_true, dtype=np.float64), {"long_name": "variance drawn"}),
+            "outlier": (ch, np.asarray(d.outlier_mask, dtype=np.int8), {"long_name": "contaminated (1)"}),
+            "R_schedule": (("epoch", "channel"), np.asarray(d.R_schedule, dtype=np.float64)),
+            "x": ((*fre, "state"), per_filter("x", (B, K1, n)), {"long_name": "posterior mean"}),
+            "P_diag": ((*fre, "state"), per_filter("P_diag", (B, K1, n)), {"long_name": "diag of P"}),
+            "innov": ((*fre, "channel"), per_filter("innov", (B, K1, m))),
+            "S_diag": ((*fre, "channel"), per_filter("S_diag", (B, K1, m))),
+            "R_used": (
+                (*fre, "channel"),
+                per_filter("R_used", (B, K1, m)),
+                {"long_name": "diag of R in the gain"},
+            ),
+            "R_hat": ((*fre, "channel"), per_filter("R_hat", (B, K1, m)), {"long_name": "diag of R̂"}),
+            "weights": ((*fre, "channel"), per_filter("weights", (B, K1, m))),
+            "flags": (
+                (*fre, "channel"),
+                per_filter("flags", (B, K1, m), np.int8),
+                {"long_name": "§0.3 codes"},
+            ),
+            "nis": (fre, per_filter("nis", (B, K1))),
+            "nees": (fre, per_filter("nees", (B, K1))),
+            "diverged_at": (("filter", "run"), per_filter("diverged_at", (B,), np.int32)),
+        }
+        coords = {
+            "filter": np.array(keys, dtype=str),
+            "filter_label": ("filter", np.array([fr.label for fr in runs], dtype=str)),
+            "run": np.asarray(d.runs, dtype=np.int32),
+            "epoch": np.arange(K1, dtype=np.int32),
+            "t": ("epoch", np.asarray(d.t, dtype=np.float64), {"units": "s"}),
+            "channel": np.array(d.channel_names, dtype=str),
+            "channel_unit": ("channel", np.array(d.channel_units, dtype=str)),
+            "state": np.array(d.state_names, dtype=str),
+        }
+        attrs = {
+            "title": f"navlab results: {self.spec.scenario}, {B} runs",
+            "navlab_version": __version__,
+            "spec": self.spec.to_json(),
+            "scenario": self.spec.scenario,
+            "complete": int(self.complete),
+        }
+        return xr.Dataset(data_vars, coords, attrs)
+
 
 # --------------------------------------------------------------------------- the one driver
 
@@ -827,3 +905,37 @@ def run_summary(
     info = dataclasses.replace(info, any_outliers=outliers)
     labels = {f.key: FilterInfo(f.key, f.label) for f in p.filters}
     return SummaryResults(spec, info, stats, labels, elapsed)
+
+
+# --------------------------------------------------------------------------- results on disk
+# netCDF3 through xarray's scipy engine: scipy is already a dependency, so a saved cube needs no C
+# library (netCDF4/HDF5) to write or read; netCDF3 holds every variable here (float64, int32,
+# int8, text) and its files open in any netCDF reader (xarray, MATLAB ncread, ncdump).
+NETCDF_ENGINE = "scipy"
+
+
+def save_results(res: Results, path: str | os.PathLike) -> None:
+    """Write ``res.to_xarray()`` to ``path`` (netCDF3: see :data:`NETCDF_ENGINE`)."""
+    ds = res.to_xarray()
+    try:
+        ds.to_netcdf(path, engine=NETCDF_ENGINE)
+    except OSError as exc:
+        raise NavlabError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+def load_results(path: str | os.PathLike):
+    """The ``xarray.Dataset`` a :func:`save_results` (``navlab run --save-results``) wrote, loaded
+    into memory; ``ExperimentSpec.from_dict(json.loads(ds.attrs["spec"]))`` is its experiment.
+    """
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(path, engine=NETCDF_ENGINE) as ds:
+            out = ds.load()
+    except FileNotFoundError:
+        raise NavlabError(f"no results file {path}") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise NavlabError(f"{path} is not a netCDF results file navlab wrote: {exc}") from None
+    if "spec" not in out.attrs or "navlab_version" not in out.attrs:
+        raise NavlabError(f"{path} is a netCDF file but not navlab results (no spec attribute)")
+    return out

@@ -151,7 +151,11 @@ class RunStep:
         if step is None:
             return None
         if self._loop is None:
-            code = [self.fn] + [k.fn for k in self.step.uses]
+            code, todo = [self.fn], list(self.step.uses)
+            while todo:  # the step's helpers and theirs: a change in any of them is a new loop
+                kernel = todo.pop()
+                code.append(kernel.fn)
+                todo.extend(kernel.uses)
             self._loop = _runs_loop(self.fn.__name__, code, step, self.n_runs, n_params, len(self.outs))
         return self._loop
 

@@ -345,6 +345,18 @@ def headline(
     return Table(cells, notes, {c: h for c, h in helps.items() if h and c in cells.columns}, winners)
 
 
+def interval_note(runs: int) -> str:
+    """How the [lo, hi] of a metric over ``runs`` judged runs was made (docs/STATISTICS.md)."""
+    if runs < S.MIN_RUNS:
+        return f"Intervals: {S.TOO_FEW}."
+    how = (
+        "delta method (normal) over runs"
+        if runs >= S.DELTA_FROM
+        else f"BCa bootstrap over runs (B = {S.N_BOOT}, seeded; the same resamples for every filter)"
+    )
+    return f"[lo, hi]: 95 % interval, {how}."
+
+
 def footnotes(
     res: Results, sm: M.Summary | None = None, explanations: bool = True, rows: pd.DataFrame | None = None
 ) -> list[str]:
@@ -353,16 +365,7 @@ def footnotes(
     jd = sm.judgement
     n_common = int(jd.common.sum())
     sizes = {int(jd.judged[k].sum()) for k in res.runs} - {0}  # a filter with no run has no row
-    out = [f"Analysis window: {sm.window}."]
-    if not sizes or min(sizes) < S.MIN_RUNS:
-        out.append(f"Intervals: {S.TOO_FEW}.")
-    else:
-        how = (
-            "delta method (normal) over runs"
-            if min(sizes) >= S.DELTA_FROM
-            else f"BCa bootstrap over runs (B = {S.N_BOOT}, seeded; the same resamples for every filter)"
-        )
-        out.append(f"[lo, hi]: 95 % interval, {how}.")
+    out = [f"Analysis window: {sm.window}.", interval_note(min(sizes) if sizes else 0)]
     lost = {k: jd.lost(k) for k in res.runs if jd.lost(k)}
     if lost:
         out.append(
@@ -394,3 +397,233 @@ def footnotes(
                 "not outlier decisions."
             )
     return out
+
+
+# --------------------------------------------------------------------------- paper formats
+# A Table as Markdown or as a LaTeX booktabs table: the same cells (value [lo, hi]), the best
+# in bold only where Table.best says the paired test backs it, the notes below, a caption that
+# names the runs, the seeds and the interval method.
+
+FORMATS = ("markdown", "latex")
+BEST_NOTE = (
+    "Bold: better than every other candidate filter on that column (paired test over the same "
+    "runs, Holm-corrected p < 0.05; the oracle is not a candidate); a column with no bold has no "
+    "such filter."
+)
+
+
+def run_caption(res: Results) -> str:
+    """What a run's table is: scenario, runs and seeds, window, the interval method."""
+    spec, sm = res.spec, M.summary(res)
+    scls = scenario_registry().get(spec.scenario)
+    label = scls.label if scls is not None else spec.scenario
+    judged = {int(sm.judgement.judged[k].sum()) for k in res.runs} - {0}
+    return (
+        f"{label} (navlab scenario {spec.scenario}), noise schedule {spec.noise_schedule}, outliers "
+        f"{spec.outliers}: {res.data.B} Monte Carlo runs (seed {spec.seed}, runs 0 to {res.data.B - 1}), "
+        f"{res.data.K} epochs; analysis window {sm.window}. " + interval_note(min(judged) if judged else 0)
+    )
+
+
+def run_table(res: Results, fmt: str, compare_to: str | None = None) -> str:
+    """A run's headline table for a paper (``navlab run --format``, the pages' downloads): the
+    best in bold where the paired test backs it, the caption from :func:`run_caption`.
+    """
+    t = headline(res, compare_to=compare_to, best=True)
+    return render(t, fmt, run_caption(res), label=f"tab:navlab-{res.spec.scenario}")
+
+
+def render(t: Table, fmt: str, caption: str, label: str = "tab:navlab") -> str:
+    """``t`` as ``fmt`` (:data:`FORMATS`) with ``caption`` (LaTeX: ``label`` too)."""
+    if fmt == "markdown":
+        return markdown_table(t, caption)
+    if fmt == "latex":
+        return latex_table(t, caption, label)
+    raise ValueError(f"format {fmt!r}: one of {', '.join(FORMATS)}")
+
+
+def _rows(t: Table) -> tuple[list[str], list[list[str]], list[list[bool]]]:
+    """Header, body cells and which cells are bold (Table.best) of a display table."""
+    df = t.cells.reset_index() if t.cells.index.name else t.cells
+    cols = [str(c) for c in df.columns]
+    body = [
+        ["" if v is None else str(v).replace("\n", " ") for v in row] for row in df.itertuples(index=False)
+    ]
+    labels = [str(v) for v in t.cells.index] if t.cells.index.name else [""] * len(body)
+    bold = [[t.best.get(c) == lab and bool(lab) for c in cols] for lab in labels]
+    return cols, body, bold
+
+
+def markdown_table(t: Table, caption: str) -> str:
+    """A pipe table (GitHub/pandoc Markdown): caption above, notes below, best cells in bold."""
+    cols, body, bold = _rows(t)
+    esc = lambda v: v.replace("|", "\\|").replace("\n", " ")  # noqa: E731
+    lines = [f"Table: {caption}" + (f" {BEST_NOTE}" if t.best else ""), ""]
+    lines.append("| " + " | ".join(esc(c) for c in cols) + " |")
+    right = _numeric_columns(body, len(cols))
+    lines.append("|" + "|".join("---:" if r else "---" for r in right) + "|")
+    for row, b in zip(body, bold, strict=True):
+        lines.append(
+            "| "
+            + " | ".join(f"**{esc(v)}**" if bb and v else esc(v) for v, bb in zip(row, b, strict=True))
+            + " |"
+        )
+    if t.notes:
+        lines += [""] + [f"- {esc(n)}" for n in t.notes]
+    return "\n".join(lines) + "\n"
+
+
+def _numeric_columns(body: list[list[str]], n: int) -> list[bool]:
+    """Columns whose every non-empty cell starts with a number (right-aligned)."""
+
+    def numeric(v: str) -> bool:
+        head = v.split(" ")[0].replace("−", "-").replace("-", "", 1).replace(".", "", 1)
+        return bool(head) and head.isdigit()
+
+    return [all(numeric(r[i]) or not r[i] for r in body) and any(r[i] for r in body) for i in range(n)]
+
+
+_TEX_TEXT = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+    "<": r"\textless{}",
+    ">": r"\textgreater{}",
+    "−": "$-$",
+    "–": "--",
+    "—": "---",
+    "…": r"\ldots{}",
+    "§": r"\S{}",
+    "‡": r"\ddag{}",
+    "°": r"\textdegree{}",
+    "’": "'",
+    "“": "``",
+    "”": "''",
+}
+_TEX_MATH = {
+    "µ": r"\mu",
+    "μ": r"\mu",
+    "·": r"\cdot",
+    "×": r"\times",
+    "÷": r"\div",
+    "±": r"\pm",
+    "≈": r"\approx",
+    "≤": r"\leq",
+    "≥": r"\geq",
+    "≠": r"\neq",
+    "≪": r"\ll",
+    "→": r"\to",
+    "←": r"\leftarrow",
+    "⇒": r"\Rightarrow",
+    "∞": r"\infty",
+    "√": r"\surd",
+    "∈": r"\in",
+    "∂": r"\partial",
+    "²": "^2",
+    "³": "^3",
+    "¹": "^1",
+    "⁻": "^-",
+    "⁺": "^+",
+    "ᵀ": "^T",
+    "‖": r"\|",
+}
+_LATIN_TWIN = {
+    "ALPHA": "A", "BETA": "B", "EPSILON": "E", "ZETA": "Z", "ETA": "H", "IOTA": "I", "KAPPA": "K",
+    "MU": "M", "NU": "N", "RHO": "P", "TAU": "T", "CHI": "X",
+}  # fmt: skip
+_GREEK_CAPITALS = {"GAMMA", "DELTA", "THETA", "LAMDA", "XI", "PI", "SIGMA", "UPSILON", "PHI", "PSI", "OMEGA"}
+
+
+def _greek(ch: str) -> str | None:
+    r"""A Greek letter as its LaTeX macro (σ → \sigma, Δ → \Delta; capitals LaTeX has no
+    macro for, such as Α, as their Latin twin); None for any other character.
+    """
+    import unicodedata
+
+    name = unicodedata.name(ch, "")
+    for case in ("SMALL", "CAPITAL"):
+        prefix = f"GREEK {case} LETTER "
+        if name.startswith(prefix) and " " not in name[len(prefix) :]:
+            word = name[len(prefix) :].replace("LAMDA", "LAMBDA")
+            if word == "OMICRON":
+                return "o" if case == "SMALL" else "O"
+            if case == "SMALL":
+                return "\\" + word.lower()
+            if name[len(prefix) :] in _GREEK_CAPITALS:
+                return "\\" + word.capitalize()
+            return _LATIN_TWIN.get(word, "?")
+    return None
+
+
+_ACCENT = {"\u0302": r"\hat", "\u0303": r"\tilde", "\u0304": r"\bar", "\u0307": r"\dot"}
+
+
+def latex_escape(text: str) -> str:
+    r"""Plain text as LaTeX that pdflatex compiles with no package: ASCII only (Greek letters and
+    symbols as math, x̂ as $\hat{x}$, accented letters without their accent, anything else
+    as '?').
+    """
+    import unicodedata
+
+    out: list[str] = []
+    i = 0
+    while i < len(text):
+        ch = text[i]
+        nxt = text[i + 1] if i + 1 < len(text) else ""
+        if nxt in _ACCENT:  # a letter with a combining accent: R̂ → $\hat{R}$
+            base = _TEX_MATH.get(ch) or _greek(ch) or (ch if ch.isascii() and ch.isalnum() else "?")
+            out.append(f"${_ACCENT[nxt]}{{{base}}}$")
+            i += 2
+            continue
+        if ch in _TEX_TEXT:
+            out.append(_TEX_TEXT[ch])
+        elif ch in _TEX_MATH:
+            out.append(f"${_TEX_MATH[ch]}$")
+        elif (g := _greek(ch)) is not None:
+            out.append(f"${g}$" if g.startswith("\\") else g)
+        elif ch.isascii():
+            out.append(ch)
+        else:
+            plain = "".join(c for c in unicodedata.normalize("NFKD", ch) if c.isascii())
+            out.append(plain if plain else "?")
+        i += 1
+    return "".join(out).replace("$$", "")  # adjacent math runs merge: σ² → $\sigma^2$
+
+
+def latex_table(t: Table, caption: str, label: str = "tab:navlab") -> str:
+    r"""A booktabs table (``\usepackage{booktabs}``): caption, label, the best cells in
+    \textbf, the notes in small type under the rule. ASCII only: pdflatex compiles it with
+    booktabs as its one package.
+    """
+    cols, body, bold = _rows(t)
+    right = _numeric_columns(body, len(cols))
+    cap = latex_escape(caption) + (f" {latex_escape(BEST_NOTE)}" if t.best else "")
+    lines = [
+        "% navlab table: needs \\usepackage{booktabs}",
+        "\\begin{table}[htbp]",
+        "\\centering",
+        "\\small",
+        f"\\caption{{{cap}}}",
+        f"\\label{{{label}}}",
+        "\\begin{tabular}{" + "".join("r" if r else "l" for r in right) + "}",
+        "\\toprule",
+        " & ".join(latex_escape(c) for c in cols) + " \\\\",
+        "\\midrule",
+    ]
+    for row, b in zip(body, bold, strict=True):
+        cells = [latex_escape(v) for v in row]
+        cells = [f"\\textbf{{{c}}}" if bb and c else c for c, bb in zip(cells, b, strict=True)]
+        lines.append(" & ".join(cells) + " \\\\")
+    lines += ["\\bottomrule", "\\end{tabular}"]
+    if t.notes:
+        lines.append("\\par\\medskip\\footnotesize")
+        lines += [latex_escape(n) + "\\par" for n in t.notes]
+    lines.append("\\end{table}")
+    return "\n".join(lines) + "\n"

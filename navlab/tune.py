@@ -820,6 +820,31 @@ def changed(r: TuneResult, key: str) -> bool:
     return any(r.tuned[key][d.name] != d.default for d in dims)
 
 
+def caption(r: TuneResult) -> str:
+    """The seeds and runs of a tuning and the interval method of its test table, one sentence."""
+    from navlab import tables
+
+    st = r.setup
+    return (
+        f"objective {st.objective.name} scored on training seeds {', '.join(map(str, st.train_seeds))}, "
+        f"reported on test seeds {', '.join(map(str, st.test_seeds))} x {st.test_runs} runs "
+        f"({r.test.data.B} Monte Carlo runs). " + tables.interval_note(r.test.data.B)
+    )
+
+
+def paper_table(r: TuneResult, fmt: str) -> str:
+    """:func:`report` as Markdown or a LaTeX booktabs table (``navlab tune --format``, the Tune
+    page's download) with a caption naming the seeds, runs and interval method.
+    """
+    from navlab import tables
+
+    cap = (
+        f"Default and tuned filters on {r.setup.spec.scenario}, {caption(r)} No bold: the best tuned "
+        "filter, where the paired test backs one, is named in the last column and the notes."
+    )
+    return tables.render(report(r), fmt, cap, label="tab:navlab-tune")
+
+
 def report(r: TuneResult) -> Any:
     """The fair-tuning table (:class:`navlab.tables.Table`): per filter the tuned values, the
     objective on the training seeds, the metric on the test seeds for default and tuned with

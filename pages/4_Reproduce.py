@@ -6,11 +6,11 @@ import streamlit as st
 
 from navlab.params import SEED_MAX
 from navlab.reproduce import REPRODUCTIONS
-from navlab.reproduce.report import RULES_FOOT, rules_text
+from navlab.reproduce.report import RULES_FOOT, latex, rules_text
 from navlab.ui import reproduce as ui
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame
-from navlab.ui.share import csv_download
+from navlab.ui.share import csv_download, text_download
 from navlab.ui.views import chart
 
 PAGE = "reproduce"
@@ -92,7 +92,19 @@ with st.expander("Why each verdict (notes per claim) and the rules"):
             st.markdown(f"{i}. {note}")
     st.markdown("**Verdict kinds** (docs/STATISTICS.md §4):\n" + rules_text())
     st.caption(RULES_FOOT)
-csv_download(out.verdicts, "Verdicts (CSV)", f"navlab-reproduce-{key}-verdicts.csv", "dl_verdicts")
+v1, v2, _ = st.columns([1, 1, 3])
+csv_download(
+    out.verdicts, "Verdicts (CSV)", f"navlab-reproduce-{key}-verdicts.csv", "dl_verdicts", container=v1
+)
+text_download(
+    lambda: latex(out),
+    "Verdicts (LaTeX)",
+    f"navlab-reproduce-{key}.tex",
+    "dl_verdicts_tex",
+    "application/x-tex",
+    "the verdict table for a paper (booktabs; caption with seeds, runs and the interval method)",
+    container=v2,
+)
 
 readings = st.expander(
     "Detailed readings: every quantity of every filter, pooled over the judged seeds",

@@ -57,12 +57,7 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
         )
 
     epochs = field_widget(
-        P,
-        "epochs",
-        f"rd_ep_{scen}",
-        "Epochs (1 Hz for the drive, 5 Hz for smartLoc; 0 = all)",
-        default=120 if is_drive else 300,
-        step=10,
+        P, "epochs", f"rd_ep_{scen}", R.epochs_label(rec), default=R.epochs_default(rec), step=10
     )
     runs = st.number_input(
         "Noise/outlier injections (runs)",
@@ -101,6 +96,7 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
             sp["gnss_rate_hz"] = field_widget(
                 P, "gnss_rate_hz", "rd_grate", "GNSS epochs per second at most (0: as recorded)"
             )
+            sp["imu_rate_hz"] = field_widget(P, "imu_rate_hz", "rd_imurate_own", "IMU rate (Hz; 0: raw)")
     elif is_drive:
         sp["sigma_m"] = field_widget(P, "sigma_m", "rd_sigma", "GNSS σ (m)")
         contamination, scale = outlier_widgets("", "Outlier ratio α")
@@ -111,8 +107,10 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
         sp["outage_len_s"] = field_widget(
             P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2, step=1.0
         )
+        sp["imu_rate_hz"] = field_widget(P, "imu_rate_hz", "rd_imurate", "IMU rate (Hz; 0: raw)")
     else:
         sp["variance_model"] = field_widget(P, "variance_model", "rd_varmodel", "Variance model")
+        sp["height_aiding"] = field_widget(P, "height_aiding", "rd_height", "Height aiding")
         contamination, scale = outlier_widgets("_sl", "Extra injected outliers α")
 
 upload_error = None
@@ -165,6 +163,7 @@ store = result_store()
 if rec == "upload" and store.get(key) is None:  # plain-words checks before the run
     try:
         R.show_findings(st, R.prerun_findings(spec), expanded=True)
+        st.caption(R.time_estimate(spec))
     except NavlabError as exc:
         st.error(str(exc).replace(sp["data_dir"] + "/", "uploaded "))
         st.stop()
@@ -172,9 +171,9 @@ if rec == "upload" and store.get(key) is None:  # plain-words checks before the 
 c1, c2 = st.columns([1, 5])
 run_clicked = c1.button("Run", type="primary", key="rd_run")
 c2.caption(
-    f"{plural(len(filters), 'filter')} × {plural(runs, 'run')} · scenario `{spec.scenario}` · "
-    f"CLI: `python -m navlab run --scenario {spec.scenario} --filters {','.join(filters)}`"
+    f"{plural(len(filters), 'filter')} × {plural(runs, 'run')} · scenario `{spec.scenario}` · the same run:"
 )
+c2.code(R.cli_line(spec), language="bash", wrap_lines=True)
 
 res = store.get(key)
 if run_clicked and res is None:

@@ -11,7 +11,7 @@ from navlab.tasks import StoppedError
 from navlab.ui import figures as F
 from navlab.ui import sweep as U
 from navlab.ui.frame import frame
-from navlab.ui.share import csv_download
+from navlab.ui.share import csv_download, text_download
 from navlab.ui.sidebar import sidebar_experiment
 from navlab.ui.views import chart
 from navlab.ui.widgets import BIND, PageDefaults, spec_to_state
@@ -149,7 +149,7 @@ if r is not None:
         spec_to_state(res.tuned_spec())
         st.session_state[GOTO_KEY] = True
 
-    d1, d2, d3 = st.columns([2, 1, 1])
+    d1, d2, d3, d4 = st.columns([2, 1, 1, 1])
     d1.button(
         "Open Compare with the tuned parameters",
         key="tn_compare",
@@ -163,6 +163,16 @@ if r is not None:
         file_name="navlab-tuned.json",
         mime="application/json",
         key="dl_tuned_cfg",
+    )
+    text_download(
+        lambda: TU.paper_table(r, "latex"),
+        "Table (LaTeX)",
+        "navlab-tune.tex",
+        "dl_tune_tex",
+        "application/x-tex",
+        "the table above for a paper: booktabs, values with their 95 % intervals, a caption naming "
+        "the seeds, runs and interval method (needs \\usepackage{booktabs})",
+        container=d4,
     )
     st.markdown("##### Objective landscapes (training seeds, first rung: every candidate on the same runs)")
     trials = TU.trials_frame(r)

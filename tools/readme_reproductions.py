@@ -1,9 +1,9 @@
-"""Write the README's reproduction summary from the verdict tables of ``navlab reproduce``.
+"""Write docs/reproductions.md's summary from the verdict tables of ``navlab reproduce``.
 
     python -m navlab reproduce NAME --seeds 20 --outdir DIR -q      # for every NAME; writes NAME_verdicts.md
-    python tools/readme_reproductions.py DIR                        # replaces the README's block
+    python tools/readme_reproductions.py DIR                        # replaces the page's block
 
-The block between the two markers below in README.md is replaced by DIR/NAME_verdicts.md of every
+The block between the two markers below in docs/reproductions.md is replaced by DIR/NAME_verdicts.md of every
 registered reproduction, in alphabetical order: the same rows the CLI prints, nothing edited.
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 from navlab.reproduce import REPRODUCTIONS
 
 BEGIN, END = "<!-- reproductions:begin -->", "<!-- reproductions:end -->"
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "reproductions.md"
 
 
 def block(outdir: Path) -> str:
@@ -31,13 +31,13 @@ def block(outdir: Path) -> str:
 def main(argv: list[str]) -> None:
     if len(argv) != 1:
         sys.exit(__doc__)
-    text = README.read_text()
+    text = PAGE.read_text()
     if BEGIN not in text or END not in text:
-        sys.exit(f"README.md lacks the markers {BEGIN} … {END}")
+        sys.exit(f"{PAGE} lacks the markers {BEGIN} … {END}")
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
-    README.write_text(f"{head}{BEGIN}\n{block(Path(argv[0]))}\n{END}{tail}")
-    print(f"README.md: reproduction summary from {argv[0]}")
+    PAGE.write_text(f"{head}{BEGIN}\n{block(Path(argv[0]))}\n{END}{tail}")
+    print(f"{PAGE.name}: reproduction summary from {argv[0]}")
 
 
 if __name__ == "__main__":

@@ -2,8 +2,9 @@
 
 Before a run (:func:`check_drive`): sample rate and gaps, gravity magnitude and sign on the
 vehicle's z axis, the IMU's tilt in the vehicle frame, gyro units and sign (the IMU's heading
-change against the GNSS course change), and a GNSS time-offset hint (the lag that best aligns the
-GNSS course rate with the IMU's yaw rate).
+change against the GNSS course change), a GNSS time-offset hint (the lag that best aligns the GNSS
+course with the IMU's heading, :func:`time_offset_hint`, reported with its uncertainty and only
+when the drive's turns make it observable), and outliers in the raw fixes (:func:`fix_outliers`).
 
 After a run (:func:`trust_check`): when every filter's position error exceeds the raw GNSS's own
 error by :data:`TRUST_FACTOR` (against the truth, or against the GNSS fixes themselves when there
@@ -92,33 +93,122 @@ def heading_change_slope(
     return (1.0 / inv if inv != 0 else float("inf")), r, int(d_gnss.size)
 
 
+class OffsetEstimate(NamedTuple):
+    """A GNSS time offset estimate: ``offset_s`` (to ADD to the GNSS time stamps), its standard
+    error ``se_s`` (inf when not estimable), the fixes used ``n`` and the rms yaw rate ``turn_radps``
+    that carries the information (after each piece's own heading offset and drift).
+    """
+
+    offset_s: float
+    se_s: float
+    n: int
+    turn_radps: float
+
+    @property
+    def observable(self) -> bool:
+        """The drive excites the offset: it is known to :data:`OFFSET_MAX_SE_S` or better."""
+        return bool(np.isfinite(self.offset_s) and self.se_s <= OFFSET_MAX_SE_S)
+
+
+#: A GNSS time offset is reported only when its standard error is at most this [s] (95 %: ± 0.05 s,
+#: ≈ ± 1 m along the track at 20 m/s, below an ordinary receiver's σ): a drive that hardly turns
+#: cannot tell an offset from the course noise (issue 24).
+OFFSET_MAX_SE_S = 0.025
+#: Pieces of the drive with their own heading offset and gyro drift [s].
+OFFSET_PIECE_S = 10.0
+
+
+def _moving_pieces(t: Array, moving: Array, piece_s: float) -> Array:
+    """A piece number per fix (−1: not used): contiguous moving stretches (no gap longer than three
+    fix intervals, or 1 s) cut into ``piece_s`` pieces.
+    """
+    piece = np.full(len(t), -1)
+    gap = max(1.0, 3.0 * float(np.median(np.diff(t)))) if len(t) > 1 else 1.0
+    n, start, prev = -1, None, None
+    for i in np.flatnonzero(moving):
+        if prev is None or i != prev + 1 or t[i] - t[prev] > gap or t[i] - start > piece_s:
+            n, start = n + 1, t[i]
+        piece[i], prev = n, i
+    return piece
+
+
+def _grid_min(lags: Array, sse: Array) -> float:
+    """The lag minimising ``sse`` on the grid, refined by a parabola through its neighbours."""
+    i = int(np.argmin(sse))
+    L = float(lags[i])
+    if 0 < i < len(lags) - 1:
+        den = sse[i - 1] - 2 * sse[i] + sse[i + 1]
+        if den > 0:
+            L += (lags[1] - lags[0]) * 0.5 * (sse[i - 1] - sse[i + 1]) / den
+    return L
+
+
 def time_offset_hint(
     t_g: Array, v_enu: Array, t_imu: Array, w_up: Array, max_lag_s: float = 1.0, min_speed_mps: float = 4.0
-) -> float:
-    """The GNSS time offset [s] that best aligns the GNSS course rate with the IMU's yaw rate.
+) -> OffsetEstimate:
+    """The GNSS time offset L [s] that best aligns the GNSS course with the IMU's heading, with its
+    standard error.
 
-    Grid search (10 ms) of L minimising mean((−ψ̇_GNSS(t) − ω_up(t + L))²) over moving epochs,
-    the IMU rate averaged over each GNSS interval; the returned L is the value to ADD to the GNSS
-    time stamps. NaN when the vehicle hardly turns.
+    Model: −course(t_i) = ψ_IMU(t_i + L) + a_j + b_j t_i + e_i on moving fixes (speed >
+    ``min_speed_mps``), ψ_IMU the integrated yaw rate, (a_j, b_j) a heading offset and a gyro
+    drift per piece of :data:`OFFSET_PIECE_S` s, e_i the course noise (weights ∝ speed², since
+    course noise ∝ σ_v / speed). L minimises the weighted squared residuals on a 10 ms grid
+    (refined by a parabola). Its standard error is the linearised one,
+    σ̂² / Σ w_i (∂r_i/∂L)², ∂r/∂L = the yaw rate with each piece's mean and trend removed, inflated
+    by (1 + ρ)/(1 − ρ) for the residuals' lag-1 correlation ρ. Only turns carry information: on a
+    straight road the yaw rate is ≈ 0 and the error is large (``se_s`` → inf). The returned L is
+    the value to ADD to the GNSS time stamps; shifting the GNSS stamps by δ shifts it by −δ.
     """
+    nan = OffsetEstimate(float("nan"), float("inf"), 0, 0.0)
+    t_g, t_imu, w_up = (np.asarray(a, float) for a in (t_g, t_imu, w_up))
     sp = np.hypot(v_enu[:, 0], v_enu[:, 1])
-    crs = np.unwrap(_course(v_enu))
-    rate = -np.gradient(crs, t_g)
-    dtg = float(np.median(np.diff(t_g)))
-    inside = (t_g - max_lag_s - dtg >= t_imu[0]) & (t_g + max_lag_s + dtg <= t_imu[-1])
-    ok = (sp > min_speed_mps) & np.isfinite(rate) & inside
-    if ok.sum() < 20 or np.std(rate[ok]) < 0.02:
-        return float("nan")
+    inside = (t_g - max_lag_s >= t_imu[0]) & (t_g + max_lag_s <= t_imu[-1])
+    piece = _moving_pieces(t_g, (sp > min_speed_mps) & inside, OFFSET_PIECE_S)
+    counts = np.bincount(piece[piece >= 0]) if (piece >= 0).any() else np.zeros(0, int)
+    piece[(piece >= 0) & np.isin(piece, np.flatnonzero(counts < 5))] = -1
+    use = piece >= 0
+    if use.sum() < 20:
+        return nan
+    _, piece = np.unique(piece[use], return_inverse=True)
+    t, v, wt = t_g[use], v_enu[use], sp[use] ** 2
+    wt = wt / wt.mean()
+    psi_g = np.empty(len(t))
+    for j in range(piece.max() + 1):  # unwrap inside each piece
+        m = piece == j
+        psi_g[m] = -np.unwrap(_course(v[m]))
+    # nuisance columns: a per-piece offset and drift (time relative to the piece's mean)
+    A = np.zeros((len(t), 2 * (piece.max() + 1)))
+    for j in range(piece.max() + 1):
+        m = piece == j
+        A[m, 2 * j] = 1.0
+        A[m, 2 * j + 1] = t[m] - t[m].mean()
+    sw = np.sqrt(wt)
+    Q, _ = np.linalg.qr(A * sw[:, None])
+
+    def resid(y):  # weighted residual of y after the nuisance columns
+        yw = y * sw
+        return yw - Q @ (Q.T @ yw)
+
     dt = np.diff(t_imu, append=t_imu[-1])
     cum = np.r_[0.0, np.cumsum(w_up * dt)][:-1]
     lags = np.arange(-max_lag_s, max_lag_s + 1e-9, 0.01)
-    tt = t_g[ok]
-    cost = []
-    for L in lags:  # centred average of the IMU rate over one GNSS interval around t + L
-        a, b = tt + L - dtg, tt + L + dtg
-        w_avg = (np.interp(b, t_imu, cum) - np.interp(a, t_imu, cum)) / (b - a)
-        cost.append(np.mean((rate[ok] - w_avg) ** 2))
-    return float(lags[int(np.argmin(cost))])
+    n_p = int(piece.max()) + 1
+    # squared residuals per piece and lag (the nuisance is per piece, so pieces are separable)
+    sse_p = np.stack(
+        [np.bincount(piece, resid(psi_g - np.interp(t + L, t_imu, cum)) ** 2, n_p) for L in lags], 1
+    )
+    L = _grid_min(lags, sse_p.sum(axis=0))
+    r = resid(psi_g - np.interp(t + L, t_imu, cum))
+    J = resid(np.interp(t + L, t_imu, w_up))  # ∂r/∂L (weighted, nuisance removed)
+    dof = max(len(t) - A.shape[1] - 1, 1)
+    s2 = float(r @ r) / dof
+    rho = float(np.clip(np.sum(r[1:] * r[:-1]) / max(float(r @ r), 1e-300), 0.0, 0.9))
+    info = float(J @ J)
+    se = float(np.sqrt(s2 / info * (1 + rho) / (1 - rho))) if info > 0 else float("inf")
+    if n_p >= 4:  # delete-one-piece jackknife: the spread between pieces (model error) counts too
+        Lj = np.array([_grid_min(lags, sse_p.sum(axis=0) - sse_p[j]) for j in range(n_p)])
+        se = max(se, float(np.sqrt((n_p - 1) / n_p * np.sum((Lj - Lj.mean()) ** 2))))
+    return OffsetEstimate(L, se, len(t), float(np.sqrt(info / len(t))))
 
 
 def _rate_findings(ti: Array, tg: Array) -> list[Finding]:
@@ -245,30 +335,114 @@ def _gyro_finding(slope: float, r: float, n: int) -> Finding:
 def _time_offset_findings(
     g, setup: DriveSetup, tg: Array, v_enu: Array, ti: Array, w_up: Array
 ) -> list[Finding]:
-    """The GNSS time offset that best aligns the course with the yaw rate (receiver velocities only)."""
+    """The GNSS time offset that best aligns the course with the heading (receiver velocities only),
+    reported with its uncertainty, and only when the drive's turns make it observable.
+    """
     from navlab.ins.lc import velocity_lag_s
 
     offset = float(getattr(setup, "gnss_time_offset_s", 0.0))
-    hint = time_offset_hint(tg + offset, v_enu, ti, w_up)
-    if not np.isfinite(hint):
-        return []
+    est = time_offset_hint(tg + offset, v_enu, ti, w_up)
+    if not est.observable:
+        known = f" (it would be known to ±{2 * est.se_s:.2f} s only)" if np.isfinite(est.se_s) else ""
+        return [
+            Finding(
+                "note",
+                "GNSS time offset: not observable on this drive — the vehicle turns too little while "
+                f"moving to tell a time offset from the course noise{known}; gnss_time_offset_s stays "
+                f"{offset:+.2f} s",
+            )
+        ]
     # a receiver's velocities may lag its positions (RTKLIB: ≈ 0.12 s); measurable only on
     # precise fixes (σ < 0.2 m), else the velocities are taken as on the positions' time base
     sig = g[["sigma_n_m", "sigma_e_m"]].to_numpy()
     d_v = 0.0
     if np.isfinite(sig).all() and np.nanmedian(sig) < 0.2:
         d_v = velocity_lag_s(tg, _gnss_positions(g, setup), v_enu)
-    total = offset + hint + d_v
+    total = offset + est.offset_s + d_v
+    # a warning only when the offset is both significant and large enough to matter: the fixes
+    # then sit further along the track (|L| × the median speed) than the receiver's σ
+    moving = np.hypot(v_enu[:, 0], v_enu[:, 1]) > 4.0
+    speed = float(np.median(np.hypot(v_enu[moving, 0], v_enu[moving, 1]))) if moving.any() else 0.0
+    sig_h = float(np.nanmedian(sig)) if np.isfinite(sig).any() else 1.0
+    shift = abs(est.offset_s + d_v)
+    significant = shift > 2.0 * est.se_s and shift * speed > sig_h
     text = (
-        f"GNSS time offset: the GNSS course best matches the IMU's yaw rate with gnss_time_offset_s "
-        f"≈ {total:+.2f} s (now {offset:+.2f} s"
+        f"GNSS time offset: the GNSS course best matches the IMU's heading with gnss_time_offset_s "
+        f"≈ {total:+.2f} ± {2 * est.se_s:.2f} s (95 %; now {offset:+.2f} s; from {est.n} moving fixes"
         + (f"; the receiver's velocities lag its positions by {d_v:.2f} s" if d_v else "")
         + ")"
+        + ("" if significant else f": within the uncertainty or < {sig_h:.2g} m along the track, leave it")
     )
-    return [Finding("warning" if abs(total - offset) > 0.1 else "note", text)]
+    return [Finding("warning" if significant else "note", text)]
 
 
-def check_drive(rec: DriveRecording, setup: DriveSetup) -> list[Finding]:
+#: A raw fix is an outlier for the pre-run check when it lies more than this many of its own σ
+#: (horizontal, or vertical) from what its neighbours predict.
+OUTLIER_SIGMAS = 5.0
+
+
+def _theil_sen(t: Array, y: Array, t0: float) -> Array:
+    """Robust line through (t, y (n, d)) evaluated at t0: median pairwise slope, median intercept."""
+    i, j = np.triu_indices(len(t), 1)
+    dt = t[j] - t[i]
+    ok = dt > 1e-9
+    slope = np.median((y[j[ok]] - y[i[ok]]) / dt[ok, None], axis=0) if ok.any() else np.zeros(y.shape[1])
+    return np.median(y - slope * (t - t0)[:, None], axis=0)
+
+
+def fix_outliers(t: Array, p: Array, v_enu: Array | None, sigma: Array) -> Array:
+    """Which fixes (N,) lie far from their neighbours: > :data:`OUTLIER_SIGMAS` × σ from the median of
+    the neighbours' predictions p_j + v̄ (t_i − t_j) (v̄ the mean of the two fixes' velocities) within
+    ± max(1 s, 2 fix intervals), or — without velocities — from a robust (Theil–Sen) line through
+    them. ``sigma`` (N, 3): the fixes' σ N, E, U. No truth is involved.
+    """
+    t = np.asarray(t, float)
+    n = len(t)
+    out = np.zeros(n, bool)
+    if n < 5:
+        return out
+    half = max(1.0, 2.0 * float(np.median(np.diff(t))))
+    lo, hi = np.searchsorted(t, t - half), np.searchsorted(t, t + half, side="right")
+    v_ne = None if v_enu is None else np.asarray(v_enu, float)[:, [1, 0, 2]]
+    for i in range(n):
+        nb = np.r_[lo[i] : i, i + 1 : hi[i]]
+        if nb.size < 2:
+            continue
+        if v_ne is not None:
+            pred = np.median(p[nb] + 0.5 * (v_ne[nb] + v_ne[i]) * (t[i] - t[nb])[:, None], axis=0)
+        else:
+            pred = _theil_sen(t[nb], p[nb], t[i])
+        r = (p[i] - pred) / sigma[i]
+        out[i] = np.hypot(r[0], r[1]) > OUTLIER_SIGMAS or abs(r[2]) > OUTLIER_SIGMAS
+    return out
+
+
+def _outlier_findings(
+    g, setup: DriveSetup, v_enu: Array | None, sigma_m: float
+) -> tuple[list[Finding], Array]:
+    """The outlier check of the raw fixes: findings and the flag per recorded fix."""
+    tg = g.t_s.to_numpy()
+    sig = g[["sigma_n_m", "sigma_e_m", "sigma_u_m"]].to_numpy()
+    sig = np.where(np.isfinite(sig) & (sig > 0), sig, sigma_m)
+    flags = fix_outliers(tg, _gnss_positions(g, setup), v_enu, sig)
+    k = int(flags.sum())
+    if not k:
+        return [
+            Finding("note", f"outliers: no raw fix lies more than {OUTLIER_SIGMAS:g} σ from its neighbours")
+        ], flags
+    level = "warning" if k > 0.01 * len(tg) else "note"
+    return [
+        Finding(
+            level,
+            f"outliers: {k} of {len(tg)} raw fixes ({100 * k / len(tg):.1f} %) lie more than "
+            f"{OUTLIER_SIGMAS:g} σ from what their neighbours predict: prefer a robust filter "
+            "(χ²-gated KF, Huber KF, HAKF, IRAKF); the check after the run compares the filters "
+            "with the other fixes",
+        )
+    ], flags
+
+
+def check_drive(rec: DriveRecording, setup: DriveSetup, sigma_m: float = 3.0) -> list[Finding]:
     """Plain-words checks of a drive (generic CSV) before the filters run; see the module doc."""
     imu, g = rec.imu, rec.gnss
     ti = imu.t_s.to_numpy()
@@ -284,7 +458,18 @@ def check_drive(rec: DriveRecording, setup: DriveSetup) -> list[Finding]:
         out.append(
             Finding("note", "GNSS time offset: no hint (gnss.csv has no vn_mps, ve_mps, vu_mps columns)")
         )
-    return out
+    found, _ = _outlier_findings(g, setup, v_enu if measured else None, sigma_m)
+    return out + found
+
+
+def raw_outlier_epochs(rec: DriveRecording, setup: DriveSetup, sigma_m: float) -> Array:
+    """(K+1,) the epochs whose recorded fix the pre-run outlier check flags (:func:`fix_outliers`)."""
+    g = rec.gnss
+    tg = g.t_s.to_numpy()
+    v_enu, measured = _gnss_velocity(g, tg, setup)
+    _, flags = _outlier_findings(g, setup, v_enu if measured else None, sigma_m)
+    t_fix = tg + float(getattr(setup, "gnss_time_offset_s", 0.0))
+    return np.isin(np.round(setup.t, 6), np.round(t_fix[flags], 6))
 
 
 def aiding_note(scenario: Any, setup: DriveSetup, rx_sigma: Array | None) -> str:
@@ -356,7 +541,15 @@ def trust_check(res: Results) -> list[Finding]:
     if fixes is not None:
         p_ant = d.extras.get("p_true_antenna")
         if d.has_truth and p_ant is not None:
-            raw = _pos_rms((fixes - p_ant[None])[:, W])
+            e_raw = fixes - p_ant[None]
+            raw_all = _pos_rms(e_raw[:, W])
+            # outlying fixes (flagged before the run, or injected) are left out of the raw figure:
+            # with them in it, a filter worse than the clean fixes could still look better than "raw"
+            bad = np.zeros(e_raw.shape[:2], bool) | np.asarray(d.extras.get("raw_outliers", False))
+            if getattr(d, "outlier_mask", None) is not None:
+                bad |= np.asarray(d.outlier_mask)[..., :3].any(axis=-1)
+            raw = _pos_rms(np.where(bad[..., None], np.nan, e_raw)[:, W])
+            n_bad = int(bad[:, W].sum())
             basis = "against the truth"
             for key, fr in res.runs.items():
                 ok = ~fr.diverged
@@ -376,6 +569,8 @@ def trust_check(res: Results) -> list[Finding]:
                 *causes,
             )
         raw_label = "the raw GNSS fixes"
+        if d.has_truth and p_ant is not None and n_bad:
+            raw_label = f"the raw GNSS fixes without their {n_bad} outlying ones (all: {raw_all:.3g} m)"
     elif "wls" in res.runs and d.has_truth:
         fr = res.runs["wls"]
         raw = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[:, W])
@@ -427,11 +622,15 @@ def run_messages(res: Results) -> list[Finding]:
 
 
 __all__ = [
+    "OFFSET_MAX_SE_S",
     "TRUST_FACTOR",
     "Finding",
+    "OffsetEstimate",
     "aiding_note",
     "check_drive",
+    "fix_outliers",
     "heading_change_slope",
+    "raw_outlier_epochs",
     "run_messages",
     "time_offset_hint",
     "trust_check",

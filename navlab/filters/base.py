@@ -258,7 +258,9 @@ def _check_filter(cls: type[Filter]) -> None:
 
 
 #: Every filter, by key; the modules of :mod:`navlab.filters` register theirs with :func:`register`.
-FILTERS: Registry[type[Filter]] = Registry("filter", package="navlab.filters", check=_check_filter)
+FILTERS: Registry[type[Filter]] = Registry(
+    "filter", package="navlab.filters", check=_check_filter, plugins="navlab.filters"
+)
 
 #: Class decorator adding a filter to :data:`FILTERS` under ``cls.key`` (kebab-case).
 register = FILTERS.register

@@ -62,15 +62,16 @@ from navlab.params import param
 
 
 def measurement_prediction(
-    model: Model, x: Array, P: Array, k: int, z: Array, R: Array | None = None
+    model: Model, x: Array, P: Array, k: int, z: Array, R: Array | None = None, H: Array | None = None
 ) -> Masked:
     """The innovation and the products the update needs, missing channels dropped (§1.1 step 3).
 
     ν = z − h(x⁻) with H = ∂h/∂x at x⁻, U = P⁻ Hᵀ, M = H P⁻ Hᵀ; a channel with NaN in z gets a
     zero gain column (:func:`~navlab.linalg.mask_missing`). Returns the masked (ok, ν, R, U, M)
-    (R None if not given: a filter that estimates R masks its R̂ once it has it).
+    (R None if not given: a filter that estimates R masks its R̂ once it has it). ``H``: the
+    Jacobian at x⁻ if the caller has it already.
     """
-    H = model.H(x, k)
+    H = model.H(x, k) if H is None else H
     nu = z - model.h(x, k)
     U, M = PHt(P, H)
     return mask_missing(z, nu, R, U=U, M=M)
@@ -100,12 +101,15 @@ def _flags(z: Array, fixed: Array) -> Array:
 
 
 class Prior(NamedTuple):
-    """The prior the update starts from (x⁻, P⁻) at epoch k and its masked innovation products."""
+    """The prior the update starts from (x⁻, P⁻) at epoch k, its masked innovation products and
+    the (unmasked) measurement Jacobian H at x⁻.
+    """
 
     x: Array
     P: Array
     mk: Masked
     k: int
+    H: Array
 
 
 @dataclass
@@ -120,6 +124,8 @@ class Noise:
     stats : per-run diagnostics for :class:`~navlab.filters.base.StepOut`.
     state : new values of the filter's own state fields (the VB α, β …).
     nu : the innovation the gain multiplies, if not ν (the skew-t's ν′ = ν − Δ E[u]).
+    S : the innovation covariance the filter reports (its outlier test's), if not the gain's.
+    prior : the prior the gain starts from, if the step changed it (RAKF's inflated P⁻).
     """
 
     R: Array
@@ -130,6 +136,8 @@ class Noise:
     stats: dict[str, Array] = field(default_factory=dict)
     state: dict[str, Array] = field(default_factory=dict)
     nu: Array | None = None
+    S: Array | None = None
+    prior: Prior | None = None
 
 
 class KalmanUpdate(Filter):
@@ -144,28 +152,32 @@ class KalmanUpdate(Filter):
     def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo):
         pr = self.innovation(model, state, k, z, side)  # 3  ν = z − h(x⁻), U = P⁻Hᵀ, M = H P⁻ Hᵀ
         nz = self.noise(model, state, pr, z)  # the R in the gain (and the weights, R̂ …)
+        pr = pr if nz.prior is None else nz.prior
         S = sym(pr.mk.M + nz.R)  # 3  S = H P⁻ Hᵀ + R
         K, fixed = self.gain(pr.mk, S, nz)  # 4  K = P⁻ Hᵀ S⁻¹
         x = pr.x + mv(K, pr.mk.nu if nz.nu is None else nz.nu)  # 5  x⁺ = x⁻ + K ν
-        P = joseph_from_gain(pr.P, K, pr.mk.U, S)  # 6  P⁺ = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ
+        P = self.posterior(pr, K, S)  # 6  P⁺
         flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
         flag_fix(flags, nz.fixed | fixed)
         out = StepOut(
             x=x,
             P=P,
             innov=pr.mk.nu,
-            S=S,
+            S=S if nz.S is None else nz.S,
             R_used=nz.R,
             R_hat=nz.R_hat,
             weights=nz.weights,
             flags=flags,
             stats=nz.stats,
         )
-        return state._replace(x=x, P=P, **nz.state), out
+        return self.next_state(model, state, k, z, x, P, nz), out
 
     def innovation(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> Prior:
         """3  The prior and its innovation products (the nominal R0 masked with them)."""
-        return Prior(state.x, state.P, measurement_prediction(model, state.x, state.P, k, z, model.R0), k)
+        H = model.H(state.x, k)
+        return Prior(
+            state.x, state.P, measurement_prediction(model, state.x, state.P, k, z, model.R0, H), k, H
+        )
 
     def noise(self, model: Model, state: Any, pr: Prior, z: Array) -> Noise:
         """The R in the gain: the nominal R0 (the KF)."""
@@ -177,6 +189,14 @@ class KalmanUpdate(Filter):
         if nz.weights is not None and not np.all(nz.weights):
             K = zero_columns(K, nz.weights == 0)
         return K, fixed
+
+    def posterior(self, pr: Prior, K: Array, S: Array) -> Array:
+        """6  P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ (Joseph form, from U = P⁻Hᵀ and S)."""
+        return joseph_from_gain(pr.P, K, pr.mk.U, S)
+
+    def next_state(self, model: Model, state: Any, k: int, z: Array, x: Array, P: Array, nz: Noise) -> Any:
+        """The state after the update: x⁺, P⁺ and the filter's own fields (``nz.state``)."""
+        return state._replace(x=x, P=P, **nz.state)
 
 
 @register
@@ -263,7 +283,8 @@ class OracleKF(KalmanUpdate):
         # (§1.4 step 2) z' = z − b_true, R_used = R_true (or: drop the contaminated channels)
         z = np.where(side.outlier, np.nan, z) if self.params.mode == "skip" else z - side.bias
         R = side.R_true[..., :, None] * np.eye(z.shape[-1])
-        return Prior(state.x, P, measurement_prediction(model, state.x, P, k, z, R), k)
+        H = model.H(state.x, k)
+        return Prior(state.x, P, measurement_prediction(model, state.x, P, k, z, R, H), k, H)
 
     def noise(self, model: Model, state: KFState, pr: Prior, z: Array) -> Noise:
         return Noise(pr.mk.R, R_hat=pr.mk.R)  # the true R, reported as its "estimate"

@@ -294,20 +294,40 @@ def expm_batched(A: Array) -> Array:
     return E
 
 
-def downsample_imu(t: Array, f: Array, w: Array, t0: float, rate_hz: float):
-    """Average the raw samples over bins of 1/rate_hz starting at t0 (= summed Δv, Δθ increments).
+def imu_on_epochs(t: Array, f: Array, w: Array, t_epochs: Array, rate_hz: float):
+    """The IMU as held samples on intervals that never straddle an aiding epoch: (t, f, w).
 
-    Each bin's sample is stamped at its start, so `propagate_block` holds it over the bin. A car
-    turns < 1 rad/s, so coning/sculling over 50–100 ms bins is negligible; the mechanisation then
-    runs 5–10× faster.
+    The raw samples are a zero-order hold (sample i held over [t_i, t_{i+1}), the last one for
+    the median interval), exactly as :func:`navlab.ins.strapdown.propagate_block` integrates
+    them. Output sample j is the exact mean of that signal over [e_j, e_{j+1}) (the summed Δv, Δθ
+    increments divided by the length), with edges e at every epoch time and, between two epochs,
+    either a grid of 1/``rate_hz`` starting AT the earlier epoch, or (``rate_hz`` = 0) the raw
+    sample times. Every block (t_{k−1}, t_k] therefore starts with its own sample at t_{k−1}: each
+    GNSS fix is applied at its own time stamp whatever the GNSS rate and jitter, and averaging
+    (``rate_hz`` > 0) only merges samples inside one block. A car turns < 1 rad/s, so the
+    coning/sculling lost over 50–100 ms bins is negligible; the mechanisation runs 5–10× faster.
+    Samples before the first epoch are dropped (the alignment reads the raw ones).
     """
-    b = np.floor((t - t0) * rate_hz + 1e-9).astype(int)
-    keep = b >= 0
-    b, f, w = b[keep], f[keep], w[keep]
-    uniq, start, cnt = np.unique(b, return_index=True, return_counts=True)
-    fs = np.add.reduceat(f, start, axis=0) / cnt[:, None]
-    ws = np.add.reduceat(w, start, axis=0) / cnt[:, None]
-    return t0 + uniq / rate_hz, fs, ws
+    t = np.asarray(t, float)
+    te = np.asarray(t_epochs, float)
+    x = np.concatenate([np.asarray(f, float), np.asarray(w, float)], axis=1)
+    dt_raw = np.diff(t)
+    hold = np.r_[dt_raw, np.median(dt_raw) if dt_raw.size else 0.0]
+    t_ext = np.r_[t, t[-1] + hold[-1]]
+    cum = np.vstack([np.zeros((1, 6)), np.cumsum(x * hold[:, None], axis=0)])  # ∫ x dt at t_ext
+    if rate_hz and rate_hz > 0:
+        step = 1.0 / float(rate_hz)
+        n = np.maximum(np.ceil((np.diff(te) - 1e-9) / step).astype(int), 1)
+        edges = np.repeat(te[:-1], n) + step * (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+    else:
+        inner = t[(t > te[0]) & (t < te[-1])]
+        j = np.searchsorted(te, inner)
+        inner = inner[np.minimum(inner - te[j - 1], te[j] - inner) > 1e-9]  # none within 1 ns of an epoch
+        edges = np.union1d(te[:-1], inner)
+    edges = np.r_[edges, te[-1]]
+    C = np.stack([np.interp(edges, t_ext, cum[:, i]) for i in range(6)], -1)
+    x_mean = np.diff(C, axis=0) / np.diff(edges)[:, None]
+    return edges[:-1], x_mean[:, :3], x_mean[:, 3:]
 
 
 def velocity_lag_s(t_s: Array, p_neu: Array, v_enu: Array, max_lag_s: float = 0.3) -> float:
@@ -759,8 +779,7 @@ def prepare_drive(
         al, heading_known = _align_at_rest(track, st, t[0], t_imu, f_b, w_b, origin, heading_deg, C_bv, notes)
         x0, P0 = _initial_at_rest(al, gnss_pos, p_true, track.measured, heading_known)
     vib_g = _block_vibration(t_imu, w_b, t)  # from the raw samples, before they are averaged
-    if imu_rate_hz:
-        t_imu, f_b, w_b = downsample_imu(t_imu, f_b, w_b, float(t[0]), imu_rate_hz)
+    t_imu, f_b, w_b = imu_on_epochs(t_imu, f_b, w_b, t, imu_rate_hz)
     return DriveSetup(
         t=t,
         lat0_rad=origin[0],

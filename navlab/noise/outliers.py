@@ -85,7 +85,7 @@ class OutlierModel:
 
 
 #: Every outlier model, by key, in the order they are offered.
-OUTLIERS: Registry[type[OutlierModel]] = Registry("outlier model")
+OUTLIERS: Registry[type[OutlierModel]] = Registry("outlier model", plugins="navlab.outlier_models")
 
 
 @OUTLIERS.register

@@ -61,7 +61,7 @@ class Schedule:
 
 
 #: Every noise schedule, by key, in the order they are offered.
-SCHEDULES: Registry[type[Schedule]] = Registry("noise schedule")
+SCHEDULES: Registry[type[Schedule]] = Registry("noise schedule", plugins="navlab.noise_schedules")
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Text of a reproduction's verdicts: the CLI table, Markdown for the README, the rules.
+"""Text of a reproduction's verdicts: the CLI table, Markdown for the docs, LaTeX for a paper, the rules.
 
 Pure (no streamlit); the Reproduce page shows the same rows.
 """
@@ -211,8 +211,8 @@ def text(o: Outcome) -> str:
 
 
 def markdown(o: Outcome) -> str:
-    """The verdict table and its notes as Markdown (the README's reproduction summary is made
-    from this: ``tools/readme_reproductions.py``).
+    """The verdict table and its notes as Markdown (docs/reproductions.md's summary is made from
+    this: ``tools/readme_reproductions.py``).
     """
     t = verdict_table(o)
     cols = list(t.columns)
@@ -232,6 +232,25 @@ def markdown(o: Outcome) -> str:
     if notes:
         lines += ["", "Notes (by claim number): " + " ".join(n.rstrip(".") + "." for n in notes)]
     return "\n".join(lines) + "\n"
+
+
+def latex(o: Outcome) -> str:
+    """The verdict table as a booktabs LaTeX table (navlab.tables.latex_table): the caption names
+    the reproduction, seeds and runs and the interval method; the claims' notes under it.
+    """
+    from navlab.tables import Table, latex_table
+
+    rep = o.reproduction
+    cells = verdict_table(o).set_index("#")
+    notes = [f"{i}. {n}" for i, n in enumerate(o.verdicts["note"], 1) if n]
+    summary = ", ".join(f"{n} {v}" for v, n in counts(o).items())
+    caption = (
+        f"{rep.title} ({rep.paper}): navlab's reproduction {rep.key}, {o.seeds} seeds x {o.runs} Monte "
+        f"Carlo runs per seed (base seed {o.seed}; seed s = runs s*{o.runs} to s*{o.runs} + {o.runs - 1}). "
+        "navlab: mean over the seeds with its 95 % t interval over seeds; verdicts as in navlab's "
+        f"docs/STATISTICS.md section 4. {len(o.verdicts)} claims: {summary}."
+    )
+    return latex_table(Table(cells, notes), caption, label=f"tab:navlab-{rep.key}")
 
 
 # --------------------------------------------------------------------------- the claims register

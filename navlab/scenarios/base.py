@@ -402,7 +402,9 @@ class Scenario:
 
 
 #: Every scenario, by key; the modules of :mod:`navlab.scenarios` register theirs.
-SCENARIOS: Registry[type[Scenario]] = Registry("scenario", package="navlab.scenarios")
+SCENARIOS: Registry[type[Scenario]] = Registry(
+    "scenario", package="navlab.scenarios", plugins="navlab.scenarios"
+)
 
 #: Class decorator adding a scenario to :data:`SCENARIOS`.
 register_scenario = SCENARIOS.register

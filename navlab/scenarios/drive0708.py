@@ -123,12 +123,12 @@ def _drive_setup(data_dir: str, fingerprint: tuple, epochs: int, imu_rate_hz: fl
         if d is None:
             raise NavlabError(
                 "own-drive needs a folder: set scenario.data_dir=FOLDER holding imu.csv, gnss.csv and "
-                "optionally truth.csv (the generic CSV format, see the README 'Your own drive')"
+                "optionally truth.csv (the generic CSV format, see docs/data.md, 'Your own drive')"
             )
         if not generic:
             raise NavlabError(
                 f"{d}: no imu.csv or gnss.csv in this folder; own-drive reads the generic CSV format "
-                "(README 'Your own drive')"
+                "(docs/data.md, 'Your own drive')"
             )
         truth = d / "truth.csv"
         rec = load_generic(d / "imu.csv", d / "gnss.csv", truth if truth.exists() else None, name=d.name)
@@ -174,7 +174,12 @@ class Drive0708Params:
     )
     outage_len_s: float = param(0.0, lo=0.0, hi=1e5, help="GNSS outage length (s)")
     imu_rate_hz: float = param(
-        10.0, lo=0.0, hi=1000.0, help="mechanisation rate: IMU averaged into bins (0: raw 100 Hz)"
+        10.0,
+        lo=0.0,
+        hi=1000.0,
+        help="mechanisation rate: the IMU averaged over bins that start at every GNSS epoch and never "
+        "straddle one, so any rate keeps each fix at its own time (0: the raw samples; higher: slower, "
+        "keeps the rotation inside a bin — negligible for a car below 1 rad/s; docs/REAL_DATA.md)",
     )
     add_noise: bool = param(True, help="add the schedule's noise and outliers to the aiding positions")
     nhc_sigma_mps: float = param(
@@ -434,7 +439,12 @@ class Drive0708(Scenario):
     default_filters = ("kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "sage-husa", "irakf")
     # each epoch holds three GNSS axes and the two NHC channels: a whole-epoch χ² gate rejects
     # the clean channels with an outlying axis and loses lock; gate each channel instead
-    filter_defaults: ClassVar[dict] = {"chi2-kf": {"per_channel": True}}
+    # the χ² gate per channel (one bad axis does not drop a fix); the Sage–Husa family's R̂ kept
+    # within σ ∈ [0.5, 4] × the receiver's reported σ (ALGORITHMS.md §4.1 step 4, docs/REAL_DATA.md)
+    filter_defaults: ClassVar[dict] = {
+        "chi2-kf": {"per_channel": True},
+        **{key: {"r_min": 0.25, "r_max": 16.0} for key in ("sage-husa", "irakf", "rrae", "rakf", "rsshakf")},
+    }
     default_runs = 10
     simulated = False
     linear = False  # nonlinear model (no probe run needed by the app)
@@ -511,7 +521,13 @@ class Drive0708(Scenario):
             extras=_drive_extras(rec, setup, rx_sigma, sigma),
         )
         data.extras["notes"] = [aiding_note(self, setup, rx_sigma), *setup.notes]
-        data.extras["findings"] = check_drive(rec, setup) if self.own else []
+        data.extras["findings"] = check_drive(rec, setup, p.sigma_m) if self.own else []
+        if (
+            self.own
+        ):  # fixes the pre-run check calls outliers: the trust check leaves them out of the raw figure
+            from navlab.data.checks import raw_outlier_epochs
+
+            data.extras["raw_outliers"] = raw_outlier_epochs(rec, setup, p.sigma_m)
         return data
 
 

@@ -821,7 +821,7 @@ class OwnPseudoranges(SmartlocBerlin):
 
             raise NavlabError(
                 "own-pseudoranges needs a folder: set scenario.data_dir=FOLDER holding pseudoranges.csv "
-                "(README 'Your own pseudoranges') or one smartLoc *_Input.txt"
+                "(docs/data.md, 'Your own pseudoranges') or one smartLoc *_Input.txt"
             )
         if self.params.height_aiding != "off" and self.params.height_m == 0.0:
             from navlab.errors import NavlabError

@@ -138,6 +138,63 @@ def build_spec(
     )
 
 
+#: Rough cost of one filter on one run for one epoch of a drive [µs], for the page's time estimate:
+#: the own-drive CLI tables of issue 24 (10 Hz fixes, 7 filters) printed 250–680 µs per run·step
+#: (IRAKF the dearest); the estimate takes a middle value and says it is rough.
+DRIVE_US_PER_STEP = 400.0
+
+
+def epochs_label(recording: str) -> str:
+    """The Epochs box's label: what an epoch is on this recording and what 0 means."""
+    return {
+        "drive0708": "Epochs (1 Hz; 0 = the whole drive, ≈ 513)",
+        "smartloc-berlin": "Epochs (5 Hz; 0 = all 1371)",
+        "upload": "GNSS epochs (0 = the whole upload)",
+    }[recording]
+
+
+def epochs_default(recording: str) -> int:
+    """The Epochs box's default: the bundled recordings a short first look, an upload all of it."""
+    return {"drive0708": 120, "smartloc-berlin": 300, "upload": 0}[recording]
+
+
+def time_estimate(spec: ExperimentSpec) -> str:
+    """A rough run time of an own drive's spec (its epochs × filters × runs), in words."""
+    scen = plan(spec).scenario
+    _rec, setup, _ = scen._setup()
+    s = setup.K * len(spec.filters) * spec.runs * DRIVE_US_PER_STEP * 1e-6
+    return f"{setup.K} epochs over {setup.t[-1] - setup.t[0]:.0f} s: roughly {max(s, 1.0):.0f} s to run"
+
+
+def cli_line(spec: ExperimentSpec) -> str:
+    """The command line that repeats ``spec`` exactly: every scenario parameter that differs from
+    its default (data_dir included), the filters, runs, seed and outlier settings.
+    """
+    import dataclasses
+    import shlex
+
+    P = get_scenario_class(spec.scenario).Params
+    defaults = {f.name: f.default for f in dataclasses.fields(P)}
+    parts = [
+        f"python -m navlab run --scenario {spec.scenario} --filters {','.join(spec.filters)}",
+        f"--runs {spec.runs} --seed {spec.seed}",
+    ]
+    if spec.outliers:
+        parts.append(f"--outliers {spec.outliers}")
+    if spec.contamination is not None:
+        parts.append(f"--contamination {spec.contamination!r}")
+    if spec.outlier_scale is not None:
+        parts.append(f"--outlier-scale {spec.outlier_scale!r}")
+    for k, v in spec.scenario_params.items():
+        if k in defaults and v == defaults[k] and k != "data_dir":
+            continue
+        if k == "data_dir" and not v:
+            continue
+        val = str(v).lower() if isinstance(v, bool) else (repr(v) if isinstance(v, float) else str(v))
+        parts.append(shlex.quote(f"scenario.{k}={val}").join(("--set ", "")))
+    return " ".join(parts)
+
+
 def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None, *, uploads: SessionUploads) -> Path:
     """Write uploaded generic-format files into this session's upload folder and validate them.
 
@@ -167,7 +224,7 @@ def prerun_findings(spec: ExperimentSpec) -> list[Finding]:
 
     scen = plan(spec).scenario
     rec, setup, _ = scen._setup()
-    return [Finding("note", n) for n in setup.notes] + check_drive(rec, setup)
+    return [Finding("note", n) for n in setup.notes] + check_drive(rec, setup, scen.params.sigma_m)
 
 
 def run_findings(res: Results) -> list[Finding]:

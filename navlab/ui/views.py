@@ -488,15 +488,16 @@ def noise_preset_button(spec: Any, container: Any) -> None:
 
 
 def run_downloads(res: Results, view: CompareView, group: str, page: str) -> None:
-    """A finished run's downloads on one line: the metric table and the RMSE per epoch (CSV), and
-    a notebook and a script that re-run the experiment and redraw the page's figures.
+    """A finished run's downloads on one line: the metric table and the RMSE per epoch (CSV), the
+    headline table for a paper (LaTeX booktabs, Markdown: navlab.tables.run_table, as ``navlab run
+    --format``), and a notebook and a script that re-run the experiment and redraw the figures.
     """
     from navlab.notebook import default_figures, notebook, script
     from navlab.ui.share import csv_download, text_download
 
     spec = res.spec
     figs = default_figures(group, view.channel or 0)
-    cols = st.columns([2, 2, 2, 2, 1])
+    cols = st.columns([13, 20, 13, 16, 17, 12])  # about the labels' lengths: none is cut
     csv_download(
         lambda: tables.summary_rows(res, compare_to=view.ref),
         "Metrics (CSV)",
@@ -511,9 +512,24 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
         f"dl_curves_{page}",
         container=cols[1],
     )
+    for col, fmt, label, name, mime in (
+        (cols[2], "latex", "Table (LaTeX)", "navlab-table.tex", "application/x-tex"),
+        (cols[3], "markdown", "Table (Markdown)", "navlab-table.md", "text/markdown"),
+    ):
+        text_download(
+            lambda fmt=fmt: tables.run_table(res, fmt, compare_to=view.ref),
+            label,
+            name,
+            f"dl_{fmt}_{page}",
+            mime,
+            "the headline table for a paper: each value with its 95 % interval, the best in bold only "
+            "where the paired test backs it, a caption naming the runs, seeds and interval method"
+            + (" (LaTeX: needs \\usepackage{booktabs})" if fmt == "latex" else ""),
+            container=col,
+        )
     for col, make, label, name, key, mime, what in (
         (
-            cols[2],
+            cols[4],
             notebook,
             "Notebook (.ipynb)",
             "navlab-run.ipynb",
@@ -522,7 +538,7 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
             "a Jupyter notebook that re-runs this experiment with navlab and redraws these figures",
         ),
         (
-            cols[3],
+            cols[5],
             script,
             "Script (.py)",
             "navlab-run.py",

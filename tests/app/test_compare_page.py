@@ -57,7 +57,13 @@ def test_small_run_completes_with_charts_and_table(open_page):
     assert any("too few runs for an interval" in c.value for c in at.caption)
     assert any("6/6 runs (complete)" in c.value for c in at.caption)
     labels = [b.label for b in at.get("download_button")]
-    assert {"Configuration (JSON)", "Metrics (CSV)", "RMSE per epoch (CSV)"} <= set(labels)
+    assert {
+        "Configuration (JSON)",
+        "Metrics (CSV)",
+        "RMSE per epoch (CSV)",
+        "Table (LaTeX)",
+        "Table (Markdown)",
+    } <= set(labels)
     assert {"Notebook (.ipynb)", "Script (.py)", "SVG", "PNG"} <= set(labels)
 
 

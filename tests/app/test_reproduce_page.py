@@ -120,6 +120,7 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     assert "Judged on 3 seeds × 4 runs" in " ".join(c.value for c in at.caption)
     assert not at.warning  # complete: no "provisional"
     assert {m.label for m in at.metric} >= {"claims", *VERDICTS}  # every verdict kind counted
+    assert {"Verdicts (CSV)", "Verdicts (LaTeX)"} <= {b.label for b in at.get("download_button")}
     figs = plotly_figs(at)
     assert len(figs) == 3  # the number claim, the ranking's evidence, one curve tab
     names = {t["name"] for t in figs[2]["data"]}

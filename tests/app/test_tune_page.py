@@ -1,5 +1,7 @@
 from apphelpers import assert_clean, plotly_figs
 
+from navlab import tune as TU
+
 PAGE = "pages/7_Tune.py"
 Q = {
     "runs": "10",
@@ -28,6 +30,9 @@ def test_tune_page_table_landscapes_and_compare_button(open_page):
         "alpha",
         "c_gate",
     }
+    assert "Table (LaTeX)" in [b.label for b in at.get("download_button")]
+    tex = TU.paper_table(at.session_state["_tune_result"][1], "latex")  # the download's payload
+    assert "\\toprule" in tex and "test seeds" in tex and tex.isascii()
     tuned = at.session_state["_tune_result"][1].tuned
     at.button(key="tn_compare").click().run()
     assert not at.exception

@@ -165,8 +165,8 @@ def _download(page: Page, label: str, nth: int = 0) -> Path:
 
 def test_downloads_parse_and_the_notebook_reproduces_the_rmse(page: Page, tmp_path: Path, monkeypatch):
     """Every download of one Compare run: the configuration, the metrics and RMSE-per-epoch CSVs,
-    the SVG (a publication figure, text kept as text) and PNG figure, the script, and the notebook,
-    executed, reproducing the run's RMSE."""
+    the paper table (LaTeX, Markdown), the SVG (a publication figure, text kept as text) and PNG
+    figure, the script, and the notebook, executed, reproducing the run's RMSE."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     page.goto(f"/Compare?{SMALL}&seed=3&go=1")
@@ -178,6 +178,9 @@ def test_downloads_parse_and_the_notebook_reproduces_the_rmse(page: Page, tmp_pa
     assert {"filter", "metric", "value", "unit"} <= set(metrics.columns)
     assert set(metrics["filter"]) == {"kf", "oracle-kf", "chi2-kf"}
     assert (metrics[metrics.metric == "runs"].value == 8).all()
+    tex = _download(page, "Table (LaTeX)").read_text()  # the headline table for a paper
+    assert "\\toprule" in tex and "8 Monte Carlo runs (seed 3" in tex and tex.isascii()
+    assert _download(page, "Table (Markdown)").read_text().startswith("Table: ")
     curves = pd.read_csv(_download(page, "RMSE per epoch (CSV)"))
     assert {"filter", "group", "epoch", "rmse"} <= set(curves.columns)
     assert curves.epoch.max() == 40

@@ -167,13 +167,13 @@ def test_warm_compiles_every_kernel():
         "strapdown.propagate_block",
         "scenarios.base.propagate",
         "earth rotation conversions",
-        "filter kernels (solve, quadratic form, Joseph, VB, clamp)",
+        "filter kernels (solve, quadratic form, Joseph, VB, Sage–Husa)",
         "ins.lc model f, h, H",
     }
     # every kernel of the filters and the INS model is compiled (one signature each)
     from navlab import linalg
     from navlab.filters import huber_vb
-    from navlab.filters.sage_husa import kernels
+    from navlab.filters.sage_husa import kernels, rakf
     from navlab.ins import lc
 
     for k in (
@@ -182,7 +182,9 @@ def test_warm_compiles_every_kernel():
         linalg._JOSEPH,
         huber_vb.VB_ITERATIONS,
         huber_vb.STUDENT_T_ITERATIONS,
-        kernels._INSIDE,
+        kernels.SAGE_HUSA_RHAT,
+        kernels.RAE_RHAT,
+        rakf.RAKF_STEP,
         lc._F_RUNS,
         lc._HH_RUNS,
     ):

@@ -2,8 +2,8 @@
 
 Kernels: linalg's Cholesky solve (solve_sym, kf_gain), Joseph form and quadratic form; the VB
 iterations of vb-akf / hakf / student-t-kf (huber_vb.vb_iterations, one run, uncompiled
-as the oracle); the Sage–Husa clamp's inside test
-(sage_husa.kernels.eig_inside); the INS model's f, h, H (ins.lc, through the drive0708 scenario).
+as the oracle); the one-run steps of the Sage–Husa family (sage_husa.kernels, RAKF's step), every
+option; the INS model's f, h, H (ins.lc, through the drive0708 scenario).
 Each is compared with ``jit.numpy_paths()`` on the same inputs.
 """
 
@@ -15,7 +15,6 @@ from navlab.data import data_root
 from navlab.data.loaders import RTKX_DIR
 from navlab.experiment import ExperimentSpec, run_experiment, run_filters
 from navlab.filters import make_filter
-from navlab.filters.sage_husa.kernels import eig_inside
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios.base import make_scenario
 
@@ -134,24 +133,6 @@ def test_compiled_quad_not_positive_definite_is_decided_by_lu():
     _close(q[[1, 3]], qr[[1, 3]])
 
 
-# ------------------------------------------------------------------------------ the clamp's test
-@pytest.mark.parametrize("m", [3, 5])
-def test_compiled_eig_inside_is_sure_and_agrees_with_the_eigenvalues(m):
-    rng = np.random.default_rng(m)
-    B = 400
-    R = _spd(rng, B, m, cond=1e4) * np.exp(rng.uniform(-3.0, 3.0, B))[:, None, None]
-    lo, hi = 0.05, 50.0
-    inside, gersh = _both(eig_inside, R, lo, hi)
-    w = np.linalg.eigvalsh(R)
-    truly = (w.min(axis=-1) > lo * (1 + 1e-6)) & (w.max(axis=-1) < hi * (1 - 1e-6))
-    outside = (w.min(axis=-1) < lo) | (w.max(axis=-1) > hi)
-    assert truly.any() and outside.any()
-    np.testing.assert_array_equal(inside[truly | outside], truly[truly | outside])  # sure, and exact
-    assert not (gersh & ~inside).any()  # Gershgorin's "inside" is a subset
-    R[0, 1, 1] = np.nan
-    assert not eig_inside(R, lo, hi)[0]
-
-
 # ------------------------------------------------------------------------------ whole filters
 def _assert_runs_equal(fast, ref, rtol=RTOL):
     for name in ("x", "P_diag", "innov", "S_diag", "nis", "nees", "R_used", "R_hat", "weights"):
@@ -179,8 +160,22 @@ VB_CASES = [
 ]
 
 
-@pytest.mark.parametrize(("key", "params"), VB_CASES)
-def test_compiled_vb_iterations_equal_numpy(key, params):
+SAGE_HUSA_CASES = [
+    ("sage-husa", {}),
+    ("sage-husa", {"full": True}),
+    ("irakf", {}),
+    ("irakf", {"improved_rae": "always", "middle_zone": "variance"}),
+    ("irakf", {"middle_segment": "literal", "skf_gated": True, "window": 3}),
+    ("rrae", {"window": 4}),
+    ("rrae", {"form": "literal_scaling"}),
+    ("rakf", {"gamma_s": 1.0, "c": 1.0}),
+    ("rsshakf", {}),
+    ("rsshakf", {"exclude_outliers": True}),
+]
+
+
+@pytest.mark.parametrize(("key", "params"), VB_CASES + SAGE_HUSA_CASES)
+def test_compiled_one_run_steps_equal_numpy(key, params):
     """cv2d with outliers and a missing channel: every output of the filter, both paths."""
     scen = make_scenario("cv2d", {"epochs": 80})
     data = scen.simulate(

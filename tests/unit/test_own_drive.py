@@ -39,12 +39,12 @@ def _convert(out: Path, *args: str) -> None:
     assert convert_drive0708.main(["--out", str(out), *args]) == 0
 
 
-def _run(folder: Path, filters=("kf",), **params):
+def _run(folder: Path, filters=("kf",), mount=MOUNT, **params):
     spec = ExperimentSpec(
         scenario="own-drive",
         filters=tuple(filters),
         runs=1,
-        scenario_params={"data_dir": str(folder), **MOUNT, **params},
+        scenario_params={"data_dir": str(folder), **mount, **params},
     )
     return run_experiment(spec)
 
@@ -194,20 +194,51 @@ def test_lever_arm_enters_the_measurement_and_its_jacobian(moving):
     assert np.linalg.norm(off) == pytest.approx(np.linalg.norm([0.5, 1.5, 1.0]), rel=1e-6)
 
 
+@pytest.fixture(scope="module")
+def drive():
+    """The bundled drive as tools/make_test_drives.py reads it (truth at any time, IMU in vehicle axes)."""
+    if not (data_root() / RTKX_DIR).is_dir():
+        pytest.skip("real data not found")
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import make_test_drives
+    finally:
+        sys.path.pop(0)
+    return make_test_drives, make_test_drives.Drive()
+
+
+def _offset_finding(res):
+    return next(f for f in res.data.extras["findings"] if "GNSS time offset" in f.text)
+
+
 @needs_rtkx
-def test_time_offset_hint_finds_a_gnss_latency(tmp_path, moving):
-    g = pd.read_csv(moving / "gnss.csv", comment="#")
-    for f in ("imu.csv", "truth.csv"):
-        (tmp_path / f).write_text((moving / f).read_text())
-    g.assign(t_s=g.t_s + 0.4).to_csv(tmp_path / "gnss.csv", index=False)  # stamps 0.4 s late
-    res = _run(tmp_path, epochs=60)
-    hint = next(f for f in res.data.extras["findings"] if "GNSS time offset" in f.text)
+def test_time_offset_hint_recovers_an_injected_offset_on_turns_and_is_silent_on_a_straight_road(
+    tmp_path, drive
+):
+    mk, d = drive
+    rng = np.random.default_rng(5)
+    # turns: 80 s of town driving, the GNSS stamps written 0.3 s early
+    w0 = d.window(80.0, straight=False)
+    mk.write(d, tmp_path / "turn", mk._times(rng, w0, w0 + 80, 0.07, 0.2), w0, w0 + 80, rng, offset_s=0.3)
+    res = _run(tmp_path / "turn", mount={})
+    hint = _offset_finding(res)
     assert hint.level == "warning"
-    value = float(hint.text.split("≈ ")[1].split(" s")[0])
-    assert value == pytest.approx(-0.4, abs=0.08)
-    ok = _run(moving, epochs=60)
-    hint0 = next(f for f in ok.data.extras["findings"] if "GNSS time offset" in f.text)
-    assert hint0.level == "note" and abs(float(hint0.text.split("≈ ")[1].split(" s")[0])) < 0.08
+    value, pm = (float(x) for x in re.search(r"≈ ([-+\d.]+) ± ([\d.]+) s", hint.text).groups())
+    # the drive's own IMU/RTK timing in this window, from the truth's course (no GNSS noise; the
+    # RTK velocities stamped t hold the velocity of t − lag)
+    m = (d.t >= w0) & (d.t <= w0 + 80)
+    v_true = np.c_[d.v_ned[m][:, 1], d.v_ned[m][:, 0], d.v_ned[m][:, 2]]
+    imu = d.imu.to_numpy()
+    own = time_offset_hint(d.t[m] - d.v_lag, v_true, imu[:, 0], imu[:, 6])
+    assert own.observable and abs(own.offset_s) < 0.05
+    assert abs(value - (0.3 + own.offset_s)) <= pm + 2 * own.se_s
+    assert 0 < pm <= 0.05
+    # a straight road: no hint, and no warning among the checks
+    s0 = d.window(40.0, straight=True)
+    mk.write(d, tmp_path / "straight", mk._times(rng, s0, s0 + 40, 0.07, 0.2), s0, s0 + 40, rng)
+    res = _run(tmp_path / "straight", mount={})
+    hint = _offset_finding(res)
+    assert hint.level == "note" and "not observable" in hint.text
 
 
 @needs_rtkx
@@ -232,8 +263,16 @@ def test_gyro_slope_tells_units_and_sign():
     for scale, want in ((1.0, 1.0), (np.degrees(1.0), 57.3), (-1.0, -1.0)):
         slope, r, n = heading_change_slope(t_g, v, t_i, scale * w_true, 2.0)
         assert slope == pytest.approx(want, rel=0.05) and abs(r) > 0.9 and n > 10
-    lag = time_offset_hint(t_g + 0.3, v, t_i, w_true)
-    assert lag == pytest.approx(-0.3, abs=0.05)
+    est = time_offset_hint(t_g + 0.3, v, t_i, w_true)
+    assert est.offset_s == pytest.approx(-0.3, abs=0.02) and est.observable
+    for shift in (-0.15, 0.15):  # stable: shifting the data shifts the estimate by as much
+        assert time_offset_hint(t_g + 0.3 + shift, v, t_i, w_true).offset_s == pytest.approx(
+            est.offset_s - shift, abs=0.01
+        )
+    straight = np.c_[0 * t_g, 10 + 0 * t_g, 0 * t_g] + 0.05 * np.random.default_rng(0).standard_normal(
+        (120, 3)
+    )
+    assert not time_offset_hint(t_g, straight, t_i, 0 * t_i + 1e-4).observable
 
 
 # ------------------------------------------------------------------ the trust check
@@ -331,3 +370,18 @@ def test_bad_recordings_give_one_line_and_exit_2(tmp_path, moving, capsys, files
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1, err
     assert err[0].startswith("navlab: error: ") and re.search(says, err[0]), err[0]
+
+
+@pytest.mark.parametrize("with_velocity", [True, False])
+def test_outlier_check_flags_moved_fixes_and_little_else(with_velocity):
+    from navlab.data.checks import fix_outliers
+
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.07, 0.2, 600))
+    v = np.c_[10 * np.sin(t / 20), 10 * np.cos(t / 20), 0 * t]  # E, N, U of the curve p (N, E, U)
+    p = np.c_[200 * np.sin(t / 20), -200 * np.cos(t / 20), 0 * t] + rng.standard_normal((600, 3))
+    moved = rng.random(600) < 0.1
+    d = rng.standard_normal((moved.sum(), 3))
+    p[moved] += d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(30, 100, (moved.sum(), 1))
+    flags = fix_outliers(t, p, v if with_velocity else None, np.ones((600, 3)))
+    assert flags[moved].all() and flags[~moved].mean() < 0.01

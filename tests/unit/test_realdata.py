@@ -229,3 +229,37 @@ def test_wls_huber_downweights_a_gross_range_error():
     e1, e2 = np.linalg.norm(o1.x - truth), np.linalg.norm(o2.x - truth)
     assert e2 < 0.2 * e1
     assert o2.weights[0, 4] < 0.2 and o2.flags[0, 4] == 1 and o1.weights[0, 4] == 1.0
+
+
+def test_the_page_cli_line_repeats_the_run_exactly(tmp_path):
+    """The Real data page's CLI line parses back into the page's spec (data_dir and every changed
+    parameter included), and an upload's epochs default to the whole recording.
+    """
+    import shlex
+
+    from navlab.cli import _spec_from_args, build_parser
+    from navlab.experiment import plan
+    from navlab.ui import realdata as R
+
+    sp = {
+        "data_dir": str(tmp_path / "my drive"),
+        "imu_rate_hz": 0.0,
+        "gnss_time_offset_s": 0.05,
+        "add_noise": False,
+    }
+    spec = R.build_spec(
+        "upload",
+        ["kf", "irakf"],
+        epochs=R.epochs_default("upload"),
+        runs=3,
+        seed=7,
+        contamination=0.1,
+        scenario_params=sp,
+    )
+    line = R.cli_line(spec)
+    assert "scenario.imu_rate_hz=0.0" in line
+    back = _spec_from_args(build_parser().parse_args(shlex.split(line)[3:]))
+    assert back.scenario == spec.scenario and back.filters == spec.filters
+    assert (back.runs, back.seed, back.contamination, back.outlier_scale) == (3, 7, 0.1, 10.0)
+    assert plan(back).scenario.params == plan(spec).scenario.params  # data_dir included
+    assert R.epochs_default("upload") == 0

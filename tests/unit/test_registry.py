@@ -99,3 +99,50 @@ def test_a_new_module_registers_without_touching_a_list_even_under_threads(tmp_p
         t.join()
     assert not errors
     assert seen == [["alpha", "beta", "gamma"]] * 8
+
+
+# -- plugins: entry points ---------------------------------------------------------------------
+PLUGIN_THING = _Thing("from-a-plugin", 7)
+
+
+def _entry_points(monkeypatch, group: str, *specs: tuple[str, str]) -> None:
+    """Make importlib.metadata report entry points ``(name, "module:attr")`` in ``group``."""
+    import importlib.metadata as md
+
+    import navlab.registry
+
+    eps = md.EntryPoints([md.EntryPoint(name, value, group) for name, value in specs])
+    monkeypatch.setattr(navlab.registry, "installed_entry_points", lambda: eps)
+
+
+def test_entry_points_register_objects_and_a_broken_one_is_named(monkeypatch, caplog):
+    _entry_points(
+        monkeypatch,
+        "navlab.test_gadgets",
+        ("from-a-plugin", f"{__name__}:PLUGIN_THING"),
+        ("broken", "no_such_module_anywhere:Thing"),
+    )
+    reg: Registry[_Thing] = Registry("gadget", plugins="navlab.test_gadgets")
+    reg.register(_Thing("built-in"))
+    assert list(reg) == ["built-in", "from-a-plugin"] and reg["from-a-plugin"] is PLUGIN_THING
+    assert "broken" in reg.plugin_errors and "no_such_module_anywhere" in reg.plugin_errors["broken"]
+    assert "gadget plugin 'broken'" in caplog.text  # logged, not raised
+    with pytest.raises(
+        NavlabError, match=r"the gadget plugin 'broken' failed to load: .*ModuleNotFoundError"
+    ):
+        reg.lookup("broken")
+
+
+@pytest.mark.parametrize(
+    ("module", "name", "group"),
+    [
+        ("navlab.filters.base", "FILTERS", "navlab.filters"),
+        ("navlab.scenarios.base", "SCENARIOS", "navlab.scenarios"),
+        ("navlab.noise.schedules", "SCHEDULES", "navlab.noise_schedules"),
+        ("navlab.noise.outliers", "OUTLIERS", "navlab.outlier_models"),
+    ],
+)
+def test_every_component_registry_has_its_plugin_group(module, name, group):
+    import importlib
+
+    assert getattr(importlib.import_module(module), name).plugins == group

@@ -31,7 +31,7 @@ from navlab.reproduce.engine import (
     pooled_rmse,
     replace_spec,
 )
-from navlab.reproduce.report import VERDICT_RULES, counts, markdown, register_markdown, text
+from navlab.reproduce.report import VERDICT_RULES, counts, latex, markdown, register_markdown, text
 
 SPEC = ExperimentSpec(filters=("kf", "oracle-kf"), runs=12, epochs=40, outliers="mixture", contamination=0.2)
 
@@ -187,6 +187,9 @@ def test_every_reproduction_gives_a_verdict_per_claim(key):
     assert "None" not in md and "nan" not in md.lower()
     if "see note" in md:  # a row that points to a note has it beside the table
         assert "Notes (by claim number)" in md
+    tex = latex(o)  # the table for a paper: ASCII booktabs, a row per claim, seeds and runs named
+    assert tex.isascii() and "\\toprule" in tex and f"{o.seeds} seeds x {o.runs}" in tex
+    assert len(tex.split("\\midrule\n")[1].split("\\bottomrule")[0].strip().splitlines()) == len(rep.claims)
     assert max(len(line) for line in out.splitlines() if not line.startswith(" ")) < 250
     assert max(len(line) for line in out.splitlines() if line.startswith("  ")) <= 100  # wrapped notes
 

@@ -14,17 +14,11 @@ per filter, each with its spec section's steps at the top and their numbers at t
 * :mod:`.rsshakf` ``rsshakf`` — simplified (R-only, diagonal) Sage–Husa + outlier variance
   inflation (§4.9, RECONSTRUCTION);
 
-and the kernels they share in :mod:`.kernels` (weight functions, the fading weight, the R̂ guard,
-RAE), pure functions that tests and the app call on their own. The KF update itself is
-:mod:`navlab.filters.kalman`'s; the plain one-run transcriptions the tests compare every filter
-with are in :mod:`navlab.filters.reference.sage_husa`.
-
-Speed tricks (re-measured by ``python benchmarks/tricks.py --trick NAME``): the eigenvalue clamp
-of R̂ only on the runs whose eigenvalues are not certainly inside the bounds
-(:func:`.kernels.clamp_eig`; ``clamp-eig-inside``), and the shared kernels of
-:mod:`navlab.linalg` (U = P⁻Hᵀ by indexing, the closed-form gain for m ≤ 3, the Joseph form from
-U and S). Measured below 10 % and removed: a cache of the clamp bounds, RAKF's hand-written
-forward substitution.
+and what they share in :mod:`.kernels` (the weight functions, the fading weight, the residual
+window, and the two R̂ steps written for one run: Sage–Husa's and RAE's, behind one eigenvalue
+guard). Each filter is a :class:`navlab.filters.kalman.KalmanUpdate` that overrides only its own
+steps: its noise/weight step (the R̂ and weights of its paper), and for RRAE the gain and the
+short-form posterior; the KF's innovation, gain and Joseph posterior are the rest.
 
 References
 ----------
@@ -50,15 +44,13 @@ from navlab.filters.sage_husa.rsshakf import RSSHAKF, RSSHAKFParams
 from navlab.filters.sage_husa.kernels import (
     RState,
     Window,
-    clamp_eig,
-    eig_inside,
+    band,
+    clamp_to_band,
     forgetting_weight,
     igg3_weights,
     irakf_weights,
-    rae_estimate,
-    rhat_bounds,
-    sage_husa_R,
-    sqrt_factor,
+    rae_rhat,
+    sage_husa_rhat,
 )
 
 # isort: on
@@ -79,13 +71,11 @@ __all__ = [
     "SageHusa",
     "SageHusaParams",
     "Window",
-    "clamp_eig",
-    "eig_inside",
+    "band",
+    "clamp_to_band",
     "forgetting_weight",
     "igg3_weights",
     "irakf_weights",
-    "rae_estimate",
-    "rhat_bounds",
-    "sage_husa_R",
-    "sqrt_factor",
+    "rae_rhat",
+    "sage_husa_rhat",
 ]

@@ -20,21 +20,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import KFLimit, Model, Teaching, register
-from navlab.filters.kalman import measurement_prediction
-from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag
-from navlab.filters.sage_husa.rrae import RRAE, Robust
-from navlab.linalg import (
-    Array,
-    Masked,
-    diag,
-    joseph_from_gain,
-    kf_gain,
-    mv,
-    predict_cov,
-    sym,
-    zero_columns,
-)
+from navlab.filters.base import REJECTED, REJECTED_AUX, KFLimit, Model, Teaching, register
+from navlab.filters.kalman import KalmanUpdate, Noise, measurement_prediction
+from navlab.filters.sage_husa.kernels import Window, band_param, irakf_weights, scale_diag
+from navlab.filters.sage_husa.rrae import RRAE
+from navlab.linalg import Array, Masked, diag, joseph_from_gain, kf_gain, mv, predict_cov, sym, zero_columns
 from navlab.params import param
 
 
@@ -80,6 +70,8 @@ class IRAKFParams:
     skf_gated: bool = param(
         False, help="also zero the parallel SKF's gain on its detections (locks out; spec §4.5)"
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class IRAKFState(NamedTuple):
@@ -171,33 +163,34 @@ class IRAKF(RRAE):
             return det.flag.any(axis=1)
         return np.full(B, self.params.improved_rae == "always")
 
-    def robust_gain(self, mk: Masked, S: Array, nt: Array, sig: Array, det: Detection) -> Robust:
-        """4–5  K from the unmodified R̂; three-segment weights (eq. 7) + SKF detections."""
+    def weigh(self, mk: Masked, R: Array, S: Array, nt: Array, sig: Array, det: Detection) -> Noise:
+        """4–5  Three-segment weights (eq. 7) + the SKF's detections; K from the unmodified R̂."""
         p = self.params
-        K, fixed = kf_gain(mk.U, S)  # 4  K = P⁻ Hᵀ S⁻¹
         w, zone = irakf_weights(nt, p.k0, p.k1, p.middle_segment, sig)
         own_reject = (zone == 2) & mk.ok
         aux = det.flag & ~own_reject
-        reject = own_reject | aux
+        reject = own_reject | aux  # 5  K[:, i] = 0 (weight 0: the KF's gain step zeroes it)
         down = (zone == 1) & ~reject & mk.ok
-        R_used, S_used, nu_w = mk.R, S, np.where(down, w * mk.nu, mk.nu)  # ν_i ← ν_i k0/|ν̃_i|
+        R_used, nu = R, np.where(down, w * mk.nu, mk.nu)  # ν_i ← ν_i k0/|ν̃_i|
         if p.middle_zone == "variance" and down.any():
             # option (not S1): the Huber weight as an equivalent variance, so that K and P agree
             # with the down-weighting (S1 shrinks ν only: P then shrinks as if ν were unweighted,
             # which locks out when P⁻ ≫ R̂, e.g. the first epochs of an INS)
-            R_used = scale_diag(mk.R, np.where(down, 1.0 / np.where(down, w, 1.0), 1.0))
-            S_used = sym(mk.M + R_used)
-            K, fixed2 = kf_gain(mk.U, S_used)
-            fixed = fixed | fixed2
-            nu_w = mk.nu
-        if reject.any():
-            K = zero_columns(K, reject)  # 5  K[:, i] = 0
-        weights = np.where(reject, 0.0, np.where(down, w, 1.0))
-        return Robust(K, nu_w, S_used, R_used, weights, down, reject, aux, fixed)
+            R_used, nu = scale_diag(R, np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)), mk.nu
+        flags = np.where(own_reject, REJECTED, np.where(aux, REJECTED_AUX, down)).astype(np.int8)
+        return Noise(
+            R_used,
+            weights=np.where(reject, 0.0, np.where(down, w, 1.0)),
+            flags=flags,
+            nu=nu,
+            S=S,
+            stats=self.stats(nt, det),
+            state={"xs": det.xs, "Ps": det.Ps},
+        )
 
-    def posterior(self, P_m: Array, K: Array, U: Array, S: Array) -> Array:
-        """6  Joseph form: P keeps the information of rejected channels out."""
-        return joseph_from_gain(P_m, K, U, S)
+    # 4  K = P⁻ Hᵀ S⁻¹ with zeroed columns and 6  the Joseph-form P⁺: the KF's steps, not RRAE's
+    gain = KalmanUpdate.gain
+    posterior = KalmanUpdate.posterior
 
     def stats(self, nt: Array, det: Detection) -> dict[str, Array]:
         return {
@@ -206,9 +199,6 @@ class IRAKF(RRAE):
             "skf_flag": det.flag.astype(float),
             "improved_rae": self.use_prior(det, nt.shape[0]).astype(float),
         }
-
-    def next_state(self, state: IRAKFState, x: Array, P: Array, win: Window, det: Detection) -> IRAKFState:
-        return IRAKFState(x, P, P, win, det.xs, det.Ps)  # 7  the window took η_k = z − H x⁺
 
 
 class Detection(NamedTuple):

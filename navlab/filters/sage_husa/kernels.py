@@ -1,36 +1,23 @@
-"""The pure kernels the Sage–Husa family shares (ALGORITHMS.md §4), batched over runs.
+"""What the Sage–Husa family shares (ALGORITHMS.md §4).
 
-Weight functions (S1 eq. 7, IGG-III), the fading-memory weight and the R̂ guard of Sage–Husa
-(§4.1), the residual-window estimate RAE (S1 eqs. 3–4), and the small helpers the filters use
-(gain-column zeroing, diagonal scaling, the residual window). Tests and the app call them on
-their own.
-
-Speed trick kept here (``python benchmarks/tricks.py --trick clamp-eig-inside``): :func:`clamp_eig`
-runs the eigen-decomposition only for the runs whose eigenvalues are not certainly inside the
-bounds (:func:`eig_inside`); a run certainly inside is returned unchanged, which is what the
-eigen-clamp would give back up to round-off.
+The weight functions (S1 eq. 7, IGG-III) and the fading-memory weight, elementwise over runs and
+channels; the residual window; and the two R̂ steps, written for ONE run, one equation a line, and
+looped over the runs by :class:`navlab.jit.RunStep` (compiled by numba; the same Python
+uncompiled without it, and as the tests' oracle): the Sage–Husa R̂ (§4.1 steps 3–4) and the
+residual-window R̂ of RAE (S1 eqs. 3–4), both kept in a band around the nominal R0 (§4.1 step 4).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import functools
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from navlab.errors import NavlabError
-from navlab.jit import Kernel, carray
-from navlab.linalg import (
-    CHOLESKY_LOWER,
-    Array,
-    bcast,
-    cholesky_lower,
-    diag,
-    diag_embed,
-    eigh_clamp,
-    mT,
-    select,
-    sym,
-)
+from navlab.jit import Kernel, RunStep
+from navlab.linalg import CHOLESKY_LOWER, FORWARD_SUBSTITUTE, Array, bcast, cholesky_lower, forward_substitute
+from navlab.params import param
 
 # ------------------------------------------------------------------------------ weights
 
@@ -124,147 +111,140 @@ class Window(NamedTuple):
         return Window(e, o, self.pushes + 1)
 
 
-def rae_estimate(win: Window, HPH_ref: Array, R0: Array) -> Array:
-    """Residual-based windowed R estimate (S1 eqs. 3/4, §4.2–4.3), batched: (B, m, m).
+def band_param(bound: str) -> Any:
+    """A parameter of the band R̂ is kept in, [r_min, r_max] × R0 (§4.1 step 4): "r_min" or "r_max"."""
+    what = "R̂ kept within [r_min, r_max] × R0 (R̂ relative to the nominal R0: on real data, the receiver's σ²)"
+    if bound == "r_min":
+        return param(0.01, lo=1e-6, hi=1.0, help=f"lower bound of the band: {what}")
+    return param(1e4, lo=1.0, hi=1e8, help=f"upper bound of the band: {what}")
 
-    R̂ = (1/M) Σ_j η_j η_jᵀ + H P_ref Hᵀ over the window, where P_ref = P⁺_{k−1} (eq. 3) or P⁻_k
-    (eq. 4) and ``HPH_ref`` = H P_ref Hᵀ; R0 (broadcast) while the window is not full. With
-    missing channels (NaN measurements) each channel i averages over the c_i epochs it was
-    present: Ŝ = D (Σ_j η_j η_jᵀ) D with D = diag(1/√c_i) and missing η entries 0. This keeps Ŝ
-    positive semi-definite (a congruence of a PSD sum; an entry-wise average over pairwise counts
-    is not) with the exact per-channel mean on the diagonal, shrinking only the cross terms of
-    partly overlapping channels. A channel never present in the window gets R0_ii (and no cross
-    terms). Without missing channels it is exactly S1's (1/M) Σ η ηᵀ.
+
+def band(model: Any, params: Any) -> tuple[Array, Array, float, float]:
+    """The nominal R0, its Cholesky factor L0 and the band [r_min, r_max] R̂ is kept in (§4.1 step 4)."""
+    R0 = np.asarray(model.R0, dtype=float)
+    return R0, _cholesky(R0.tobytes(), R0.shape[0]), float(params.r_min), float(params.r_max)
+
+
+@functools.lru_cache(maxsize=32)
+def _cholesky(R0: bytes, m: int) -> Array:
+    try:
+        return np.linalg.cholesky(np.frombuffer(R0).reshape(m, m))
+    except np.linalg.LinAlgError:
+        raise NavlabError("the nominal measurement noise R0 must be positive definite") from None
+
+
+# The R̂ steps, written for ONE run (navlab.jit.RunStep loops them over the runs, compiled) -------
+
+
+def clamp_to_band(R, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
+    """R̂ symmetrised and kept within [lo, hi] × R0 (§4.1 step 4), for ONE run.
+
+    The eigenvalues of R̂ relative to the nominal R0 = L0 L0ᵀ (those of L0⁻¹ R̂ L0⁻ᵀ) are clamped
+    into [lo, hi]: with R0 = σ² I, R̂'s eigenvalues into [lo σ², hi σ²]. Returns ``(R', changed
+    (m,))``: ``changed`` marks the channels whose variance R_ii the clamp moved (flag 9). A
+    diverged run's non-finite R̂ comes back NaN, every channel marked (the experiment loop records
+    the divergence) instead of stopping the whole batch.
     """
-    B, _, m = win.eta.shape
-    R0 = np.asarray(R0, dtype=float)
-    if not win.full:
-        return np.broadcast_to(R0, (B, m, m)).copy()
-    eta = win.eta
-    if win.ok.all():  # every channel present: D = I/√M, Ŝ = (1/M) Σ η ηᵀ   (eq. 3)
-        S_hat = (mT(eta) @ eta) * (1.0 / eta.shape[1])
-    else:
-        e = np.where(win.ok, eta, 0.0)
-        cnt = win.ok.sum(axis=1)  # (B, m)
-        dinv = np.where(cnt > 0, 1.0 / np.sqrt(np.maximum(cnt, 1)), 0.0)
-        S_hat = (mT(e) @ e) * dinv[:, :, None] * dinv[:, None, :]
-        S_hat = S_hat + np.where(cnt == 0, np.diag(R0), 0.0)[:, :, None] * np.eye(m)
-    return sym(S_hat + HPH_ref)
-
-
-def rhat_bounds(R0: Array) -> tuple[float, float]:
-    """Eigenvalue clamp [r_min, r_max] = [0.01·min diag R0, 1e4·max diag R0] (§4.1 step 4)."""
-    d = np.diagonal(np.asarray(R0, dtype=float))
-    return 0.01 * float(d.min()), 1e4 * float(d.max())
-
-
-def _inside_runs(R, lo, hi, out):  # pragma: no cover - compiled by numba
-    """out[r] = every eigenvalue of R_r lies in (lo, hi): R − lo I and hi I − R positive definite.
-
-    Each tested by a Cholesky factorisation (it succeeds exactly for a positive definite matrix,
-    to a backward error of a few ulp of ‖R‖, far below the margin the caller adds to lo and hi).
-    """
-    B, m, _ = R.shape
-    A = np.empty((m, m))
-    L = np.empty((m, m))
-    for r in range(B):
+    m = R.shape[0]
+    out = np.empty((m, m))
+    changed = np.zeros(m, dtype=np.bool_)
+    finite = True
+    for i in range(m):
+        for j in range(m):
+            out[i, j] = 0.5 * (R[i, j] + R[j, i])
+            finite = finite and np.isfinite(out[i, j])
+    if not finite:
+        out[:] = np.nan
+        changed[:] = True
+        return out, changed
+    A, L = np.empty((2, m, m))  # work arrays
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = out[i, j] - lo * R0[i, j]
+    if cholesky_lower(A, L):
         for i in range(m):
             for j in range(m):
-                A[i, j] = R[r, i, j]
-            A[i, i] -= lo
-        if not cholesky_lower(A, L):
-            out[r] = False
-            continue
-        for i in range(m):
-            for j in range(m):
-                A[i, j] = -R[r, i, j]
-            A[i, i] += hi
-        out[r] = cholesky_lower(A, L)
-
-
-_INSIDE = Kernel(_inside_runs, uses=(CHOLESKY_LOWER,))
-
-
-def eig_inside(R: Array, lo: float, hi: float) -> Array:
-    """(B,) True where every eigenvalue of symmetric R certainly lies inside (lo, hi).
-
-    m = 2: the closed-form eigenvalues (a + c ∓ √((a − c)² + 4b²))/2. m ≥ 3, compiled
-    (navlab.jit): R − (lo + δ) I and (hi − δ) I − R are positive definite, by Cholesky; the numpy
-    path: Gershgorin discs (each eigenvalue lies within R_ii ± Σ_j≠i |R_ij| of some i), which is
-    sure less often. Each is accurate to a few ulp of max |λ| < hi, far inside the margin
-    δ = 1e-9·hi; NaN compares False. False only means "not sure".
-    """
-    m = R.shape[-1]
-    delta = 1e-9 * hi
-    kernel = _INSIDE.get() if m > 2 else None
-    if kernel is not None:
-        out = np.empty(R.shape[0], dtype=bool)
-        kernel(carray(R), lo + delta, hi - delta, out)
-        return out
-    if m == 2:
-        a, b, c = R[:, 0, 0], R[:, 0, 1], R[:, 1, 1]
-        t, r = a + c, np.hypot(a - c, b + b)  # 2·mid, 2·radius
-        return (t - r > 2.0 * (lo + delta)) & (t + r < 2.0 * (hi - delta))
-    d = diag(R)
-    rad = np.abs(R).sum(axis=-1) - np.abs(d)
-    return np.all((d - rad > lo + delta) & (d + rad < hi - delta), axis=-1)
-
-
-def clamp_eig(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
-    """Eigenvalue clamp of R̂ into [lo, hi] (§4.1 step 4), run by run; symmetrises R.
-
-    Returns ``(R', changed (B, m))`` where ``changed`` marks the channels whose variance R_ii the
-    clamp moved (those get flag 9). A diverged run's non-finite R stays NaN (the experiment loop
-    records the divergence) instead of stopping the whole batch.
-    """
-    R = sym(R)
-    # fast path: a run whose eigenvalues are all inside (lo, hi) is unchanged by the clamp (eigh
-    # would give back V diag(w) Vᵀ = R up to round-off), so only the other runs need an eigh
-    inside = eig_inside(R, lo, hi)
-    changed = np.zeros(R.shape[:2], dtype=bool)
-    if inside.all():
-        return R, changed
-    rest = ~inside
-    Rr = R[rest]
-    good = np.all(np.isfinite(Rr), axis=(-2, -1))
-    out_r = np.full(Rr.shape, np.nan)
-    if good.any():
-        out_r[good], _ = eigh_clamp(Rr[good], lo, hi)
-    d0, d1 = diag(Rr), diag(out_r)
-    with np.errstate(invalid="ignore"):  # a diverged run's NaN/inf R: marked changed below
-        moved = np.abs(d1 - d0) > 1e-9 * np.maximum(np.abs(d0), lo)
-    changed[rest] = ~good[:, None] | moved
-    out = R.copy()
-    out[rest] = out_r
+                A[i, j] = hi * R0[i, j] - out[i, j]
+        if cholesky_lower(A, L):
+            return out, changed  # lo R0 ≺ R̂ ≺ hi R0: inside the band, nothing to clamp
+    W = out.copy()
+    forward_substitute(L0, W)  # L0⁻¹ R̂
+    W = W.T.copy()
+    forward_substitute(L0, W)  # L0⁻¹ R̂ L0⁻ᵀ (symmetric up to round-off)
+    w, V = np.linalg.eigh(0.5 * (W + W.T))
+    if w.min() >= lo and w.max() <= hi:
+        return out, changed
+    w = np.minimum(np.maximum(w, lo), hi)
+    C = (V * w) @ np.ascontiguousarray(V.T)  # the clamped L0⁻¹ R̂ L0⁻ᵀ
+    new = L0 @ C @ np.ascontiguousarray(L0.T)  # back: L0 (…) L0ᵀ
+    for i in range(m):
+        changed[i] = abs(new[i, i] - out[i, i]) > 1e-9 * max(abs(out[i, i]), lo * R0[i, i])
+        for j in range(m):
+            out[i, j] = 0.5 * (new[i, j] + new[j, i])
     return out, changed
 
 
-def sage_husa_R(
-    R_prev: Array,
-    nu: Array,
-    HPHt: Array,
-    ok: Array,
-    d: float,
-    lo: float,
-    hi: float,
-    diagonal: bool = False,
-) -> tuple[Array, Array]:
-    """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), eigenvalues clamped into [lo, hi] (§4.1 3–4).
+CLAMP_TO_BAND = Kernel(clamp_to_band, uses=(CHOLESKY_LOWER, FORWARD_SUBSTITUTE))
 
-    Entries involving a missing channel keep their previous value. ``diagonal=True`` is the
-    simplified per-channel form of §4.9 (off-diagonals 0, each diagonal entry clamped).
-    Returns ``(R̂_k (B, m, m), clamped (B, m))``.
+
+def sage_husa_rhat(R_prev, nu, M, ok, R0, L0, lo, hi, d, diagonal):  # pragma: no cover - compiled by numba
+    """R̂_k = (1 − d) R̂_{k−1} + d (ν νᵀ − H P⁻ Hᵀ), kept in [lo, hi] × R0 (§4.1 steps 3–4), ONE run.
+
+    M = H P⁻ Hᵀ; the entries of a channel not in ``ok`` keep R̂_{k−1}. ``diagonal``: the
+    simplified per-channel form of §4.9 (off-diagonals 0, each variance in [lo, hi] × R0_ii).
+    Returns ``(R̂_k, clamped (m,))``.
     """
-    present = None if ok.all() else ok  # (None: every channel present, nothing to keep)
-    nu0 = select(present, nu, 0.0)
-    if diagonal:
-        r = (1.0 - d) * diag(R_prev) + d * (nu0**2 - diag(HPHt))
-        r = select(present, r, diag(R_prev))
-        clamped = (r < lo) | (r > hi)
-        return diag_embed(np.minimum(np.maximum(r, lo), hi)), clamped
-    new = (1.0 - d) * R_prev + d * (nu0[:, :, None] * nu0[:, None, :] - HPHt)
-    new = select(None if present is None else ok[:, :, None] & ok[:, None, :], new, R_prev)
-    return clamp_eig(new, lo, hi)
+    m = nu.shape[0]
+    R = R_prev.copy()
+    for i in range(m):
+        for j in range(m):
+            if ok[i] and ok[j]:
+                R[i, j] = (1.0 - d) * R_prev[i, j] + d * (nu[i] * nu[j] - M[i, j])  # (3)
+    if not diagonal:
+        return clamp_to_band(R, R0, L0, lo, hi)  # (4)
+    clamped = np.zeros(m, dtype=np.bool_)
+    for i in range(m):  # §4.9: a diagonal R̂, each variance in its band
+        clamped[i] = R[i, i] < lo * R0[i, i] or R[i, i] > hi * R0[i, i]
+        r = min(max(R[i, i], lo * R0[i, i]), hi * R0[i, i])
+        R[i, :] = 0.0
+        R[i, i] = r
+    return R, clamped
+
+
+SAGE_HUSA_RHAT = RunStep(sage_husa_rhat, n_runs=4, outs=((0, float), (1, bool)), uses=(CLAMP_TO_BAND,))
+
+
+def rae_rhat(eta, ok, HPH_ref, r0, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
+    """R̂ = (1/M) Σ η_j η_jᵀ + H P_ref Hᵀ over the window, clamped (S1 eqs. 3/4, §4.2–4.3), ONE run.
+
+    eta (M, m): the last M posterior residuals (0 where missing), ok (M, m): channel present,
+    HPH_ref = H P_ref Hᵀ with P_ref = P⁺_{k−1} (eq. 3) or P⁻_k (eq. 4), r0 = diag R0. With missing
+    channels each channel i averages over the c_i epochs it was present: Ŝ = D (Σ_j η_j η_jᵀ) D,
+    D = diag(1/√c_i) (a congruence of a PSD sum, so Ŝ stays PSD, with the exact per-channel mean
+    on the diagonal); a channel never present gets r0_i. Without missing channels it is exactly
+    S1's (1/M) Σ η ηᵀ.
+    """
+    n_win, m = eta.shape
+    dinv = np.zeros(m)
+    for i in range(m):
+        c = 0
+        for t in range(n_win):
+            c += ok[t, i]
+        if c > 0:
+            dinv[i] = 1.0 / np.sqrt(c)
+    R = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            s = 0.0
+            for t in range(n_win):
+                s += eta[t, i] * eta[t, j]
+            R[i, j] = s * dinv[i] * dinv[j] + HPH_ref[i, j]  # (3) R̂ = Ŝ + H P_ref Hᵀ
+        if dinv[i] == 0.0:
+            R[i, i] += r0[i]
+    return clamp_to_band(R, R0, L0, lo, hi)
+
+
+RAE_RHAT = RunStep(rae_rhat, n_runs=4, outs=((2, float), (3, bool)), uses=(CLAMP_TO_BAND,))
 
 
 # ------------------------------------------------------------------------------ small helpers
@@ -276,34 +256,6 @@ def scale_diag(A: Array, f: Array) -> Array:
     out = bcast(A, (B, m, m)).copy()  # C-contiguous
     out.reshape(B, m * m)[:, :: m + 1] *= f
     return out
-
-
-def sqrt_factor(S: Array) -> tuple[Array, Array]:
-    """Lower Cholesky factor L (L Lᵀ = S) of a batch; runs where S is not numerically positive
-    definite (a diverging P) get the eigen-factor V·diag(√max(w, ε)) instead and are marked
-    (flag 9) — run by run, so a healthy run never depends on its neighbours in the batch.
-    """
-    try:
-        return np.linalg.cholesky(S), np.zeros(S.shape[0], dtype=bool)
-    except np.linalg.LinAlgError:
-        pass
-    finite = np.all(np.isfinite(S), axis=(-2, -1))
-    if not finite.all():
-        L = np.full(S.shape, np.nan)
-        bad = ~finite
-        if finite.any():
-            L[finite], bad[finite] = sqrt_factor(S[finite])
-        return L, bad
-    w, V = np.linalg.eigh(sym(S))
-    scale = np.maximum(np.abs(w).max(axis=-1, keepdims=True), 1e-300)
-    bad = ~np.all(np.isfinite(w), axis=-1) | (w.min(axis=-1) <= 1e-12 * scale[..., 0])
-    L = np.empty_like(S)
-    if (~bad).any():
-        L[~bad] = np.linalg.cholesky(S[~bad])
-    if bad.any():
-        wb = np.maximum(np.nan_to_num(w[bad]), 1e-12 * scale[bad])
-        L[bad] = np.nan_to_num(V[bad]) * np.sqrt(wb)[:, None, :]
-    return L, bad
 
 
 class RState(NamedTuple):

@@ -16,36 +16,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import (
-    ACCEPTED,
-    DOWNWEIGHTED,
-    EPOCH_ANOMALY,
-    Filter,
-    KFLimit,
-    Model,
-    SideInfo,
-    StepOut,
-    Teaching,
-    flag_fix,
-    register,
-)
-from navlab.filters.kalman import measurement_prediction
+from navlab.filters.base import KFLimit, Model, Teaching, register
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
+    CLAMP_TO_BAND,
     RState,
+    band,
+    band_param,
     forgetting_weight,
-    rhat_bounds,
-    sage_husa_R,
-    sqrt_factor,
+    sage_husa_rhat,
 )
-from navlab.linalg import (
-    Array,
-    batched,
-    joseph_from_gain,
-    kf_gain,
-    mask_missing,
-    mv,
-    sym,
-)
+from navlab.jit import Kernel, RunStep
+from navlab.linalg import CHOLESKY_LOWER, Array, batched, cholesky_lower
 from navlab.params import param
 
 
@@ -69,10 +51,12 @@ class RAKFParams:
         tune=(0.5, 10.0),
         help="Huber clip c of the whitened innovation L_S⁻¹ν (large = no clipping)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 @register
-class RAKF(Filter):
+class RAKF(KalmanUpdate):
     """Improved Sage–Husa KF of Bai et al. 2012 (RECONSTRUCTION, ALGORITHMS.md §4.8).
 
     Sage–Husa R̂; if νᵀν > γ_s·tr(H P⁻ Hᵀ + R̂) the prior covariance is inflated by
@@ -121,66 +105,89 @@ class RAKF(Filter):
         P = batched(np.asarray(P0, dtype=float), B).copy()
         return RState(x0, P, batched(np.asarray(model.R0, dtype=float), B).copy(), 0)
 
-    def update(self, model: Model, state: RState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        B, m = z.shape
-        x_m, P_m = state.x, state.P
-        kk = state.k + 1
-        flags = np.zeros((B, m), dtype=np.int8)
-        mk = measurement_prediction(model, x_m, P_m, k, z)  # 1  ν = z − H x⁻
-        ok, nu = mk.ok, mk.nu
-        R = state.R
-        if p.adapt:  # 2  Sage–Husa R̂_k with its guard
-            lo, hi = rhat_bounds(model.R0)
-            R, clamped = sage_husa_R(state.R, nu, mk.M, ok, forgetting_weight(kk, p.b), lo, hi)
-            flag_fix(flags, clamped, overwrite=False)
-        Rm = mask_missing(z, nu, R).R
-        U, HPHt = mk.U, mk.M
-        # 3  abnormality test and prior-covariance inflation (traces over the present channels)
-        nn = np.einsum("bi,bi->b", nu, nu)  # νᵀν
-        trHPH = np.trace(HPHt, axis1=-2, axis2=-1)
-        trR = np.trace(Rm, axis1=-2, axis2=-1)  # tr R̂_k over the present channels: a missing
-        if Rm is not R:  # channel's masked R_ii is exactly 1.0, taken out again
-            trR = trR - np.count_nonzero(~ok, axis=-1)
-        abnormal = nn > p.gamma_s * (trHPH + trR)
-        lam = np.ones(B)
-        if abnormal.any():  # (λ = 1 elsewhere: the products below are exact there)
-            a = np.flatnonzero(abnormal)
-            # a diverged run (P⁻ indefinite, so tr H P⁻ Hᵀ ≈ 0 or < 0, and λ P⁻ beyond the float
-            # range) has no usable inflation: it becomes NaN here, silently (flag 9), and the
-            # experiment records the divergence, instead of overflowing to ±inf (the quotient
-            # itself may overflow there: that inf is caught by the test below)
-            with np.errstate(over="ignore"):
-                lam[a] = np.maximum(1.0, (nn[a] - trR[a]) / np.maximum(trHPH[a], 1e-300))
-            maxP = np.maximum(np.abs(P_m[a]).max(axis=(-2, -1)), 1.0)
-            broken = lam[a] > 1e300 / maxP
-            lam[a[broken]] = np.nan
-            flag_fix(flags, np.isnan(lam))
-            P_m, U, HPHt = (A * lam[:, None, None] for A in (P_m, U, HPHt))  # P⁻ ← λ_k P⁻
-        # 4  Huber clipping of the whitened innovation
-        S = sym(HPHt + Rm)
-        L, sfix = sqrt_factor(S)  # S = L_S L_Sᵀ
-        flag_fix(flags, sfix, overwrite=False)
-        e = np.linalg.solve(L, nu[..., None])[..., 0]  # e = L_S⁻¹ ν
-        ae = np.abs(e)
-        clip = (ae > p.c) & ok
-        nu_c = mv(L, np.where(clip, p.c * np.sign(e), e))  # ν' = L_S ψ_c(e)
-        # 5  update with the clipped innovation, Joseph form with R̂
-        K, fixed = kf_gain(U, S)
-        x = x_m + mv(K, nu_c)
-        P = joseph_from_gain(P_m, K, U, S)
-        flags[abnormal[:, None] & ok & (flags == ACCEPTED)] = EPOCH_ANOMALY
-        flags[clip] = DOWNWEIGHTED
-        flag_fix(flags, fixed, overwrite=False)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=nu,
-            S=S,
-            R_used=Rm,
-            R_hat=R,
-            weights=np.where(clip, p.c / np.where(clip, ae, 1.0), 1.0),
-            flags=flags,
-            stats={"lambda": lam},
+    def noise(self, model: Model, state: RState, pr: Prior, z: Array) -> Noise:
+        """2–4  Sage–Husa R̂, P⁻ inflated on an abnormal epoch, the clipped innovation (5: KF update)."""
+        p, mk, kk = self.params, pr.mk, state.k + 1
+        step = (pr.P, mk.nu, mk.M, mk.ok, state.R)
+        R, Rm, lam, nu_c, w, flags = RAKF_STEP(
+            step, (*band(model, p), forgetting_weight(kk, p.b), p.adapt, p.gamma_s, p.c)
         )
-        return RState(x, P, R, kk), out
+        if not np.all(lam == 1.0):  # 3  P⁻ ← λ_k P⁻ (and with it U = P⁻Hᵀ, M = H P⁻ Hᵀ)
+            s = lam[:, None, None]
+            pr = pr._replace(P=pr.P * s, mk=mk._replace(U=mk.U * s, M=mk.M * s))
+        stats = {"lambda": lam}
+        return Noise(
+            Rm, R_hat=R, weights=w, flags=flags, stats=stats, state={"R": R, "k": kk}, nu=nu_c, prior=pr
+        )
+
+
+def rakf_step(
+    P, nu, M, ok, R_prev, R0, L0, lo, hi, d, adapt, gamma_s, c
+):  # pragma: no cover - compiled by numba
+    """§4.8 steps 2–4 for ONE run: R̂_k, the inflation λ_k of P⁻ and the clipped innovation ν'.
+
+    P = P⁻, nu = ν and M = H P⁻ Hᵀ with missing channels masked (ok False). Returns R̂_k, R̂_k
+    masked (unit variance on a missing channel), λ_k (NaN: a diverged run, every flag 9), ν', the
+    clip weights c/|e_i| and the flags (9 R̂ clamped or S repaired, 5 abnormal epoch, 1 clipped).
+    """
+    m = nu.shape[0]
+    R, clamped = R_prev.copy(), np.zeros(m, dtype=np.bool_)
+    if adapt:  # 2  Sage–Husa R̂_k with its guard
+        R, clamped = sage_husa_rhat(R_prev, nu, M, ok, R0, L0, lo, hi, d, False)
+    Rm = R.copy()  # R̂_k with a unit, uncorrelated variance on a missing channel
+    nn, trM, trR = 0.0, 0.0, 0.0
+    for i in range(m):
+        for j in range(m):
+            if not (ok[i] and ok[j]):
+                Rm[i, j] = 1.0 if i == j else 0.0
+        nn += nu[i] * nu[i]  # νᵀν
+        trM += M[i, i]  # tr H P⁻ Hᵀ
+        trR += R[i, i] if ok[i] else 0.0  # tr R̂_k over the present channels
+    lam = 1.0
+    abnormal = nn > gamma_s * (trM + trR)  # 3  νᵀν > γ_s tr(H P⁻ Hᵀ + R̂_k)
+    if abnormal:
+        q = (nn - trR) / max(trM, 1e-300)
+        lam = q if not q <= 1.0 else 1.0  # λ_k = max(1, (νᵀν − tr R̂_k)/tr(H P⁻ Hᵀ)), NaN kept
+        if not lam < 1e300 / max(np.abs(P).max(), 1.0):  # λ P⁻ beyond the float range: diverged
+            lam = np.nan
+    S = lam * M + Rm  # 4  S = H P⁻ Hᵀ + R̂_k = L_S L_Sᵀ
+    S = 0.5 * (S + S.T)
+    L, sfix = sqrt_factor(S)
+    e = np.full(m, np.nan)  # a diverged run's e stays NaN
+    if np.all(np.isfinite(L)) and np.all(np.isfinite(nu)):
+        e = np.linalg.solve(L, nu)  # e = L_S⁻¹ ν
+    w, flags = np.ones(m), np.zeros(m, dtype=np.int8)
+    for i in range(m):
+        if clamped[i] or sfix:
+            flags[i] = 9
+        elif abnormal and ok[i]:
+            flags[i] = 5
+        if ok[i] and abs(e[i]) > c:  # ψ_c(e) = clip(e, −c, c)
+            w[i] = c / abs(e[i])
+            e[i] = c if e[i] > 0 else -c
+            flags[i] = 1
+    if lam != lam:
+        flags[:] = 9
+    return R, Rm, lam, L @ e, w, flags  # ν' = L_S ψ_c(L_S⁻¹ ν)
+
+
+def sqrt_factor(S):  # pragma: no cover - compiled by numba
+    """A square root L (L Lᵀ = S) of ONE S: its Cholesky factor; where S is not numerically positive
+    definite (a diverging P), the eigen-factor V·diag(√max(w, ε)), marked (flag 9).
+    """
+    L = np.zeros(S.shape)
+    if cholesky_lower(S, L):
+        return L, False
+    if not np.all(np.isfinite(S)):
+        return np.full(S.shape, np.nan), True
+    w, V = np.linalg.eigh(S)
+    eps = 1e-12 * max(np.abs(w).max(), 1e-300)
+    return V * np.sqrt(np.maximum(w, eps)), True
+
+
+RAKF_STEP = RunStep(
+    rakf_step,
+    n_runs=5,
+    outs=((4, float), (4, float), (None, float), (1, float), (1, float), (1, np.int8)),
+    uses=(Kernel(sage_husa_rhat, uses=(CLAMP_TO_BAND,)), Kernel(sqrt_factor, uses=(CHOLESKY_LOWER,))),
+)

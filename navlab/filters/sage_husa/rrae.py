@@ -17,29 +17,18 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import (
-    DOWNWEIGHTED,
-    REJECTED,
-    REJECTED_AUX,
-    Filter,
-    KFLimit,
-    Model,
-    SideInfo,
-    StepOut,
-    Teaching,
-    flag_fix,
-    register,
-)
+from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, Teaching, register
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
+    RAE_RHAT,
     Window,
+    band,
+    band_param,
     check_k0_k1,
-    clamp_eig,
     igg3_weights,
-    rae_estimate,
-    rhat_bounds,
     scale_diag,
 )
-from navlab.linalg import Array, Masked, PHt, batched, diag, kf_gain, mask_missing, mT, mv, predict_cov, sym
+from navlab.linalg import Array, Masked, PHt, batched, diag, kf_gain, mask_missing, mT, predict_cov, sym
 from navlab.params import param
 
 
@@ -62,6 +51,8 @@ class RRAEParams:
         help="middle zone as an inflated variance R̂ᵢᵢ/wᵢ (default) or ν scaled by w "
         "(literal; locks out on clean data, spec uses k1 = 3 for it)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class RAEState(NamedTuple):
@@ -72,7 +63,7 @@ class RAEState(NamedTuple):
 
 
 @register
-class RRAE(Filter):
+class RRAE(KalmanUpdate):
     """Robust residual-based adaptive estimation (RECONSTRUCTION, ALGORITHMS.md §4.7).
 
     RAE R̂ (eq. 3, P⁺_{k−1}); IGG-III equivalent weights on ν̃ = ν/√S_ii: the middle zone enters
@@ -131,39 +122,16 @@ class RRAE(Filter):
         return state._replace(x=x, P=P, P_post=state.P)
 
     # The update in named steps (§4.7's numbering; IRAKF overrides its own, §4.6) ---------------
-    def update(self, model: Model, state: RAEState, k: int, z: Array, side: SideInfo):
-        B, m = z.shape
-        det = self.detect(model, state, k, z)  # a second outlier detector (none here)
-        x_m, P_m = state.x, state.P
-        H = model.H(x_m, k)
-        U, M = PHt(P_m, H)
-        flags = np.zeros((B, m), dtype=np.int8)
-        R_hat = self.rhat(model, state, H, M, det, flags)  # 1  RAE R̂ (eq. 3), eigenvalue guard
-        # 2  innovation statistics with R̂: S = H P⁻ Hᵀ + R̂, ν̃_i = ν_i / √S_ii
-        mk = mask_missing(z, z - model.h(x_m, k), R_hat, U=U, M=M)
-        S = sym(mk.M + mk.R)
+    def noise(self, model: Model, state: RAEState, pr: Prior, z: Array) -> Noise:
+        det = self.detect(model, state, pr.k, z)  # a second outlier detector (none here)
+        R_hat, clamped = self.rhat(model, state, pr, det)  # 1  RAE R̂ (eq. 3), eigenvalue guard
+        R = mask_missing(z, pr.mk.nu, R_hat).R
+        S = sym(pr.mk.M + R)  # 2  S = H P⁻ Hᵀ + R̂, ν̃_i = ν_i / √S_ii
         sig = np.sqrt(diag(S))
-        nt = mk.nu / sig
-        g = self.robust_gain(mk, S, nt, sig, det)  # 3–5  weights, then the gain they leave
-        x = x_m + mv(g.K, g.nu)  # 5  x⁺ = x⁻ + K ν
-        P = self.posterior(P_m, g.K, mk.U, g.S)
-        win = state.win.push(z - model.h(x, k), mk.ok)  # 6  posterior residual into the window
-        flags[g.down] = DOWNWEIGHTED
-        flags[g.reject & ~g.aux] = REJECTED
-        flags[g.aux] = REJECTED_AUX
-        flag_fix(flags, g.fixed, overwrite=False)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=g.R,
-            R_hat=R_hat,
-            weights=g.weights,
-            flags=flags,
-            stats=self.stats(nt, det),
-        )
-        return self.next_state(state, x, P, win, det), out
+        nz = self.weigh(pr.mk, R, S, pr.mk.nu / sig, sig, det)  # 3–4  the weights and what they leave
+        nz.R_hat = R_hat
+        nz.flags[clamped & (nz.flags == 0)] = NUMERICAL_FIX
+        return nz
 
     def detect(self, model: Model, state: RAEState, k: int, z: Array) -> Any:
         """A second outlier detector beside the filter's own weights (RRAE has none)."""
@@ -173,58 +141,39 @@ class RRAE(Filter):
         """(B,) True where R̂ takes H P⁻ Hᵀ (eq. 4) instead of H P⁺ₖ₋₁ Hᵀ (eq. 3): never here."""
         return np.zeros(B, dtype=bool)
 
-    def rhat(self, model: Model, state: RAEState, H: Array, M: Array, det: Any, flags: Array) -> Array:
+    def rhat(self, model: Model, state: RAEState, pr: Prior, det: Any) -> tuple[Array, Array]:
         """R̂_k = (1/M) Σ η_j η_jᵀ + H P_ref Hᵀ (S1 eqs. 3/4), R0 until the window is full, clamped."""
-        B = state.x.shape[0]
+        B, m = pr.mk.nu.shape
         if not state.win.full:
-            return batched(np.asarray(model.R0, dtype=float), B).copy()
-        use_prior = self.use_prior(det, B)
-        HPH_ref = np.where(use_prior[:, None, None], M, PHt(state.P_post, H)[1])  # H P_ref Hᵀ
-        lo, hi = rhat_bounds(model.R0)  # eigenvalue guard (only bites with missing channels)
-        R_hat, clamped = clamp_eig(rae_estimate(state.win, HPH_ref, model.R0), lo, hi)
-        flag_fix(flags, clamped, overwrite=False)
-        return R_hat
+            return batched(np.asarray(model.R0, dtype=float), B).copy(), np.zeros((B, m), dtype=bool)
+        use_prior = self.use_prior(det, B)  # P_ref = P⁻ (eq. 4) there, P⁺_{k−1} (eq. 3) elsewhere
+        P_ref = np.where(use_prior[:, None, None], pr.P, state.P_post) if use_prior.any() else state.P_post
+        r0 = np.broadcast_to(np.diag(np.asarray(model.R0, dtype=float)), (B, m))
+        return RAE_RHAT((state.win.eta, state.win.ok, PHt(P_ref, pr.H)[1], r0), band(model, self.params))
 
-    def robust_gain(self, mk: Masked, S: Array, nt: Array, sig: Array, det: Any) -> Robust:
-        """3–5  IGG-III weights; middle zone R̄_ii = R̂_ii / w_i, rejection zone ν_i ← 0; K with R̄."""
+    def weigh(self, mk: Masked, R: Array, S: Array, nt: Array, sig: Array, det: Any) -> Noise:
+        """3–4  IGG-III weights; middle zone R̄_ii = R̂_ii / w_i, rejection zone ν_i ← 0 (flags 1, 2)."""
         p = self.params
         w, zone = igg3_weights(nt, p.k0, p.k1)  # 3  IGG-III equivalent weights
-        w = np.where(mk.ok, w, 1.0)
-        zone = np.where(mk.ok, zone, 0)
+        w, zone = np.where(mk.ok, w, 1.0), np.where(mk.ok, zone, 0)
         if p.form == "literal_scaling":  # option: ν_i ← w_i ν_i in every zone, K and P from R̂
-            R_bar, nu_w = mk.R, w * mk.nu
+            R_bar, nu = R, w * mk.nu
         else:  # 4  middle zone: R̄_ii = R̂_ii / w_i; rejection zone: ν_i ← 0
             mid = zone == 1
-            R_bar = scale_diag(mk.R, np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0))
-            nu_w = np.where(zone == 2, 0.0, mk.nu)
-        S_bar = sym(mk.M + R_bar)
-        K, fixed = kf_gain(mk.U, S_bar)  # 5  K = P⁻ Hᵀ (H P⁻ Hᵀ + R̄)⁻¹
-        no = np.zeros(zone.shape, dtype=bool)
-        return Robust(K, nu_w, S_bar, R_bar, w, zone == 1, zone == 2, no, fixed)
+            R_bar = scale_diag(R, np.where(mid, 1.0 / np.where(mid, w, 1.0), 1.0))
+            nu = np.where(zone == 2, 0.0, mk.nu)
+        flags = zone.astype(np.int8)  # 1 down-weighted (middle zone), 2 rejected
+        return Noise(R_bar, weights=w, flags=flags, nu=nu, S=S, stats={"nu_tilde": nt})
 
-    def posterior(self, P_m: Array, K: Array, U: Array, S: Array) -> Array:
+    def gain(self, mk: Masked, S: Array, nz: Noise) -> tuple[Array, Array]:
+        """5  K = P⁻ Hᵀ (H P⁻ Hᵀ + R̄)⁻¹: no column zeroed (a rejected ν_i is 0 instead)."""
+        return kf_gain(mk.U, S)
+
+    def posterior(self, pr: Prior, K: Array, S: Array) -> Array:
         """5  P⁺ = (I − K H) P⁻, the short form on purpose (P shrinks on zeroed channels, §4.7)."""
-        return sym(P_m - K @ mT(U))  # with H P⁻ = Uᵀ (P⁻ symmetric)
+        return sym(pr.P - K @ mT(pr.mk.U))  # with H P⁻ = Uᵀ (P⁻ symmetric)
 
-    def stats(self, nt: Array, det: Any) -> dict[str, Array]:
-        return {"nu_tilde": nt}
-
-    def next_state(self, state: RAEState, x: Array, P: Array, win: Window, det: Any) -> RAEState:
-        return RAEState(x, P, P, win)
-
-
-class Robust(NamedTuple):
-    """What the weight step leaves for the update: the gain, the (weighted) innovation, the S and R
-    in that gain, the per-channel weights (B, m), and which channels were down-weighted, rejected
-    (by either detector) or rejected by the auxiliary detector only; fixed: S needed a repair.
-    """
-
-    K: Array
-    nu: Array
-    S: Array
-    R: Array
-    weights: Array
-    down: Array
-    reject: Array
-    aux: Array
-    fixed: Array
+    def next_state(self, model: Model, state: RAEState, k: int, z: Array, x: Array, P: Array, nz: Noise):
+        """6  The posterior residual η_k = z − H x⁺ into the window."""
+        win = state.win.push(z - model.h(x, k), np.isfinite(z))
+        return state._replace(x=x, P=P, P_post=P, win=win, **nz.state)

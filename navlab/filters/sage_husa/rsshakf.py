@@ -17,26 +17,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import (
-    DOWNWEIGHTED,
-    Filter,
-    KFLimit,
-    Model,
-    SideInfo,
-    StepOut,
-    Teaching,
-    flag_fix,
-    register,
-)
-from navlab.filters.kalman import kf_update, measurement_prediction
+from navlab.filters.base import DOWNWEIGHTED, NUMERICAL_FIX, KFLimit, Model, Teaching, register
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
+    SAGE_HUSA_RHAT,
     RState,
+    band,
+    band_param,
     forgetting_weight,
-    rhat_bounds,
-    sage_husa_R,
     scale_diag,
 )
-from navlab.linalg import Array, batched, diag
+from navlab.linalg import Array, batched, diag, mask_missing
 from navlab.params import param
 
 
@@ -57,10 +48,12 @@ class RSSHAKFParams:
         False,
         help="skip the Sage–Husa update on outlier channels (variant; inverts S1's ranking, §4.9)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 @register
-class RSSHAKF(Filter):
+class RSSHAKF(KalmanUpdate):
     """Robust simplified Sage–Husa KF (RECONSTRUCTION, ALGORITHMS.md §4.9).
 
     R-only, diagonal Sage–Husa; channels with |ν̃_i| > c_r (ν̃ from R̂_{k−1}) get their variance
@@ -105,40 +98,22 @@ class RSSHAKF(Filter):
         R = np.diag(np.diag(np.asarray(model.R0, dtype=float)))  # diagonal R̂ (§4.9)
         return RState(x0, P, batched(R, B).copy(), 0)
 
-    def update(self, model: Model, state: RState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        B, m = z.shape
-        x_m, P_m = state.x, state.P
-        kk = state.k + 1
-        flags = np.zeros((B, m), dtype=np.int8)
-        # 1  normalised innovation with R̂_{k−1}
-        mk = measurement_prediction(model, x_m, P_m, k, z, state.R)
-        nt = mk.nu / np.sqrt(diag(mk.M) + diag(mk.R))  # diag of sym(H P⁻ Hᵀ + R̂_{k−1}), exactly
-        # 2–3  outlier channels: variance inflation R_ii · |ν̃_i|/c_r
-        out_ch = (np.abs(nt) > p.c_r) & mk.ok
-        infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)
-        R_used = scale_diag(mk.R, infl)
-        # 4  standard update with R_used (Joseph)
-        x, P, S, _, fixed = kf_update(x_m, P_m, mk.U, mk.M, mk.nu, R_used)
-        # 5  simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
-        R = state.R
-        if p.adapt:
-            lo, hi = rhat_bounds(model.R0)
+    def noise(self, model: Model, state: RState, pr: Prior, z: Array) -> Noise:
+        p, mk, kk = self.params, pr.mk, state.k + 1
+        R = mask_missing(z, mk.nu, state.R).R
+        nt = mk.nu / np.sqrt(diag(mk.M) + diag(R))  # 1  ν̃ with R̂_{k−1} (diag of H P⁻ Hᵀ + R̂)
+        out_ch = (np.abs(nt) > p.c_r) & mk.ok  # 2  outlier channels
+        infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)  # 3  R_ii · |ν̃_i|/c_r (4: the KF update)
+        R_hat, clamped = state.R, np.zeros(z.shape, dtype=bool)
+        if p.adapt:  # 5  simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
             upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok
-            d = forgetting_weight(kk, p.b)
-            R, clamped = sage_husa_R(state.R, mk.nu, mk.M, upd, d, lo, hi, diagonal=True)
-            flag_fix(flags, clamped, overwrite=False)
-        flags[out_ch] = DOWNWEIGHTED
-        flag_fix(flags, fixed, overwrite=False)
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=R_used,
-            R_hat=R,
-            weights=np.where(out_ch, 1.0 / infl, 1.0),
-            flags=flags,
+            step = (state.R, mk.nu, mk.M, upd)
+            R_hat, clamped = SAGE_HUSA_RHAT(step, (*band(model, p), forgetting_weight(kk, p.b), True))
+        return Noise(
+            scale_diag(R, infl),
+            R_hat=R_hat,
+            weights=1.0 / infl,
+            flags=np.where(out_ch, DOWNWEIGHTED, np.where(clamped, NUMERICAL_FIX, 0)).astype(np.int8),
             stats={"nu_tilde": nt},
+            state={"R": R_hat, "k": kk},
         )
-        return RState(x, P, R, kk), out

@@ -17,10 +17,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import Filter, KFLimit, Model, SideInfo, StepOut, Teaching, flag_fix, register
-from navlab.filters.kalman import kf_update, measurement_prediction
-from navlab.filters.sage_husa.kernels import clamp_eig, forgetting_weight, rhat_bounds, sage_husa_R
-from navlab.linalg import Array, batched, mask_missing, mT, mv, predict_cov
+from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, SideInfo, Teaching, register
+from navlab.filters.kalman import KalmanUpdate, Noise, Prior
+from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, band_param, forgetting_weight
+from navlab.linalg import Array, batched, eigh_clamp, mask_missing, mT, predict_cov
 from navlab.params import param
 
 
@@ -37,6 +37,8 @@ class SageHusaParams:
     )
     adapt: bool = param(True, help="estimate R (off: R̂ stays R0 and the filter is the KF)")
     full: bool = param(False, help="full Sage–Husa: also estimate r̂, q̂ and Q̂ (ill-posed, may diverge)")
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class SHState(NamedTuple):
@@ -52,7 +54,7 @@ class SHState(NamedTuple):
 
 
 @register
-class SageHusa(Filter):
+class SageHusa(KalmanUpdate):
     """Classic Sage–Husa adaptive KF: fading-memory innovation-based R̂ (ALGORITHMS.md §4.1)."""
 
     key = "sage-husa"
@@ -100,38 +102,37 @@ class SageHusa(Filter):
         P = predict_cov(model.F(k), state.P, Q)  # 1  P⁻ = F P⁺ Fᵀ + Q̂
         return state._replace(x=x, P=P, x_prev=state.x, P_prev=state.P)
 
-    def update(self, model: Model, state: SHState, k: int, z: Array, side: SideInfo):
-        p = self.params
-        x_m, P_m = state.x, state.P
-        kk = state.k + 1
-        d = forgetting_weight(kk, p.b)  # d_k, k counted from 1 at the first update
-        mk = measurement_prediction(model, x_m, P_m, k, z - state.r)  # 2  ν = z − H x⁻ − r̂
-        flags = np.zeros(z.shape, dtype=np.int8)
-        R = state.R
-        if p.adapt:  # 3–4  R̂_k, eigenvalues clamped
-            lo, hi = rhat_bounds(model.R0)
-            R, clamped = sage_husa_R(state.R, mk.nu, mk.M, mk.ok, d, lo, hi)
-            flag_fix(flags, clamped, overwrite=False)
-        Rm = mask_missing(z, mk.nu, R).R
-        x, P, S, K, fixed = kf_update(x_m, P_m, mk.U, mk.M, mk.nu, Rm)  # 5  KF update with R̂_k
-        flag_fix(flags, fixed, overwrite=False)
-        r, q, Q = state.r, state.q, state.Q
-        if p.full:  # optional full Sage–Husa (§4.1, off by default): noise means and Q̂
-            r = np.where(mk.ok, (1 - d) * state.r + d * (z - model.h(x_m, k)), state.r)
-            Knu = mv(K, mk.nu)
-            F = model.F(k)
-            Qn = (1 - d) * state.Q + d * (Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F))
-            qmax = max(float(np.max(np.diag(np.asarray(model.Q(k), dtype=float)))), 1e-300)
-            Q, _ = clamp_eig(Qn, 1e-6 * qmax, 1e6 * qmax)  # the same PD guard as R̂
-            q = (1 - d) * state.q + d * (x - model.f(state.x_prev, k))
-        out = StepOut(
-            x=x,
-            P=P,
-            innov=mk.nu,
-            S=S,
-            R_used=Rm,
+    def innovation(self, model: Model, state: SHState, k: int, z: Array, side: SideInfo) -> Prior:
+        return super().innovation(model, state, k, z - state.r, side)  # 2  ν = z − H x⁻ − r̂
+
+    def noise(self, model: Model, state: SHState, pr: Prior, z: Array) -> Noise:
+        """3–4  R̂_k, its eigenvalues clamped (flag 9 where a variance moved); 5 is the KF update."""
+        mk, kk = pr.mk, state.k + 1
+        d = forgetting_weight(kk, self.params.b)  # d_k, k counted from 1 at the first update
+        R, clamped = state.R, np.zeros(z.shape, dtype=bool)
+        if self.params.adapt:
+            R, clamped = SAGE_HUSA_RHAT((state.R, mk.nu, mk.M, mk.ok), (*band(model, self.params), d, False))
+        return Noise(
+            mask_missing(z, mk.nu, R).R,
             R_hat=R,
-            flags=flags,
+            flags=np.where(clamped, NUMERICAL_FIX, 0).astype(np.int8),
             stats={"d_k": np.full(z.shape[0], d)},
+            state={"R": R, "k": kk},
         )
-        return state._replace(x=x, P=P, R=R, k=kk, r=r, q=q, Q=Q), out
+
+    def next_state(
+        self, model: Model, state: SHState, k: int, z: Array, x: Array, P: Array, nz: Noise
+    ) -> SHState:
+        """Optional full Sage–Husa (§4.1, off by default): the noise means r̂, q̂ and Q̂."""
+        st = super().next_state(model, state, k, z, x, P, nz)
+        if not self.params.full:
+            return st
+        d = nz.stats["d_k"][0]
+        r = np.where(np.isfinite(z), (1 - d) * state.r + d * (z - model.h(state.x, k)), state.r)
+        Knu = x - state.x  # K ν = x⁺ − x⁻
+        F = model.F(k)
+        Qn = (1 - d) * state.Q + d * (Knu[:, :, None] * Knu[:, None, :] + P - F @ state.P_prev @ mT(F))
+        qmax = max(float(np.max(np.diag(np.asarray(model.Q(k), dtype=float)))), 1e-300)
+        Q, _ = eigh_clamp(Qn, 1e-6 * qmax, 1e6 * qmax)  # the same PD guard as R̂
+        q = (1 - d) * state.q + d * (x - model.f(state.x_prev, k))
+        return st._replace(r=r, q=q, Q=Q)
