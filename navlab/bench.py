@@ -481,6 +481,33 @@ def problem_text_table(pr: ProblemResult) -> Table:
     return Table(df, notes)
 
 
+def overall_text_table(b: BenchResult) -> Table:
+    """The overall standing as a display table (empty cells where a value does not apply)."""
+    o = b.overall
+    cells = pd.DataFrame(
+        {
+            "rank": o["rank"],
+            "filter": o["label"],
+            "gap to floor, geometric mean (×)": [cell(r.score, r.ci_lo, r.ci_hi) for r in o.itertuples()],
+            "÷ lowest": [
+                ""
+                if not np.isfinite(getattr(r, "ratio", math.nan))
+                else cell(r.ratio, r.ratio_lo, r.ratio_hi)
+                for r in o.itertuples()
+            ],
+            "p (Holm)": [
+                ""
+                if not np.isfinite(getattr(r, "p_holm", math.nan))
+                else f"{r.p_holm_bound}{S.sig3(r.p_holm)}"
+                for r in o.itertuples()
+            ],
+            "verdict": o["verdict"],
+            "unreliable on": [f"{r.problems_unreliable} of {r.problems}" for r in o.itertuples()],
+        }
+    ).set_index("rank")
+    return Table(cells, [])
+
+
 def text(b: BenchResult) -> str:
     lines = [b.suite.describe() + "."]
     for pr in b.problems:
@@ -490,31 +517,37 @@ def text(b: BenchResult) -> str:
             problem_text_table(pr).text(),
         ]
     if len(b.overall):
-        o = b.overall
-        cells = pd.DataFrame(
-            {
-                "rank": o["rank"],
-                "filter": o["label"],
-                "gap to floor, geometric mean (×)": [cell(r.score, r.ci_lo, r.ci_hi) for r in o.itertuples()],
-                "÷ lowest": [
-                    ""
-                    if not np.isfinite(getattr(r, "ratio", math.nan))
-                    else cell(r.ratio, r.ratio_lo, r.ratio_hi)
-                    for r in o.itertuples()
-                ],
-                "p (Holm)": [
-                    ""
-                    if not np.isfinite(getattr(r, "p_holm", math.nan))
-                    else f"{r.p_holm_bound}{S.sig3(r.p_holm)}"
-                    for r in o.itertuples()
-                ],
-                "verdict": o["verdict"],
-                "unreliable on": [f"{r.problems_unreliable} of {r.problems}" for r in o.itertuples()],
-            }
-        ).set_index("rank")
-        lines += ["", f"== overall standing over {int(o['problems'].iloc[0])} problems ==", text_table(cells)]
+        n = int(b.overall["problems"].iloc[0])
+        lines += ["", f"== overall standing over {n} problems ==", text_table(overall_text_table(b).cells)]
     lines += ["", *(f"  {n}" for n in notes(b))]
     return "\n".join(lines) + "\n"
+
+
+def paper(b: BenchResult, fmt: str) -> str:
+    """The overall standing and every problem's table as Markdown or LaTeX (``navlab bench
+    --format markdown|latex``), each with its caption; the notes under the overall standing.
+    """
+    from navlab.tables import render
+
+    out = []
+    if len(b.overall):
+        t = overall_text_table(b)
+        t.notes = notes(b)
+        n = int(b.overall["problems"].iloc[0])
+        out.append(
+            render(
+                t,
+                fmt,
+                f"navlab bench, {b.suite.describe()}: overall standing over {n} problems.",
+                "tab:bench",
+            )
+        )
+    for i, pr in enumerate(b.problems):
+        cap = (
+            f"{pr.problem.name}: tuned filters on test seed {pr.problem.spec.seed}, {b.suite.test_runs} runs."
+        )
+        out.append(render(problem_text_table(pr), fmt, cap, f"tab:bench-{i}"))
+    return "\n\n".join(out) + "\n"
 
 
 def notes(b: BenchResult) -> list[str]:

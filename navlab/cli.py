@@ -505,6 +505,8 @@ def _bench(a: argparse.Namespace) -> int:
     _ran(ex, a.quiet)
     if a.format == "table":
         _write(BN.text(b), a.out)
+    elif a.format in ("markdown", "latex"):
+        _write(BN.paper(b, a.format), a.out)
     else:
         _emit(BN.rows(b), a.format, a.out)
     where = BN.save(b, a.outdir)

@@ -144,3 +144,15 @@ def test_the_problems_experiment_reproduces_its_table(tmp_path):
     sm = M.summary(res)
     for r in prob["rows"]:
         assert sm.estimate(r["filter"], r["metric"]).value == pytest.approx(r["value"], rel=1e-12)
+
+
+@pytest.mark.parametrize("fmt", ["markdown", "latex"])
+def test_bench_tables_for_a_paper(tmp_path, fmt):
+    b = BN.run(_tiny(), filters=["kf", "huber-kf", "oracle-kf"], store=Store(tmp_path / "s"))
+    text = BN.paper(b, fmt)
+    assert text.count("overall standing") == 1 and "cv2d student-t" in text
+    assert (
+        ("\\begin{table}" in text)
+        if fmt == "latex"
+        else ("| rank |" in text or "|rank|" in text.replace(" ", ""))
+    )
