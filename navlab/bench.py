@@ -220,7 +220,15 @@ def run(
             if on_progress is not None:
                 on_progress(base + done, total)
 
-        r = TU.tune(st, store=store, executor=executor, on_progress=prog, should_stop=should_stop, tick=tick)
+        r = TU.tune(
+            st,
+            store=store,
+            executor=executor,
+            on_progress=prog,
+            should_stop=should_stop,
+            tick=tick,
+            report=False,
+        )
         base += n
         computed += r.computed
         cached += r.cached
