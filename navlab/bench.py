@@ -166,6 +166,11 @@ def setups(suite: Suite, filters: Sequence[str] | None = None) -> list[TU.Setup]
         keys, _ = applicable(p.spec, filters)
         if not keys:
             raise NavlabError(f"no chosen filter runs on problem {p.name}")
+        if all(registry()[k].family == "oracle" for k in keys):
+            raise NavlabError(
+                "--filters: choose at least one filter that is not an oracle (the oracle is the "
+                "genie shown beside the ranking, never ranked)"
+            )
         spec = p.spec.replace(filters=tuple(keys), runs=suite.test_runs)
         out.append(TU.setup(spec, budget=suite.budget, train_runs=suite.train_runs))
     return out
@@ -366,6 +371,8 @@ def overall(results: Sequence[ProblemResult]) -> pd.DataFrame:
         return pd.DataFrame()
     keys = set.intersection(*(set(pr.table.loc[pr.table["rank"].notna(), "filter"]) for pr in usable))
     keys = [k for k in usable[0].table["filter"] if k in keys]
+    if not keys:
+        return pd.DataFrame()
     rng = np.random.default_rng(np.random.SeedSequence([OVERALL_SEED, len(usable)]))
     logs = {k: np.zeros(OVERALL_BOOT) for k in keys}
     point = dict.fromkeys(keys, 0.0)

@@ -94,6 +94,8 @@ def test_bench_cli_bad_input_is_one_line(capsys, tmp_path):
     assert rc == 2 and "nope" in err and "Traceback" not in err
     with pytest.raises(NavlabError):
         BN.get_suite("huge")
+    with pytest.raises(NavlabError, match="not an oracle"):
+        BN.setups(_tiny(), ["oracle-kf"])
 
 
 def test_the_cost_on_paper_counts_the_tasks_tune_sends(tmp_path):
