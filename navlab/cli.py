@@ -442,6 +442,42 @@ def _tune(a: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(a: argparse.Namespace) -> int:
+    from navlab import bench as BN
+
+    suite = BN.get_suite(a.suite)
+    filters = [f.strip() for f in a.filters.split(",") if f.strip()] if a.filters else None
+    if a.estimate:
+        say = None if a.quiet else (lambda sc: print(f"navlab: timing the filters on {sc}", file=sys.stderr))
+        df, tot = BN.estimate(suite, filters, on_scenario=say)
+        if a.format != "table":
+            _emit(df, a.format, a.out)
+            return 0
+        dur = lambda s: f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"  # noqa: E731
+        walls = ", ".join(f"{w} worker{'s' * (w > 1)} ≈ {dur(v)}" for w, v in tot["wall_s"].items())
+        _write(
+            f"{suite.describe()}.\n{tot['tasks']} tasks, {tot['cpu_hours']:.3g} CPU-hours on this machine "
+            f"(per-task times from timed tasks of every filter); wall time {walls} (the bench's "
+            "batches one after the other, each max(CPU / workers, its longest task); dispatch left out)\n",
+            a.out,
+        )
+        return 0
+    store, ex = _engine(a)
+    prog = _progress(a.quiet, "tasks", lambda: ex.now)
+    b = BN.run(suite, filters=filters, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
+    _ran(ex, a.quiet)
+    if a.format == "table":
+        _write(BN.text(b), a.out)
+    elif a.format in ("markdown", "latex"):
+        _write(BN.paper(b, a.format), a.out)
+    else:
+        _emit(BN.rows(b), a.format, a.out)
+    where = BN.save(b, a.outdir)
+    if not a.quiet:
+        print(f"navlab: wrote {where} (the Leaderboard page shows it)", file=sys.stderr)
+    return 0
+
+
 def _engine_options(p: argparse.ArgumentParser) -> None:
     """Where sweep/tune tasks run and are kept."""
     p.add_argument(
@@ -646,6 +682,27 @@ def _add_tune_command(sub: Any) -> None:
     _engine_options(pt)
 
 
+def _add_bench_command(sub: Any) -> None:
+    """The ``bench`` subcommand: every registered filter, tuned, on a fixed suite."""
+    pb = sub.add_parser(
+        "bench", help="every filter tuned on the same budget over a fixed suite: ranked tables, floor, cost"
+    )
+    pb.add_argument("--suite", choices=["small", "full"], default="small", help="the suite (default small)")
+    pb.add_argument("--filters", help="comma-separated filter keys (default: every registered filter)")
+    pb.add_argument(
+        "--outdir",
+        help="folder of last-bench.json, which the Leaderboard page shows (default NAVLAB_BENCH_DIR "
+        "or ~/.cache/navlab/bench)",
+    )
+    pb.add_argument(
+        "--estimate",
+        action="store_true",
+        help="print the suite's cost (tasks, CPU-hours, wall time on 1/2/8/64 workers) from timed "
+        "tasks of every filter, without running it",
+    )
+    _engine_options(pb)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from navlab import __version__
 
@@ -661,6 +718,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_reproduce_command,
         _add_sweep_command,
         _add_tune_command,
+        _add_bench_command,
         _add_check_filter_command,
     ):
         add(sub)
@@ -692,6 +750,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _sweep(a)
         if a.cmd == "tune":
             return _tune(a)
+        if a.cmd == "bench":
+            return _bench(a)
         if a.cmd == "check-filter":
             return _check_filter(a)
         return 2

@@ -244,10 +244,14 @@ def best_filter(res: Results, metric: str) -> tuple[str | None, pd.DataFrame]:
 
 
 def summary_rows(res: Results, compare_to: str | None = None) -> pd.DataFrame:
-    """The tidy table of :func:`navlab.metrics.summarize` (every metric of every filter), with the
-    paired ``_diff`` rows against ``compare_to`` on the :func:`comparison_metrics` appended.
+    """The tidy table of :func:`navlab.metrics.summarize` (every metric of every filter), the
+    posterior Cramér–Rao bound's ``pcrb_*`` rows and each filter's ``gap_*`` to it
+    (:func:`navlab.pcrb.rows`, simulated scenarios), with the paired ``_diff`` rows against
+    ``compare_to`` on the :func:`comparison_metrics` appended.
     """
-    df = M.summarize(res)
+    from navlab.pcrb import rows as pcrb_rows
+
+    df = pd.concat([M.summarize(res), pcrb_rows(res)], ignore_index=True)
     if compare_to is None:
         return df
     return pd.concat([df, M.compare(res, compare_to, comparison_metrics(res))], ignore_index=True)
@@ -262,6 +266,7 @@ def headline(
     metrics: list[str] | None = None,
     explanations: bool = True,
     best: bool = False,
+    floor: bool = True,
 ) -> Table:
     """The headline table: one row per filter, each metric with its 95 % interval, diverged runs,
     the run time, and — with ``compare_to`` — the paired verdict on the first headline metric.
@@ -274,6 +279,9 @@ def headline(
     those that flag outliers): ``Table.best`` maps the column to that row; a column where no
     filter is better than all others (a point-estimate winner the test does not back) has no
     entry.
+
+    ``floor``: a footnote with the posterior Cramér–Rao bound of the first error column and each
+    filter's gap to it (:func:`navlab.pcrb.floor_text`; simulated scenarios).
     """
     sm = M.summary(res)
     data = res.data
@@ -323,6 +331,11 @@ def headline(
                 winners[metric_name(m, data)] = res.runs[key].label
     notes += footnotes(res, sm, explanations, df)
     notes += sorted(set(empty.values()))
+    if floor and metrics and metrics[0].startswith("rmse_"):  # the PCRB of the first error column
+        from navlab.pcrb import floor_text
+
+        line = floor_text(res, metrics[0][len("rmse_") :], markdown=False)
+        notes += [line] if line else []
     helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
     helps.update(COLUMN_HELP)
     if compare_to is not None and compare_to in res.runs and metrics:

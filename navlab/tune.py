@@ -552,10 +552,12 @@ def tune(
     on_progress: Callable[[int, int], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     tick: Callable[[], None] | None = None,
+    report: bool = True,
 ) -> TuneResult:
     """Tune every filter of ``st`` on its training seeds, then evaluate default and tuned
     variants on the test seeds (module note). Raises :class:`navlab.tasks.StoppedError` when stopped
-    (the finished tasks are in ``store``).
+    (the finished tasks are in ``store``). ``report`` off: no :func:`rows` (every metric of every
+    variant with its interval; the bench, which judges the tuned variants itself, skips them).
     """
     run = _Runner(store, executor, on_progress, should_stop, tick, count_tasks(st))
     cands = {k: candidates(d, st.schedule.budget, st.seed) for k, d in st.dims.items() if d}
@@ -617,7 +619,8 @@ def tune(
         test_spec, {n: [got[t.key] for t in ts] for n, ts in parts_tasks.items()}, labels, st.split[1]
     )
     out = TuneResult(st, tuned, trials, test, train_obj, run.cached, run.computed, failed)
-    out.rows = rows(out)
+    if report:
+        out.rows = rows(out)
     return out
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from navlab import params as P_
 from navlab.errors import NavlabError
 from navlab.linalg import Array
+from navlab.noise import fisher as FI
 from navlab.params import param
 from navlab.registry import Registry
 
@@ -67,6 +68,13 @@ class OutlierModel:
         """Noise of the batch's runs (each (B, K+1, m)) from its measurement stream."""
         raise NotImplementedError
 
+    def fisher(self, std: Array) -> Array | None:
+        """Fisher information (K+1, m) of each measurement entry about its mean, given the
+        schedule's σ (K+1, m) (:mod:`navlab.noise.fisher`; the posterior Cramér–Rao bound's
+        measurement term); None where the model does not state its density (no bound).
+        """
+        return None
+
     @staticmethod
     def _gaussian(stream: RunStream, std: Array) -> NoiseDraw:
         n = stream.standard_normal(std.shape)
@@ -87,6 +95,9 @@ class NoOutliers(OutlierModel):
 
     def draw(self, stream, std):
         return self._gaussian(stream, std)
+
+    def fisher(self, std):
+        return 1.0 / np.asarray(std, dtype=float) ** 2
 
 
 _CH = "contaminated channel indices (empty = all channels)"
@@ -114,6 +125,12 @@ class Mixture(OutlierModel):
         hit[:, 0] = False  # epoch 0 carries no measurement
         s = np.where(hit, p.scale * std, std)
         return NoiseDraw(s * n, s**2, np.zeros(n.shape), hit)
+
+    def fisher(self, std):
+        p = self.params
+        std = np.asarray(std, dtype=float)
+        ju = np.where(self.channel_mask(std.shape[1]), FI.mixture(p.contamination, p.scale), 1.0)
+        return ju / std**2
 
 
 @dataclass(frozen=True)
@@ -157,6 +174,16 @@ class Isolated(OutlierModel):
         return NoiseDraw(
             noise, var, np.broadcast_to(bias, (B, *std.shape)), np.broadcast_to(mask, (B, *std.shape))
         )
+
+    def fisher(self, std):
+        # an outlier entry is N(μσ, (1 + s²)σ²) at known epochs: its mean is known (the
+        # schedule is deterministic), its variance larger
+        p = self.params
+        std = np.asarray(std, dtype=float)
+        K = std.shape[0] - 1
+        var = std**2
+        var[np.ix_(self.epochs(K), np.flatnonzero(self.channel_mask(std.shape[1])))] *= 1.0 + p.scale**2
+        return 1.0 / var
 
 
 @dataclass(frozen=True)
@@ -211,6 +238,12 @@ class StudentT(OutlierModel):
         mult[:, 0] = 1.0
         s = std * mult
         return NoiseDraw(s * n, s**2, np.zeros(n.shape), mult > p.mask_at)
+
+    def fisher(self, std):
+        p = self.params
+        std = np.asarray(std, dtype=float)
+        ju = np.where(self.channel_mask(std.shape[1]), FI.student_t(p.dof), 1.0)
+        return ju / std**2
 
 
 def make_outliers(key: str, params: dict[str, Any] | None = None) -> OutlierModel:

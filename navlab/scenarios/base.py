@@ -374,6 +374,11 @@ class Scenario:
     default_runs: ClassVar[int] = 100
     simulated: ClassVar[bool] = True
     headline: ClassVar[tuple[str, ...]] = ("pos",)
+    #: how :mod:`navlab.pcrb` bounds the scenario: "linear" (exact: the truth is drawn from the
+    #: linear model the filters assume, the noise from the outlier model), "monte-carlo" (linear
+    #: dynamics, nonlinear measurements: their information averaged over the simulated truth),
+    #: "" (no bound: the truth or the noise is drawn from something no outlier model states)
+    pcrb: ClassVar[str] = ""
 
     def __init__(self, params: Any = None) -> None:
         if params is None or isinstance(params, dict):
@@ -388,6 +393,12 @@ class Scenario:
         self, schedule: Schedule, outliers: OutlierModel, runs: Sequence[int], seed: int
     ) -> ScenarioData:
         raise NotImplementedError
+
+    def noise_models(self, schedule: Schedule, outliers: OutlierModel) -> tuple[Schedule, OutlierModel]:
+        """The schedule and outlier model :meth:`simulate` draws the noise with (a scenario's
+        preset case may replace the chosen ones).
+        """
+        return schedule, outliers
 
 
 #: Every scenario, by key; the modules of :mod:`navlab.scenarios` register theirs.

@@ -69,6 +69,7 @@ class Cv2d(Scenario):
     # what navlab is for, at first sight: the baseline, three filters that estimate R (Sage–Husa,
     # variational Bayes, and VB + Huber) and the oracle that is handed the true R(t)
     default_filters = ("kf", "sage-husa", "vb-akf", "hakf", "oracle-kf")
+    pcrb = "linear"
     default_runs = 100
     headline = ("pos", "vel")
 

@@ -225,6 +225,7 @@ class GpsInsPseudorange(Scenario):
     # the paper has no outliers: keep the default spec (mixture) clean unless asked for
     outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {"mixture": {"contamination": 0.0}}
     default_filters = ("ekf", "vb-ekf", "oracle-kf")
+    pcrb = "monte-carlo"
     default_runs = 50
     headline = ("pos", "vel")
 

@@ -224,6 +224,7 @@ class SinsGps(Scenario):
     Params = SinsGpsParams
     outlier_defaults: ClassVar[dict[str, dict[str, Any]]] = {"mixture": {"contamination": 0.1, "scale": 10.0}}
     default_filters = ("kf", "huber-kf", "vb-akf", "hakf")
+    pcrb = "linear"
     default_runs = 50
     headline = ("att", "vel", "pos")
 

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 import plotly.graph_objects as go
 
+from navlab import pcrb
 from navlab.metrics import (
     average_over_runs,
     chi2_band,
@@ -398,11 +399,18 @@ def _figure(
 
 
 def error_vs_time(
-    res: Results, group: str, *, log_y: bool = False, band: tuple[float, float] | None = BAND
+    res: Results,
+    group: str,
+    *,
+    log_y: bool = False,
+    band: tuple[float, float] | None = BAND,
+    floor: bool = False,
 ) -> go.Figure:
     """Per filter: Monte Carlo RMSE per epoch of the ``group`` error norm plus a spread band.
 
-    The band spans the ``band`` quantiles over runs of the per-run error norm.
+    The band spans the ``band`` quantiles over runs of the per-run error norm. ``floor``: the
+    posterior Cramér–Rao bound of the error norm per epoch (:mod:`navlab.pcrb`), a dashed black
+    line, where the experiment has one.
     """
     data = res.data
     g = data.groups[group]
@@ -420,6 +428,10 @@ def error_vs_time(
             lo, hi = error_quantiles(sq, band, ok)
             add_band(traces, t, lo, hi, c, key)
         add_line(traces, t, rmse_per_epoch(sq, ok), _legend_name(fr), c, key)
+    b = pcrb.bound(res.spec) if floor and data.has_truth else None
+    if b is not None:
+        per_epoch = np.sqrt(np.einsum("kii->ki", b.P)[:, list(g.idx)].sum(axis=1)) * g.scale
+        add_line(traces, t, per_epoch, "floor (PCRB)", "#000000", "pcrb", dash="dash", width=1.5)
     bt = "" if band is None else f"; band: {int(band[0] * 100)}–{int(band[1] * 100)} % of runs"
     return _figure(
         traces,

@@ -27,6 +27,7 @@ PAGES = (  # (file, sidebar label, title on the home page, icon)
     ("pages/4_Reproduce.py", "Reproduce", "Reproduce the papers", ":material/article:"),
     ("pages/5_Learn.py", "Learn", "Learn: filters step by step", ":material/school:"),
     ("pages/6_Real_data.py", "Real data", "Real data", ":material/directions_car:"),
+    ("pages/8_Leaderboard.py", "Leaderboard", "Leaderboard", ":material/leaderboard:"),
 )
 RUN_PAGES = ("pages/1_Compare.py", "pages/2_Noise.py", "pages/3_Sweep.py", "pages/7_Tune.py")
 PRESENT = "present"  # the URL flag of presentation mode

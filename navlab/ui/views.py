@@ -17,6 +17,7 @@ import streamlit as st
 from navlab import tables
 from navlab.diagnostics import explain
 from navlab.metrics import summary
+from navlab.pcrb import floor_text
 from navlab.scenarios import scenario_registry
 from navlab.ui import figures as F
 
@@ -226,7 +227,7 @@ class CompareView:
         group = self.group if self.group in res.data.groups else headline_groups(res)[0]
         chart(
             self.err,
-            F.error_vs_time(res, group, log_y=self.log_err),
+            F.error_vs_time(res, group, log_y=self.log_err, floor=res.complete),
             "RMSE over time per filter with spread bands",
         )
         show_table(self.table, self.notes, res, self.ref)
@@ -258,7 +259,11 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
     """The headline table with intervals and the paired verdicts against ``ref``, and its notes."""
     ref = ref if ref in res.runs else None
     t = tables.headline(
-        res, compare_to=ref if len(res.runs) > 1 else None, explanations=False, best=res.complete
+        res,
+        compare_to=ref if len(res.runs) > 1 else None,
+        explanations=False,
+        best=res.complete,
+        floor=False,  # shown as its own paragraph below
     )
     # a static table: it wraps its cells to the page's width, so the verdict column is never
     # scrolled out of sight (a data grid sized its columns to their text and scrolled sideways)
@@ -272,6 +277,10 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
                 + ("" if t.best else " — no column has one at this run count")
                 + "; no highlight where the best point estimate is not backed by the test."
             )
+        if res.complete:
+            floor = floor_text(res, headline_groups(res)[0])
+            if floor:
+                st.markdown(floor)
         divergence_warnings(res)
         for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
