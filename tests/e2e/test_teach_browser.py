@@ -176,7 +176,7 @@ def test_downloads_parse_and_the_notebook_reproduces_the_rmse(page: Page, tmp_pa
     assert spec.filters == ("kf", "oracle-kf", "chi2-kf")
     metrics = pd.read_csv(_download(page, "Metrics (CSV)"))
     assert {"filter", "metric", "value", "unit"} <= set(metrics.columns)
-    assert set(metrics["filter"]) == {"kf", "oracle-kf", "chi2-kf"}
+    assert set(metrics["filter"]) == {"kf", "oracle-kf", "chi2-kf", "pcrb"}  # and the floor's rows
     assert (metrics[metrics.metric == "runs"].value == 8).all()
     tex = _download(page, "Table (LaTeX)").read_text()  # the headline table for a paper
     assert "\\toprule" in tex and "8 Monte Carlo runs (seed 3" in tex and tex.isascii()
