@@ -2,6 +2,7 @@
 
 import streamlit as st
 
+from navlab.diagnostics import explain
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
 from navlab.noise import OUTLIERS
@@ -19,7 +20,8 @@ frame(
     "Real data",
     "🚗",
     "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
-    "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.",
+    "truth, GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth, or your own "
+    "drive or pseudoranges (choose an upload under Recording).",
 )
 
 sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
@@ -258,6 +260,8 @@ else:
     if not ft.empty and ft.shape[1]:
         st.caption("Share of measurement entries per decision (%)")
         st.dataframe(ft.round(2), key="rd_flagtable")
+    for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # what a flag share means
+        st.info(e.markdown(), icon=":material/lightbulb:")
 
 st.markdown("##### Data source and licence")
 st.info(R.LICENCES[rec])

@@ -176,7 +176,10 @@ def time_estimate(spec: ExperimentSpec) -> str:
         _rec, setup, _ = plan(spec).scenario._setup()
         t, K, us = setup.t, setup.K, DRIVE_US_PER_STEP
     s = K * len(spec.filters) * spec.runs * us * 1e-6
-    return f"{K} epochs over {t[-1] - t[0]:.0f} s: roughly {max(s, 1.0):.0f} s to run"
+    return (
+        f"{K} epochs over {t[-1] - t[0]:.0f} s: roughly {max(s, 1.0):.0f} s to run (the first run "
+        "after a server start also compiles the filters: up to a minute or two more)"
+    )
 
 
 def _pr_epochs(spec: ExperimentSpec):
@@ -271,7 +274,8 @@ def _pr_findings(spec: ExperimentSpec) -> list[Finding]:
     out = [
         Finding(
             "note",
-            f"pseudoranges: {len(ep.t)} epochs at {1 / float(np.median(dt)):.3g} Hz over "
+            f"pseudoranges: {len(ep.t)} epochs (the first starts the filters, {len(ep.t) - 1} are "
+            f"filtered) at {1 / float(np.median(dt)):.3g} Hz over "
             f"{ep.t[-1] - ep.t[0]:.1f} s, {len(ep.names)} satellites "
             f"({int(np.median(per_epoch))} per epoch, median); one receiver clock per system: "
             + ", ".join(ep.clock_names),
@@ -316,12 +320,21 @@ def run_findings(res: Results) -> list[Finding]:
     return run_messages(res)
 
 
+#: A note that is the yardstick of the results (the trust check's raw-fix figure): shown in the open.
+LEAD_NOTE = "3-D position RMS "
+
+
 def show_findings(st: Any, findings: Sequence[Finding], expanded: bool = False) -> None:
-    """Warnings as warnings (likely causes as a list), notes in one expander; ``st`` = streamlit."""
+    """Warnings as warnings (likely causes as a list), the trust check's figure (the raw fixes
+    against the best filter) in the open, other notes in one expander; ``st`` = streamlit.
+    """
     for f in findings:
         if f.level == "warning":
             st.warning(f.text + "".join(f"\n- {c}" for c in f.causes))
-    notes = [f.text for f in findings if f.level != "warning"]
+    for f in findings:
+        if f.level != "warning" and f.text.startswith(LEAD_NOTE):
+            st.info(f.text, icon=":material/straighten:")
+    notes = [f.text for f in findings if f.level != "warning" and not f.text.startswith(LEAD_NOTE)]
     if notes:
         with st.expander("What the filters are fed, and the checks", expanded=expanded):
             st.markdown("\n".join(f"- {n}" for n in notes))
@@ -527,6 +540,11 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
     return readable(fig)
 
 
+#: Column names of :func:`flag_table` where the flag's short name would mislead on this page: the
+#: Sage–Husa family's flag 9 is mostly R̂ held at its band (navlab.diagnostics), not a repair.
+FLAG_COLUMNS = {"numerical fix": "numerical fix or R̂ at its band"}
+
+
 def flag_table(res: Results) -> pd.DataFrame:
     """Share of (epoch, channel) entries per flag code and filter, in %."""
     rows = []
@@ -536,7 +554,7 @@ def flag_table(res: Results) -> pd.DataFrame:
         row = {"filter": fr.label}
         for code, name in FLAG_NAMES.items():
             if code:
-                row[name] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
+                row[FLAG_COLUMNS.get(name, name)] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
         rows.append(row)
     df = pd.DataFrame(rows).set_index("filter")
     return df.loc[:, (df != 0).any(axis=0)] if not df.empty else df
