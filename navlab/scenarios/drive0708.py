@@ -457,6 +457,14 @@ class Drive0708(Scenario):
     filter_defaults: ClassVar[dict] = {
         "chi2-kf": {"per_channel": True},
         **{key: {"r_min": 0.25, "r_max": 16.0} for key in ("sage-husa", "irakf", "rrae", "rakf", "rsshakf")},
+        # issue 24, recording (c) (10 % of the fixes 30–100 m off): the paper's β update (eq. 21) fed
+        # the raw residual, so R̂ absorbed the outliers (median 145–183× the receiver's σ²) and HAKF
+        # leaned on the drifting INS (up to 1.9× the clean fixes); its Huber-weighted β keeps it ≤ 1.3×
+        "hakf": {"robust_beta": True},
+        # the same recording: IRAKF's parallel SKF (plain KF, R0) absorbed the outliers, then flagged
+        # every good fix (REJECTED_AUX): no update, the INS drifted, 4 of 10 seeds diverged; gating
+        # the SKF's own update on its detections keeps it clean (all 10 within 1.3×)
+        "irakf": {"r_min": 0.25, "r_max": 16.0, "skf_gated": True},
     }
     default_runs = 10
     simulated = False
