@@ -23,9 +23,11 @@ Kinds (the rule each one applies; thresholds are stated here and were not tuned 
 ``numerical_fix``
     Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements of
     the runs the filter is judged on (:func:`navlab.metrics.judge`, as the tables).
-    For the Sage–Husa family (``navlab.filters.sage_husa``) the fix is the clamp of an R̂ that lost
-    positive-definiteness (ALGORITHMS.md §4.1 step 4): R̂ there is the clamp's bound, not an
-    estimate. A numerical fix is never an outlier detection.
+    For the Sage–Husa family (``navlab.filters.sage_husa``) flag 9 marks R̂ held at a bound of
+    its band: the eigenvalues of R0^-1/2 R̂ R0^-1/2 kept in [r_min, r_max] (ALGORITHMS.md §4.1
+    step 4). With a deliberate band (drive0708, own-drive: [0.25, 16]) that is a bound, not a
+    numerical failure; the sentence says which bound and on what share (:func:`band_sides`).
+    A numerical fix is never an outlier detection.
 ``divergence``
     Runs the experiment marks as diverged (``FilterRun.diverged``); they are left out of the
     curves and the metrics.
@@ -44,6 +46,7 @@ from urllib.parse import urlencode
 
 import numpy as np
 
+from navlab.errors import NavlabError
 from navlab.filters.base import NUMERICAL_FIX, REJECTED, REJECTED_AUX, REPLACED
 
 if TYPE_CHECKING:
@@ -253,6 +256,76 @@ def _runaway(res: Results, fr: FilterRun, group: str) -> Explanation | None:
     )
 
 
+def band_sides(trace: np.ndarray, m: int, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which bound of the band [lo, hi] a clamped R̂ can be held at, from tr(R0⁻¹ R̂) alone.
+
+    After the clamp the eigenvalues λ of C = R0^-1/2 R̂ R0^-1/2 lie in [lo, hi], one of them at a
+    bound. λ_max = hi needs tr C ≥ hi + (m − 1)·lo; λ_min = lo needs tr C ≤ lo + (m − 1)·hi; and
+    by Schur–Horn any trace in between fits either (the stored R̂ is its diagonal only, whose sum
+    is tr C when R0 is diagonal). Returns the boolean arrays (lower possible, upper possible).
+    """
+    tol = 1e-6 * max(hi, 1.0)
+    return trace <= lo + (m - 1) * hi + tol, trace >= hi + (m - 1) * lo - tol
+
+
+def _band(res: Results, key: str) -> tuple[float, float] | None:
+    """The band [r_min, r_max] filter ``key`` ran with (spec, then scenario preset, then class)."""
+    from navlab.experiment import filter_group
+
+    try:
+        g = filter_group(res.spec, key)
+        p = {**g.defaults(), **g.values}
+        return float(p["r_min"]), float(p["r_max"])
+    except (NavlabError, KeyError, TypeError, ValueError):  # no band (r_min, r_max) to read
+        return None
+
+
+def _band_sentence(res: Results, fr: FilterRun, ok: np.ndarray, fixed: np.ndarray, present) -> str:
+    """The Sage–Husa family's flag 9 said as what it is: R̂ held at a bound of its band."""
+    d = res.data
+    R0 = np.atleast_2d(np.asarray(d.model.R0, dtype=float))
+    band = _band(res, fr.key)
+    pct = 100.0 * float(fixed[present].mean())
+    tail = (
+        ": there R̂ is the bound, not an estimate. These are not outlier detections; the band is "
+        "the filter's r_min, r_max (ALGORITHMS.md §4.1 step 4)."
+    )
+    generic = f"{fr.label} — R̂ held at a bound of its band (flag 9) on {_g(pct)} % of the measurements"
+    if band is None or fr.R_hat is None or not np.allclose(R0, np.diag(np.diag(R0))):
+        return generic + tail
+    lo, hi = band
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tr = np.sum(fr.R_hat[ok, 1:] / np.diag(R0), axis=-1)  # (runs, K): tr(R0⁻¹ R̂) per epoch
+    finite = np.isfinite(tr)
+    low, up = band_sides(np.where(finite, tr, 0.0), R0.shape[0], lo, hi)
+    low, up = low & finite, up & finite
+    fx = fixed & present
+    n_present = int(present.sum())
+
+    def share(epochs: np.ndarray) -> float:
+        return 100.0 * float((fx & epochs[..., None]).sum()) / n_present
+
+    found = [
+        (share(low & ~up), f"the lower bound r_min = {_g(lo)} × R0 (σ {_g(np.sqrt(lo))}× the nominal σ)"),
+        (share(up & ~low), f"the upper bound r_max = {_g(hi)} × R0 (σ {_g(np.sqrt(hi))}× the nominal σ)"),
+        (share(low & up), f"one bound of [{_g(lo)}, {_g(hi)}] × R0 (which one, the stored R̂ does not tell)"),
+        (share(~finite), "no finite value (a diverged run)"),
+    ]
+    parts = [f"{what} on {_g(v)} %" for v, what in found if v > 0]
+    if not parts:
+        return generic + tail
+    s = f"{fr.label} — R̂ held at " + ", at ".join(parts) + " of the measurements (flag 9)"
+    if found[0][0] > 0:
+        s += (
+            "; at the lower bound the update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) fell below r_min × R0 "
+            "along some direction"
+        )
+    return s + (
+        ", and along that direction R̂ is the bound, not an estimate. These are not outlier "
+        "detections; the band is the filter's r_min, r_max (ALGORITHMS.md §4.1 step 4)."
+    )
+
+
 def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
     from navlab.filters import registry
 
@@ -269,12 +342,7 @@ def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation |
     n = int(fixed.any(axis=(1, 2)).sum())
     cls = registry().get(fr.key)
     if cls is not None and cls.__module__.startswith("navlab.filters.sage_husa"):
-        s = (
-            f"{fr.label} — its Sage–Husa R̂ update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) lost positive-"
-            f"definiteness and was clamped (a numerical fix, flag 9) on {_g(pct)} % of the "
-            "measurements: there R̂ is the clamp's bound, not an estimate, and these are not outlier "
-            "detections."
-        )
+        s = _band_sentence(res, fr, ok, fixed, present)
     else:
         s = (
             f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"

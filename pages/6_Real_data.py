@@ -2,6 +2,7 @@
 
 import streamlit as st
 
+from navlab.diagnostics import explain
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
 from navlab.noise import OUTLIERS
@@ -19,7 +20,8 @@ frame(
     "Real data",
     "🚗",
     "Real sensors, no simulator: a MEMS IMU in a car aided by 1 Hz GNSS made from its RTK "
-    "truth, and GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth.",
+    "truth, GPS/GLONASS pseudoranges from an urban canyon with SPAN ground truth, or your own "
+    "drive or pseudoranges (choose an upload under Recording).",
 )
 
 sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
@@ -108,10 +110,13 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
             P, "outage_len_s", "rd_outlen", "Outage length (s)", container=o2, step=1.0
         )
         sp["imu_rate_hz"] = field_widget(P, "imu_rate_hz", "rd_imurate", "IMU rate (Hz; 0: raw)")
-    else:
-        sp["variance_model"] = field_widget(P, "variance_model", "rd_varmodel", "Variance model")
-        sp["height_aiding"] = field_widget(P, "height_aiding", "rd_height", "Height aiding")
-        contamination, scale = outlier_widgets("_sl", "Extra injected outliers α")
+    else:  # pseudoranges: smartLoc Berlin or an upload (own keys: its defaults differ)
+        tag = "_pr" if rec == "upload-pr" else ""
+        sp["variance_model"] = field_widget(P, "variance_model", f"rd_varmodel{tag}", "Variance model")
+        sp["height_aiding"] = field_widget(P, "height_aiding", f"rd_height{tag}", "Height aiding")
+        if rec == "upload-pr":
+            sp["height_m"] = field_widget(P, "height_m", "rd_height_m_pr", "Street height (m, ellipsoidal)")
+        contamination, scale = outlier_widgets(tag or "_sl", "Extra injected outliers α")
 
 upload_error = None
 if rec == "upload":
@@ -143,6 +148,34 @@ if rec == "upload":
         st.stop()
     sp["data_dir"] = str(folder)
 
+elif rec == "upload-pr":
+    st.markdown(
+        "Upload **pseudoranges.csv** (`t_s, sat_id, system, pseudorange_m, sat_x_m, sat_y_m, sat_z_m`, "
+        "optional `var_m2, elevation_deg, cn0_dbhz`: one row per satellite and epoch, corrected for "
+        "the satellite clock and the atmosphere, satellite ECEF at transmit time), optionally "
+        "**odometry.csv** (`t_s, speed_mps, yaw_rate_radps`) and **truth.csv** (`t_s, lat_deg, "
+        "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). The README section *Your own pseudoranges* says "
+        "what each column does; a smartLoc sequence runs from the CLI (`--set scenario.data_dir=`)."
+    )
+    u1, u2, u3 = st.columns(3)
+    f_pr = u1.file_uploader("pseudoranges.csv", type=["csv", "txt"], key="rd_up_pr")
+    f_odo = u2.file_uploader("odometry.csv (optional)", type=["csv", "txt"], key="rd_up_odo")
+    f_gt = u3.file_uploader("truth.csv (optional)", type=["csv", "txt"], key="rd_up_prtruth")
+    if f_pr is None:
+        st.info("Upload at least pseudoranges.csv.")
+        st.stop()
+    try:
+        folder = R.save_pr_upload(
+            f_pr.getvalue(),
+            f_odo.getvalue() if f_odo is not None else None,
+            f_gt.getvalue() if f_gt is not None else None,
+            uploads=session_uploads(),
+        )
+    except NavlabError as exc:
+        st.error(str(exc))
+        st.stop()
+    sp["data_dir"] = str(folder)
+
 if not filters:
     st.warning("Choose at least one filter.")
     st.stop()
@@ -160,7 +193,7 @@ spec = R.build_spec(
 link_notice("real_data", spec, problems)  # link values not used, named as on the other pages
 key = spec.to_json()
 store = result_store()
-if rec == "upload" and store.get(key) is None:  # plain-words checks before the run
+if rec in R.UPLOADS and store.get(key) is None:  # plain-words checks before the run
     try:
         R.show_findings(st, R.prerun_findings(spec), expanded=True)
         st.caption(R.time_estimate(spec))
@@ -217,7 +250,7 @@ else:
             key="rd_ch",
         )
         chart(st, R.rhat_figure(res, ch, run), "R-hat per channel", key="rd_rhat", name="rhat")
-        if d.scenario == "smartloc-berlin":
+        if d.scenario in ("smartloc-berlin", "own-pseudoranges"):
             st.caption(
                 "Pseudorange channels are whitened by the variance model: R̂ is a variance "
                 "multiplier (1 = the model is right)."
@@ -227,6 +260,8 @@ else:
     if not ft.empty and ft.shape[1]:
         st.caption("Share of measurement entries per decision (%)")
         st.dataframe(ft.round(2), key="rd_flagtable")
+    for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # what a flag share means
+        st.info(e.markdown(), icon=":material/lightbulb:")
 
 st.markdown("##### Data source and licence")
 st.info(R.LICENCES[rec])

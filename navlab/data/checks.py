@@ -591,7 +591,7 @@ def trust_check(res: Results) -> list[Finding]:
     out = [
         Finding(
             "note",
-            f"position RMS {basis}: {raw_label} {raw:.3g} m; best filter {lab} {errs[best]:.3g} m",
+            f"3-D position RMS {basis}: {raw_label} {raw:.3g} m; best filter {lab} {errs[best]:.3g} m",
         )
     ]
     if not errs[best] <= max(TRUST_FACTOR * raw, raw + TRUST_MARGIN_M):

@@ -40,14 +40,19 @@ RECORDINGS = {
     "drive0708": "Car drive: MEMS IMU + 1 Hz GNSS (rtkx_drive_0708)",
     "smartloc-berlin": "Urban pseudoranges: smartLoc Berlin Potsdamer Platz",
     "upload": "Upload your own drive (generic CSV)",
+    "upload-pr": "Upload your own pseudoranges (generic CSV)",
 }
+#: The page's uploads and the scenario each one runs.
+UPLOADS = {"upload": "own-drive", "upload-pr": "own-pseudoranges"}
+_OWN_FILES = (
+    "Your own files (generic navlab CSV format). They are kept in a temporary folder of this "
+    "session only and deleted when the session ends (at the latest one hour after its last use)."
+)
 LICENCES = {
     "drive0708": RTKX_SOURCE,
     "smartloc-berlin": SMARTLOC_SOURCE,
-    "upload": (
-        "Your own files (generic navlab CSV format). They are kept in a temporary folder of this "
-        "session only and deleted when the session ends (at the latest one hour after its last use)."
-    ),
+    "upload": _OWN_FILES,
+    "upload-pr": _OWN_FILES,
 }
 TABLE_METRICS = (
     ("h_err_median", "median horizontal error (m)"),
@@ -100,7 +105,7 @@ def outlier_defaults(scenario: str) -> dict[str, Any]:
 
 
 def scenario_of(recording: str) -> str:
-    return "own-drive" if recording == "upload" else recording
+    return UPLOADS.get(recording, recording)
 
 
 def usable_filters(scenario: str) -> list[str]:
@@ -142,6 +147,9 @@ def build_spec(
 #: the own-drive CLI tables of issue 24 (10 Hz fixes, 7 filters) printed 250–680 µs per run·step
 #: (IRAKF the dearest); the estimate takes a middle value and says it is rough.
 DRIVE_US_PER_STEP = 400.0
+#: the same for pseudoranges: the own-pseudoranges CLI table on 60 s of Berlin (issue 24, 7 default
+#: filters, ~15 satellites an epoch) printed 2500–23500 µs per run·step (VB-EKF the dearest), mean ≈ 7600
+PR_US_PER_STEP = 8000.0
 
 
 def epochs_label(recording: str) -> str:
@@ -150,20 +158,37 @@ def epochs_label(recording: str) -> str:
         "drive0708": "Epochs (1 Hz; 0 = the whole drive, ≈ 513)",
         "smartloc-berlin": "Epochs (5 Hz; 0 = all 1371)",
         "upload": "GNSS epochs (0 = the whole upload)",
+        "upload-pr": "Pseudorange epochs (0 = the whole upload)",
     }[recording]
 
 
 def epochs_default(recording: str) -> int:
     """The Epochs box's default: the bundled recordings a short first look, an upload all of it."""
-    return {"drive0708": 120, "smartloc-berlin": 300, "upload": 0}[recording]
+    return {"drive0708": 120, "smartloc-berlin": 300, "upload": 0, "upload-pr": 0}[recording]
 
 
 def time_estimate(spec: ExperimentSpec) -> str:
-    """A rough run time of an own drive's spec (its epochs × filters × runs), in words."""
-    scen = plan(spec).scenario
-    _rec, setup, _ = scen._setup()
-    s = setup.K * len(spec.filters) * spec.runs * DRIVE_US_PER_STEP * 1e-6
-    return f"{setup.K} epochs over {setup.t[-1] - setup.t[0]:.0f} s: roughly {max(s, 1.0):.0f} s to run"
+    """A rough run time of an upload's spec (its epochs × filters × runs), in words."""
+    if spec.scenario == "own-pseudoranges":
+        t = _pr_epochs(spec).t
+        K, us = len(t) - 1, PR_US_PER_STEP
+    else:
+        _rec, setup, _ = plan(spec).scenario._setup()
+        t, K, us = setup.t, setup.K, DRIVE_US_PER_STEP
+    s = K * len(spec.filters) * spec.runs * us * 1e-6
+    return (
+        f"{K} epochs over {t[-1] - t[0]:.0f} s: roughly {max(s, 1.0):.0f} s to run (the first run "
+        "after a server start also compiles the filters: up to a minute or two more)"
+    )
+
+
+def _pr_epochs(spec: ExperimentSpec):
+    """An own-pseudoranges spec's epochs, cut to its ``epochs`` setting (0: all)."""
+    from navlab.scenarios.smartloc_berlin import load_epochs
+
+    ep = load_epochs(str(spec.scenario_params.get("data_dir", "")))
+    K = int(spec.scenario_params.get("epochs") or 0)
+    return ep.cut(min(K, len(ep.t) - 1)) if K else ep
 
 
 def cli_line(spec: ExperimentSpec) -> str:
@@ -218,10 +243,73 @@ def save_upload(imu: bytes, gnss: bytes, truth: bytes | None = None, *, uploads:
     return d
 
 
+def save_pr_upload(
+    pr: bytes, odometry: bytes | None = None, truth: bytes | None = None, *, uploads: SessionUploads
+) -> Path:
+    """Write uploaded generic pseudorange files (pseudoranges.csv[, odometry.csv, truth.csv]) into
+    this session's upload folder and validate them, as :func:`save_upload` does for a drive.
+    """
+    from navlab.data.loaders import read_pseudorange_csv
+
+    sweep()
+    d = uploads.folder(b"pr", pr, odometry, truth)
+    for name, content in (("pseudoranges.csv", pr), ("odometry.csv", odometry), ("truth.csv", truth)):
+        if content:
+            (d / name).write_bytes(content)
+        elif (d / name).exists():
+            (d / name).unlink()
+    try:
+        read_pseudorange_csv(d)
+    except NavlabError as exc:  # the user sees the uploaded names, not the temp paths
+        shutil.rmtree(d, ignore_errors=True)
+        raise NavlabError(str(exc).replace(str(d) + "/", "uploaded ")) from None
+    return d
+
+
+def _pr_findings(spec: ExperimentSpec) -> list[Finding]:
+    """What an own-pseudoranges run will be fed: epochs, satellites, clocks, odometry, truth."""
+    ep = _pr_epochs(spec)
+    dt = np.diff(ep.t)
+    per_epoch = np.isfinite(ep.rho).sum(axis=1)
+    out = [
+        Finding(
+            "note",
+            f"pseudoranges: {len(ep.t)} epochs (the first starts the filters, {len(ep.t) - 1} are "
+            f"filtered) at {1 / float(np.median(dt)):.3g} Hz over "
+            f"{ep.t[-1] - ep.t[0]:.1f} s, {len(ep.names)} satellites "
+            f"({int(np.median(per_epoch))} per epoch, median); one receiver clock per system: "
+            + ", ".join(ep.clock_names),
+        ),
+        Finding(
+            "note",
+            "odometry: "
+            + ("dead reckoning with odometry.csv" if ep.has_odometry else "none — a constant-velocity model")
+            + "; truth: "
+            + (
+                "truth.csv (errors are measured)"
+                if ep.has_truth
+                else "none (no errors, only the filters' tracks)"
+            ),
+        ),
+    ]
+    few = int((per_epoch[1:] < 4 + len(ep.clock_names) - 1).sum()) if len(ep.t) > 1 else 0
+    if few:
+        out.append(
+            Finding(
+                "warning",
+                f"{few} epoch(s) have fewer satellites than a single-epoch fix needs (3 + one clock per "
+                "system): WLS has no fix there, the other filters lean on their motion model",
+            )
+        )
+    return out
+
+
 def prerun_findings(spec: ExperimentSpec) -> list[Finding]:
-    """What the filters will be fed and the checks of the recording, before a run (own drives)."""
+    """What the filters will be fed and the checks of the recording, before a run (own data)."""
     from navlab.data.checks import check_drive
 
+    if spec.scenario == "own-pseudoranges":
+        return _pr_findings(spec)
     scen = plan(spec).scenario
     rec, setup, _ = scen._setup()
     return [Finding("note", n) for n in setup.notes] + check_drive(rec, setup, scen.params.sigma_m)
@@ -232,12 +320,21 @@ def run_findings(res: Results) -> list[Finding]:
     return run_messages(res)
 
 
+#: A note that is the yardstick of the results (the trust check's raw-fix figure): shown in the open.
+LEAD_NOTE = "3-D position RMS "
+
+
 def show_findings(st: Any, findings: Sequence[Finding], expanded: bool = False) -> None:
-    """Warnings as warnings (likely causes as a list), notes in one expander; ``st`` = streamlit."""
+    """Warnings as warnings (likely causes as a list), the trust check's figure (the raw fixes
+    against the best filter) in the open, other notes in one expander; ``st`` = streamlit.
+    """
     for f in findings:
         if f.level == "warning":
             st.warning(f.text + "".join(f"\n- {c}" for c in f.causes))
-    notes = [f.text for f in findings if f.level != "warning"]
+    for f in findings:
+        if f.level != "warning" and f.text.startswith(LEAD_NOTE):
+            st.info(f.text, icon=":material/straighten:")
+    notes = [f.text for f in findings if f.level != "warning" and not f.text.startswith(LEAD_NOTE)]
     if notes:
         with st.expander("What the filters are fed, and the checks", expanded=expanded):
             st.markdown("\n".join(f"- {n}" for n in notes))
@@ -443,6 +540,11 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
     return readable(fig)
 
 
+#: Column names of :func:`flag_table` where the flag's short name would mislead on this page: the
+#: Sage–Husa family's flag 9 is mostly R̂ held at its band (navlab.diagnostics), not a repair.
+FLAG_COLUMNS = {"numerical fix": "numerical fix or R̂ at its band"}
+
+
 def flag_table(res: Results) -> pd.DataFrame:
     """Share of (epoch, channel) entries per flag code and filter, in %."""
     rows = []
@@ -452,7 +554,7 @@ def flag_table(res: Results) -> pd.DataFrame:
         row = {"filter": fr.label}
         for code, name in FLAG_NAMES.items():
             if code:
-                row[name] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
+                row[FLAG_COLUMNS.get(name, name)] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
         rows.append(row)
     df = pd.DataFrame(rows).set_index("filter")
     return df.loc[:, (df != 0).any(axis=0)] if not df.empty else df

@@ -96,7 +96,10 @@ def test_rejected_link_values_get_the_usual_notice(open_page):
     )
     assert not at.exception
     (w,) = [w.value for w in at.warning if "were not used" in w.value]
-    assert "`rd_rec=../../../etc/passwd`: no such recording (one of: drive0708, smartloc-berlin, upload)" in w
+    assert (
+        "`rd_rec=../../../etc/passwd`: no such recording "
+        "(one of: drive0708, smartloc-berlin, upload, upload-pr)" in w
+    )
     assert (
         "`rd_seed=9007199254740992`: the seed must be from 0 to 9007199254740991" in w
     )  # whole, not 9.0e+15

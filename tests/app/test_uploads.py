@@ -185,7 +185,76 @@ def test_own_drive_with_an_imu_gap_runs_on_the_page_with_its_notes(open_page, tm
     at.button(key="rd_run").click().run()
     assert_clean(at)
     after = " ".join(m.value for m in at.markdown)
-    assert "as recorded" in after and "start: moving" in after and "position RMS against the truth" in after
+    assert "as recorded" in after and "start: moving" in after
+    # the yardstick in the open, not inside the notes' expander
+    assert any(i.value.startswith("3-D position RMS against the truth: the raw GNSS fixes") for i in at.info)
     table = at.table[0].value
     assert list(table.index) == ["KF", "HKF (Huber)"]
     assert all(float(c.split()[0]) < 5.0 for c in table["RMSE 3-D (m)"])
+
+
+needs_smartloc = pytest.mark.skipif(
+    not (data_root() / "smartloc_berlin_pp").is_dir(), reason="real data not found (set NAVLAB_DATA)"
+)
+
+
+@needs_smartloc
+def test_own_pseudoranges_upload_runs_on_the_page_with_its_checks_and_cli_line(
+    open_page, tmp_path, monkeypatch
+):
+    """Issue 24: the pseudorange upload beside the drive upload — the whole upload by default, a
+    pre-run summary and time estimate, the run, and a CLI line naming the upload's folder."""
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        import convert_smartloc
+    finally:
+        sys.path.pop(0)
+    src = tmp_path / "src"
+    assert convert_smartloc.main(["--out", str(src), "--seconds", "8"]) == 0
+    up = tmp_path / "up"
+    up.mkdir()
+    monkeypatch.setattr(U, "upload_root", lambda: up)
+    at = open_page(REAL, rd_rec="upload-pr", **{"rd_flt_own-pseudoranges": ["wls", "ekf"]})
+    assert_clean(at)
+    assert "Upload at least pseudoranges.csv." in [i.value for i in at.info]
+    assert at.number_input(key="rd_ep_own-pseudoranges").value == 0  # the whole upload
+    for key, name in (
+        ("rd_up_pr", "pseudoranges.csv"),
+        ("rd_up_odo", "odometry.csv"),
+        ("rd_up_prtruth", "truth.csv"),
+    ):
+        at.file_uploader(key=key).set_value((name, (src / name).read_bytes(), "text/csv"))
+    at.run()
+    assert_clean(at)
+    n_ep = pd.read_csv(src / "pseudoranges.csv").t_s.nunique()
+    before = " ".join(m.value for m in at.markdown)
+    assert (
+        f"pseudoranges: {n_ep} epochs (the first starts the filters, {n_ep - 1} are filtered)" in before
+        and "dead reckoning with odometry.csv" in before
+    )
+    assert any(f"{n_ep - 1} epochs over" in c.value and "to run" in c.value for c in at.caption)
+    (line,) = [c.value for c in at.code if "own-pseudoranges" in c.value]
+    assert "--set scenario.data_dir=" in line and str(up) in line
+    at.button(key="rd_run").click().run()
+    assert_clean(at)
+    table = at.table[0].value
+    assert list(table.index) == ["WLS (per epoch)", "EKF"]
+    assert any(i.value.startswith("3-D position RMS against the truth: the per-epoch") for i in at.info)
+    assert all(float(c.split()[0]) < 100.0 for c in table["median horizontal error (m)"])
+    (d,) = [p for p in up.glob(U.PREFIX + "*")]
+    assert sorted(p.name for p in next(d.iterdir()).iterdir()) == [
+        "odometry.csv",
+        "pseudoranges.csv",
+        "truth.csv",
+    ]
+
+
+def test_a_broken_pseudorange_upload_names_the_file_and_leaves_no_files(tmp_path):
+    from navlab.errors import NavlabError
+    from navlab.ui import realdata as R
+
+    ups = U.SessionUploads(root=tmp_path)
+    with pytest.raises(NavlabError, match=r"uploaded pseudoranges.csv: .*sat_x_m") as e:
+        R.save_pr_upload(b"t_s,sat_id,system,pseudorange_m\n0,1,G,2e7\n", uploads=ups)
+    assert str(tmp_path) not in str(e.value)
+    assert not [p for p in ups.path.iterdir()]

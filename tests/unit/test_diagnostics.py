@@ -131,13 +131,60 @@ def test_numerical_fix_rate(quiet):
         assert bool(ex) is found
         if found:
             assert ex[0].value == pytest.approx(100 * count / total) and ex[0].unit == "%"
-            assert "positive-definiteness" in ex[0].sentence and "not outlier detections" in ex[0].sentence
+            # R̂ of this run lies well inside [0.01, 1e4] × R0: only the lower bound fits its trace
+            assert "held at the lower bound r_min = 0.01 × R0" in ex[0].sentence
+            assert (
+                "positive-definiteness" not in ex[0].sentence and "not outlier detections" in ex[0].sentence
+            )
             assert parse_qs(urlparse(ex[0].learn).query)["filter"] == ["sage-husa"]
     # outside the Sage–Husa family: the generic sentence
     flags = np.zeros_like(quiet.runs["kf"].flags)
     flags[:, 1:5] = NUMERICAL_FIX
     (e,) = [e for e in D.explain(_with(quiet, "kf", flags=flags)) if e.filter == "kf"]
     assert "covariance repaired" in e.sentence and "Sage–Husa" not in e.sentence
+
+
+def test_band_bound_named_with_its_share(quiet):
+    """R̂ at the band's upper bound on half the flagged epochs: both bounds, each with its share."""
+    fr = quiet.runs["sage-husa"]
+    R0 = np.diag(quiet.data.model.R0)
+    flags = np.zeros_like(fr.flags)
+    flags[:, 1:21] = NUMERICAL_FIX  # 20 of 60 epochs, every channel
+    R_hat = fr.R_hat.copy()
+    R_hat[:, 1:11] = 1e4 * R0  # the first 10: at r_max × R0
+    r = _with(quiet, "sage-husa", flags=flags, R_hat=R_hat)
+    (e,) = [e for e in D.explain(r) if e.kind == "numerical_fix"]
+    assert e.value == pytest.approx(100 * 20 / 60)
+    s = e.sentence
+    assert "lower bound r_min = 0.01 × R0 (σ 0.1× the nominal σ) on 16.7 %" in s
+    assert "upper bound r_max = 10000 × R0 (σ 100× the nominal σ) on 16.7 %" in s
+
+
+def test_band_sides_hold_the_side_the_clamp_used():
+    """Whichever eigenvalue the clamp moved (kernel run in Python), band_sides allows that side."""
+    from navlab.filters.sage_husa.kernels import clamp_to_band
+
+    rng = np.random.default_rng(3)
+    lo, hi, m = 0.25, 16.0, 5
+    R0 = np.diag(rng.uniform(0.01, 4.0, m))
+    L0 = np.linalg.cholesky(R0)
+    seen = set()
+    for _ in range(300):
+        A = rng.standard_normal((m, m))
+        C = A @ A.T * 10 ** rng.uniform(-2, 2) - rng.uniform(0, 2) * np.eye(m)  # may leave [lo, hi]
+        R = L0 @ C @ L0.T
+        out, changed = clamp_to_band(R, R0, L0, lo, hi)
+        if not changed.any():
+            continue
+        w = np.linalg.eigvalsh(C)
+        low, up = D.band_sides(np.array([np.sum(np.diag(out) / np.diag(R0))]), m, lo, hi)
+        if w.min() < lo:
+            assert low[0]
+            seen.add("lo")
+        if w.max() > hi:
+            assert up[0]
+            seen.add("hi")
+    assert seen == {"lo", "hi"}
 
 
 def test_replacement_runaway_threshold(quiet):

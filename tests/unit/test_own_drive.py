@@ -20,7 +20,7 @@ from navlab.cli import main
 from navlab.data import data_root
 from navlab.data.checks import TRUST_FACTOR, Finding, heading_change_slope, time_offset_hint, trust_check
 from navlab.data.loaders import RTKX_DIR
-from navlab.experiment import ExperimentSpec, run_experiment
+from navlab.experiment import ExperimentSpec, plan, run_experiment
 from navlab.ins.lc import bridge_gaps, gap_Qc, gap_time_per_block
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -205,6 +205,29 @@ def drive():
     finally:
         sys.path.pop(0)
     return make_test_drives, make_test_drives.Drive()
+
+
+@needs_rtkx
+def test_an_in_motion_start_skips_a_first_fix_the_outlier_check_flags(tmp_path, drive):
+    """Issue 24, recording (c) seeds 2 and 4: the run started AT an outlying first fix (73 m off,
+    P0 of the receiver's σ), and the χ²-gated KF then rejected every good fix (diverged). It now
+    starts from the first fix the pre-run check accepts, carried back with the GNSS velocity."""
+    mk, d = drive
+    rng = np.random.default_rng(3)
+    t0 = d.first_above(5.0)
+    mk.write(d, tmp_path, mk._times(rng, t0, t0 + 30, 0.07, 0.2), t0, t0 + 30, rng)
+    spec = ExperimentSpec(scenario="own-drive", filters=("kf",), scenario_params={"data_dir": str(tmp_path)})
+    t_start = plan(spec).scenario._setup()[1].t[0]  # the run's epoch 0 (a fix after the IMU's start)
+    g = pd.read_csv(tmp_path / "gnss.csv", comment="#")
+    i = int(np.argmin(np.abs(g.t_s.to_numpy() - t_start)))
+    g.loc[i, "lat_deg"] += 60.0 / 111_000.0  # the run's first fix moved 60 m north
+    g.to_csv(tmp_path / "gnss.csv", index=False)
+    res = _run(tmp_path, filters=("chi2-kf",), mount={})
+    dd = res.data
+    assert dd.extras["raw_outliers"][0]  # the check flags it
+    e0 = np.linalg.norm(dd.x0[0, 6:9] - dd.x_true[0, 0, 6:9])
+    assert e0 < 3.0  # from the next fix, not 60 m off
+    assert not res.runs["chi2-kf"].diverged.any() and _metric(res, "chi2-kf", "rmse_pos") < 3.0
 
 
 def _offset_finding(res):

@@ -263,3 +263,19 @@ def test_the_page_cli_line_repeats_the_run_exactly(tmp_path):
     assert (back.runs, back.seed, back.contamination, back.outlier_scale) == (3, 7, 0.1, 10.0)
     assert plan(back).scenario.params == plan(spec).scenario.params  # data_dir included
     assert R.epochs_default("upload") == 0
+
+
+def test_the_pseudorange_upload_cli_line_repeats_the_run_exactly(tmp_path):
+    """The pseudorange upload's CLI line: scenario own-pseudoranges, its folder and height aiding."""
+    import shlex
+
+    from navlab.cli import _spec_from_args, build_parser
+    from navlab.ui import realdata as R
+
+    sp = {"data_dir": str(tmp_path / "my pr"), "height_aiding": "map-prior", "height_m": 74.5}
+    spec = R.build_spec("upload-pr", ["wls", "ekf"], epochs=R.epochs_default("upload-pr"), scenario_params=sp)
+    assert spec.scenario == "own-pseudoranges" and R.epochs_default("upload-pr") == 0
+    line = R.cli_line(spec)
+    back = _spec_from_args(build_parser().parse_args(shlex.split(line)[3:]))
+    assert back.scenario == "own-pseudoranges" and back.filters == ("wls", "ekf")
+    assert {k: back.scenario_params[k] for k in sp} == sp
