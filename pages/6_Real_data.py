@@ -126,8 +126,8 @@ if rec == "upload":
         "mounting under *Geometry and timing*), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m` ellipsoidal, "
         "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
         "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). Both files on one time base `t_s`; a drive "
-        "may start at rest (aligned there) or in motion (initialised from the GNSS). The README "
-        "section *Your own drive* says what each column does."
+        "may start at rest (aligned there) or in motion (initialised from the GNSS). The docs page "
+        "*Data sources* (docs/data.md), section *Your own drive*, says what each column does."
     )
     u1, u2, u3 = st.columns(3)
     f_imu = u1.file_uploader("imu.csv", type=["csv", "txt"], key="rd_up_imu")
@@ -154,7 +154,7 @@ elif rec == "upload-pr":
         "optional `var_m2, elevation_deg, cn0_dbhz`: one row per satellite and epoch, corrected for "
         "the satellite clock and the atmosphere, satellite ECEF at transmit time), optionally "
         "**odometry.csv** (`t_s, speed_mps, yaw_rate_radps`) and **truth.csv** (`t_s, lat_deg, "
-        "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). The README section *Your own pseudoranges* says "
+        "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). docs/data.md, section *Your own pseudoranges*, says "
         "what each column does; a smartLoc sequence runs from the CLI (`--set scenario.data_dir=`)."
     )
     u1, u2, u3 = st.columns(3)

@@ -898,7 +898,7 @@ def smartloc_berlin_pp(path: str | os.PathLike | None = None) -> PseudorangeReco
 
 
 def read_pseudorange_csv(folder: str | os.PathLike) -> PseudorangeRecording:
-    """Load the generic pseudorange CSV format (README 'Your own pseudoranges').
+    """Load the generic pseudorange CSV format (docs/data.md, 'Your own pseudoranges').
 
     ``pseudoranges.csv`` (required): ``t_s, sat_id, system, pseudorange_m, sat_x_m, sat_y_m,
     sat_z_m`` and optionally ``var_m2, elevation_deg, cn0_dbhz`` — one row per satellite and
