@@ -23,10 +23,11 @@ Kinds (the rule each one applies; thresholds are stated here and were not tuned 
 ``numerical_fix``
     Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements of
     the runs the filter is judged on (:func:`navlab.metrics.judge`, as the tables).
-    For the Sage–Husa family (``navlab.filters.sage_husa``) flag 9 marks R̂ held at a bound of
-    its band: the eigenvalues of R0^-1/2 R̂ R0^-1/2 kept in [r_min, r_max] (ALGORITHMS.md §4.1
-    step 4). With a deliberate band (drive0708, own-drive: [0.25, 16]) that is a bound, not a
-    numerical failure; the sentence says which bound and on what share (:func:`band_sides`).
+    For the filters with an R̂ band (the Sage–Husa family, ``vb-akf``, ``hakf``) flag 9 marks R̂
+    held at a bound of its band: the eigenvalues of R0^-1/2 R̂ R0^-1/2 kept in [r_min, r_max]
+    (ALGORITHMS.md §4.1 step 4; the VB filters per channel, §3.1). With a deliberate band
+    (drive0708, own-drive: [0.25, 16]) that is a bound, not a numerical failure; the sentence says
+    which bound and on what share (:func:`band_sides`).
     A numerical fix is never an outlier detection.
 ``divergence``
     Runs the experiment marks as diverged (``FilterRun.diverged``); they are left out of the
@@ -280,15 +281,19 @@ def _band(res: Results, key: str) -> tuple[float, float] | None:
         return None
 
 
-def _band_sentence(res: Results, fr: FilterRun, ok: np.ndarray, fixed: np.ndarray, present) -> str:
-    """The Sage–Husa family's flag 9 said as what it is: R̂ held at a bound of its band."""
+def _band_sentence(
+    res: Results, fr: FilterRun, ok: np.ndarray, fixed: np.ndarray, present, sage_husa: bool = True
+) -> str:
+    """Flag 9 of a filter with an R̂ band (the Sage–Husa family, the VB filters) said as what it
+    mostly is: R̂ held at a bound of its band (a repaired S, also flag 9, is rare beside it).
+    """
     d = res.data
     R0 = np.atleast_2d(np.asarray(d.model.R0, dtype=float))
     band = _band(res, fr.key)
     pct = 100.0 * float(fixed[present].mean())
     tail = (
         ": there R̂ is the bound, not an estimate. These are not outlier detections; the band is "
-        "the filter's r_min, r_max (ALGORITHMS.md §4.1 step 4)."
+        "the filter's r_min, r_max (ALGORITHMS.md §3.1, §4.1 step 4)."
     )
     generic = f"{fr.label} — R̂ held at a bound of its band (flag 9) on {_g(pct)} % of the measurements"
     if band is None or fr.R_hat is None or not np.allclose(R0, np.diag(np.diag(R0))):
@@ -315,14 +320,14 @@ def _band_sentence(res: Results, fr: FilterRun, ok: np.ndarray, fixed: np.ndarra
     if not parts:
         return generic + tail
     s = f"{fr.label} — R̂ held at " + ", at ".join(parts) + " of the measurements (flag 9)"
-    if found[0][0] > 0:
+    if found[0][0] > 0 and sage_husa:
         s += (
             "; at the lower bound the update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) fell below r_min × R0 "
             "along some direction"
         )
     return s + (
         ", and along that direction R̂ is the bound, not an estimate. These are not outlier "
-        "detections; the band is the filter's r_min, r_max (ALGORITHMS.md §4.1 step 4)."
+        "detections; the band is the filter's r_min, r_max (ALGORITHMS.md §3.1, §4.1 step 4)."
     )
 
 
@@ -341,8 +346,8 @@ def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation |
         return None
     n = int(fixed.any(axis=(1, 2)).sum())
     cls = registry().get(fr.key)
-    if cls is not None and cls.__module__.startswith("navlab.filters.sage_husa"):
-        s = _band_sentence(res, fr, ok, fixed, present)
+    if cls is not None and _band(res, fr.key) is not None:  # a filter with an R̂ band (§3.1, §4.1)
+        s = _band_sentence(res, fr, ok, fixed, present, cls.__module__.startswith("navlab.filters.sage_husa"))
     else:
         s = (
             f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"

@@ -177,6 +177,16 @@ class KFLimit:
     why: str = ""
 
 
+def band_param(bound: str) -> Any:
+    """A parameter of the band an adaptive filter keeps R̂ in, [r_min, r_max] × R0 (ALGORITHMS.md §4.1
+    step 4, §3.1): ``bound`` "r_min" or "r_max".
+    """
+    what = "R̂ kept within [r_min, r_max] × R0 (R̂ relative to the nominal R0: on real data, the receiver's σ²)"
+    if bound == "r_min":
+        return P_.param(0.01, lo=1e-6, hi=1.0, help=f"lower bound of the band: {what}")
+    return P_.param(1e4, lo=1.0, hi=1e8, help=f"upper bound of the band: {what}")
+
+
 def flag_fix(flags: Array, fixed: Array, *, overwrite: bool = True) -> Array:
     """Mark numerical fixes (flag 9, §0.3) in the per-channel ``flags`` (B, m), in place.
 

@@ -52,10 +52,12 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.filters.base import (
     DOWNWEIGHTED,
+    NUMERICAL_FIX,
     KFLimit,
     KFState,
     Model,
     Teaching,
+    band_param,
     register,
 )
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior, kf_update
@@ -140,19 +142,22 @@ MEASUREMENT_SPACE_UPDATE = Kernel(
 
 
 def vb_iterations(
-    M, nu, ok, alpha, beta_minus, huber, gamma, irls, robust_beta, adapt, iters, tol
+    M, nu, ok, alpha, beta_minus, r0, huber, gamma, irls, robust_beta, adapt, iters, tol, r_min, r_max
 ):  # pragma: no cover - compiled by numba
     """The VB iterations of one epoch for ONE run (S0 eqs. 15–21), each from the prior.
 
     M (m, m) = H P⁻ Hᵀ and nu (m,) = ν with missing channels masked (ok False), alpha (m,) =
-    α⁻ + ½, beta_minus (m,) = β⁻. ``huber``: the HAKF's Huber lines (16), (9), (17); otherwise
-    R̃ = R̂ (the AKF). A run stops once its β changes by less than ``tol`` (relative).
+    α⁻ + ½, beta_minus (m,) = β⁻, r0 (m,) = diag R0. ``huber``: the HAKF's Huber lines (16), (9),
+    (17); otherwise R̃ = R̂ (the AKF). A run stops once its β changes by less than ``tol``
+    (relative). β is kept in the band R̂ = β/α ∈ [r_min, r_max] × R0_ii (§3.1, as §4.1 step 4).
 
     Returns β (21), the R̃ and Huber weights of the last iteration (the R in the last gain), the
-    iterations done, the last max |Δβ/β| and whether S needed jitter (flag 9).
+    channels whose β the band held, the iterations done, the last max |Δβ/β| and whether S needed
+    jitter (flag 9).
     """
     m = nu.shape[0]
     beta, resid, w, Rt, Rhat, hph = np.ones((6, m))  # per channel: β, z − Hx⁺, weight, R̃, R̂, HP⁺Hᵀ
+    held = np.zeros(m, dtype=np.bool_)  # β held by the band R̂ ∈ [r_min, r_max] × R0_ii
     S, L, G = np.empty((3, m, m))  # work arrays of the update
     beta[:] = beta_minus  # β^(0) = β⁻
     resid[:] = nu
@@ -179,17 +184,20 @@ def vb_iterations(
             if huber and robust_beta:  # navlab extension (off by default, §3.2): Huber-weighted β
                 r2 *= gamma / max(abs(resid[i]) / np.sqrt(Rhat[i]), gamma)
             b_new = beta_minus[i] + 0.5 * (r2 + hph[i])  # (21) β = β⁻ + ½ ((z − Hx⁺)² + H P⁺ Hᵀ)
+            lo, hi = r_min * r0[i] * alpha[i], r_max * r0[i] * alpha[i]
+            held[i] = b_new < lo or b_new > hi
+            b_new = min(max(b_new, lo), hi)  # the band (§3.1): R̂ = β/α ∈ [r_min, r_max] × R0_ii
             delta = max(delta, abs(b_new - beta[i]) / beta[i])
             beta[i] = b_new
         if tol > 0.0 and delta < tol:  # converged: this run stops
             break
-    return beta, Rt, w, n_iter, delta, fixed
+    return beta, Rt, w, held, n_iter, delta, fixed
 
 
 VB_ITERATIONS = RunStep(
     vb_iterations,
-    n_runs=5,
-    outs=((1, float), (1, float), (1, float), (None, float), (None, float), (None, bool)),
+    n_runs=6,
+    outs=((1, float), (1, float), (1, float), (1, bool), (None, float), (None, float), (None, bool)),
     uses=(MEASUREMENT_SPACE_UPDATE,),
 )
 
@@ -352,6 +360,8 @@ class VBParams:
         hi=1.0,
         help="stop before N iterations once max |Δβ/β| < tol in every run (0: always exactly N)",
     )
+    r_min: float = band_param("r_min")
+    r_max: float = band_param("r_max")
 
 
 class _VBBase(KalmanUpdate):
@@ -390,14 +400,17 @@ class _VBBase(KalmanUpdate):
             bool(getattr(p, "irls", False)),
             bool(getattr(p, "robust_beta", False)),
         )
-        opts = (self.huber, *huber, p.adapt, p.iters, p.tol)  # the AKF has no Huber options
-        runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta)
-        beta, Rt, w, iters, delta, fixed = VB_ITERATIONS(runs, opts)
+        opts = (self.huber, *huber, p.adapt, p.iters, p.tol, p.r_min, p.r_max)  # (AKF: no Huber)
+        r0 = np.broadcast_to(np.diagonal(np.asarray(model.R0, dtype=float)), (B, z.shape[1]))
+        runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta, r0)
+        beta, Rt, w, held, iters, delta, fixed = VB_ITERATIONS(runs, opts)
+        flags = _down(w < 1.0)
+        flags[held & (flags == 0)] = NUMERICAL_FIX  # R̂ held at its band (as the Sage–Husa family's)
         return Noise(
             mask_missing(z, mk.nu, diag_embed(Rt)).R,  # the R in the last gain, R̃^(N−1)
             R_hat=diag_embed(beta / alpha),  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)
             weights=w,
-            flags=_down(w < 1.0),
+            flags=flags,
             fixed=fixed,
             stats={"vb_iters": iters, "vb_delta": delta, "alpha": alpha.copy()},
             state={"alpha": alpha, "beta": beta},

@@ -438,6 +438,9 @@ def _drive_extras(rec, setup, rx_sigma: Array | None, sigma: Array) -> dict:
     }
 
 
+_BAND = {"r_min": 0.25, "r_max": 16.0}  # the adaptive filters' R̂ band on a real drive
+
+
 @register_scenario
 class Drive0708(Scenario):
     key = "drive0708"
@@ -452,19 +455,19 @@ class Drive0708(Scenario):
     default_filters = ("kf", "chi2-kf", "huber-kf", "vb-akf", "hakf", "sage-husa", "irakf")
     # each epoch holds three GNSS axes and the two NHC channels: a whole-epoch χ² gate rejects
     # the clean channels with an outlying axis and loses lock; gate each channel instead
-    # the χ² gate per channel (one bad axis does not drop a fix); the Sage–Husa family's R̂ kept
-    # within σ ∈ [0.5, 4] × the receiver's reported σ (ALGORITHMS.md §4.1 step 4, docs/REAL_DATA.md)
+    # the χ² gate per channel (one bad axis does not drop a fix); the adaptive filters' R̂ kept within
+    # σ ∈ [0.5, 4] × the receiver's reported σ (ALGORITHMS.md §3.1, §4.1 step 4; docs/REAL_DATA.md)
     filter_defaults: ClassVar[dict] = {
         "chi2-kf": {"per_channel": True},
-        **{key: {"r_min": 0.25, "r_max": 16.0} for key in ("sage-husa", "irakf", "rrae", "rakf", "rsshakf")},
+        **{key: dict(_BAND) for key in ("sage-husa", "rrae", "rakf", "rsshakf", "vb-akf")},
         # issue 24, recording (c) (10 % of the fixes 30–100 m off): the paper's β update (eq. 21) fed
         # the raw residual, so R̂ absorbed the outliers (median 145–183× the receiver's σ²) and HAKF
         # leaned on the drifting INS (up to 1.9× the clean fixes); its Huber-weighted β keeps it ≤ 1.3×
-        "hakf": {"robust_beta": True},
+        "hakf": {**_BAND, "robust_beta": True},
         # the same recording: IRAKF's parallel SKF (plain KF, R0) absorbed the outliers, then flagged
         # every good fix (REJECTED_AUX): no update, the INS drifted, 4 of 10 seeds diverged; gating
         # the SKF's own update on its detections keeps it clean (all 10 within 1.3×)
-        "irakf": {"r_min": 0.25, "r_max": 16.0, "skf_gated": True},
+        "irakf": {**_BAND, "skf_gated": True},
     }
     default_runs = 10
     simulated = False

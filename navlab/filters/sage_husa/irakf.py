@@ -20,9 +20,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import REJECTED, REJECTED_AUX, KFLimit, Model, Teaching, register
+from navlab.filters.base import REJECTED, REJECTED_AUX, KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, measurement_prediction
-from navlab.filters.sage_husa.kernels import Window, band_param, irakf_weights, scale_diag
+from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag
 from navlab.filters.sage_husa.rrae import RRAE
 from navlab.linalg import Array, Masked, diag, joseph_from_gain, kf_gain, mv, predict_cov, sym, zero_columns
 from navlab.params import param

@@ -17,7 +17,6 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.jit import Kernel, RunStep
 from navlab.linalg import CHOLESKY_LOWER, FORWARD_SUBSTITUTE, Array, bcast, cholesky_lower, forward_substitute
-from navlab.params import param
 
 # ------------------------------------------------------------------------------ weights
 
@@ -109,14 +108,6 @@ class Window(NamedTuple):
         e[:, i] = np.where(ok, eta, 0.0)
         o[:, i] = ok
         return Window(e, o, self.pushes + 1)
-
-
-def band_param(bound: str) -> Any:
-    """A parameter of the band R̂ is kept in, [r_min, r_max] × R0 (§4.1 step 4): "r_min" or "r_max"."""
-    what = "R̂ kept within [r_min, r_max] × R0 (R̂ relative to the nominal R0: on real data, the receiver's σ²)"
-    if bound == "r_min":
-        return param(0.01, lo=1e-6, hi=1.0, help=f"lower bound of the band: {what}")
-    return param(1e4, lo=1.0, hi=1e8, help=f"upper bound of the band: {what}")
 
 
 def band(model: Any, params: Any) -> tuple[Array, Array, float, float]:

@@ -16,13 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import KFLimit, Model, Teaching, register
+from navlab.filters.base import KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     CLAMP_TO_BAND,
     RState,
     band,
-    band_param,
     forgetting_weight,
     sage_husa_rhat,
 )

@@ -17,13 +17,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, Teaching, register
+from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     RAE_RHAT,
     Window,
     band,
-    band_param,
     check_k0_k1,
     igg3_weights,
     scale_diag,

@@ -17,13 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import DOWNWEIGHTED, NUMERICAL_FIX, KFLimit, Model, Teaching, register
+from navlab.filters.base import DOWNWEIGHTED, NUMERICAL_FIX, KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     SAGE_HUSA_RHAT,
     RState,
     band,
-    band_param,
     forgetting_weight,
     scale_diag,
 )

@@ -17,9 +17,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, SideInfo, Teaching, register
+from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, SideInfo, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
-from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, band_param, forgetting_weight
+from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, forgetting_weight
 from navlab.linalg import Array, batched, eigh_clamp, mask_missing, mT, predict_cov
 from navlab.params import param
 
