@@ -34,21 +34,9 @@ sys.path.insert(0, str(ROOT))
 
 from navlab import bench as BN  # noqa: E402
 from navlab.cluster import DaskExecutor, SerialExecutor  # noqa: E402
-from navlab.experiment import ExperimentSpec  # noqa: E402
 from navlab.store import Store  # noqa: E402
 
 TIMING = ["us_per_run_step"]
-
-
-def tiny() -> BN.Suite:
-    probs = tuple(
-        BN.Problem(
-            f"cv2d {o}",
-            ExperimentSpec(scenario="cv2d", filters=("kf",), seed=50 + 2 * i, epochs=40, outliers=o),
-        )
-        for i, o in enumerate(["mixture", "student-t"])
-    )
-    return BN.Suite("tiny", probs, budget=4, train_runs=8, test_runs=12)
 
 
 def load() -> str:
@@ -83,7 +71,7 @@ def main() -> None:
     ap.add_argument("--kill-after", type=float, default=50.0)
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()
-    suite = tiny() if a.suite == "tiny" else BN.get_suite(a.suite)
+    suite = BN.get_suite(a.suite)
     filters = ["kf", "huber-kf", "chi2-kf", "oracle-kf"] if a.suite == "tiny" else None
     tmp = Path(tempfile.mkdtemp(prefix="bench-scale-"))
     print(f"{suite.describe()}; stores under {tmp}", flush=True)

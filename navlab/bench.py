@@ -129,7 +129,21 @@ FULL = Suite(
     train_runs=32,
     test_runs=200,
 )
-SUITES = {s.name: s for s in (SMALL, FULL)}
+# seconds, not minutes: the tests' and benchmarks/bench_scale.py's suite (and a first look)
+TINY = Suite(
+    "tiny",
+    tuple(
+        Problem(
+            f"cv2d {o}",
+            ExperimentSpec(scenario="cv2d", filters=("kf",), seed=50 + 2 * i, epochs=40, outliers=o),
+        )
+        for i, o in enumerate(["mixture", "student-t"])
+    ),
+    budget=4,
+    train_runs=8,
+    test_runs=12,
+)
+SUITES = {s.name: s for s in (TINY, SMALL, FULL)}
 
 
 def get_suite(name: str) -> Suite:

@@ -687,7 +687,12 @@ def _add_bench_command(sub: Any) -> None:
     pb = sub.add_parser(
         "bench", help="every filter tuned on the same budget over a fixed suite: ranked tables, floor, cost"
     )
-    pb.add_argument("--suite", choices=["small", "full"], default="small", help="the suite (default small)")
+    pb.add_argument(
+        "--suite",
+        choices=["tiny", "small", "full"],
+        default="small",
+        help="the suite (default small; tiny: a first look)",
+    )
     pb.add_argument("--filters", help="comma-separated filter keys (default: every registered filter)")
     pb.add_argument(
         "--outdir",

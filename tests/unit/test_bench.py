@@ -21,24 +21,13 @@ FILTERS = ["kf", "huber-kf", "chi2-kf", "oracle-kf"]
 TIMING = ["us_per_run_step"]
 
 
-def _tiny() -> BN.Suite:
-    probs = tuple(
-        BN.Problem(
-            f"cv2d {o}",
-            ExperimentSpec(scenario="cv2d", filters=("kf",), seed=50 + 2 * i, epochs=40, outliers=o),
-        )
-        for i, o in enumerate(["mixture", "student-t"])
-    )
-    return BN.Suite("tiny", probs, budget=4, train_runs=8, test_runs=12)
-
-
 def _numbers(b: BN.BenchResult) -> pd.DataFrame:
     df = BN.rows(b)
     return df.drop(columns=[c for c in TIMING if c in df.columns]).reset_index(drop=True)
 
 
 def test_bench_ranks_every_filter_beside_the_floor_and_the_genie(tmp_path):
-    b = BN.run(_tiny(), filters=FILTERS, store=Store(tmp_path / "s"))
+    b = BN.run(BN.TINY, filters=FILTERS, store=Store(tmp_path / "s"))
     df = BN.rows(b)
     per = df[df.kind == "problem"]
     for name, t in per.groupby("problem"):
@@ -58,7 +47,7 @@ def test_bench_ranks_every_filter_beside_the_floor_and_the_genie(tmp_path):
 
 
 def test_a_stopped_bench_resumes_from_the_store_with_the_same_numbers(tmp_path):
-    suite = _tiny()
+    suite = BN.TINY
     whole = BN.run(suite, filters=FILTERS, store=Store(tmp_path / "whole"))
     store = Store(tmp_path / "part")
     seen = {"n": 0}
@@ -79,7 +68,7 @@ def test_a_stopped_bench_resumes_from_the_store_with_the_same_numbers(tmp_path):
 
 
 def test_last_bench_is_saved_for_the_leaderboard(tmp_path):
-    b = BN.run(_tiny(), filters=["kf", "huber-kf", "oracle-kf"], store=Store(tmp_path / "s"))
+    b = BN.run(BN.TINY, filters=["kf", "huber-kf", "oracle-kf"], store=Store(tmp_path / "s"))
     p = BN.save(b, tmp_path / "out")
     d = BN.load(tmp_path / "out")
     assert p.exists() and d["suite"] == "tiny" and len(d["problems"]) == 2
@@ -95,13 +84,13 @@ def test_bench_cli_bad_input_is_one_line(capsys, tmp_path):
     with pytest.raises(NavlabError):
         BN.get_suite("huge")
     with pytest.raises(NavlabError, match="not an oracle"):
-        BN.setups(_tiny(), ["oracle-kf"])
+        BN.setups(BN.TINY, ["oracle-kf"])
 
 
 def test_the_cost_on_paper_counts_the_tasks_tune_sends(tmp_path):
     from navlab import tune as TU
 
-    suite = BN.Suite("one", _tiny().problems[:1], budget=4, train_runs=8, test_runs=12)
+    suite = BN.Suite("one", BN.TINY.problems[:1], budget=4, train_runs=8, test_runs=12)
     st = BN.setups(suite, ["kf", "huber-kf"])[0]
     n = sum(len(b) for b in BN._tasks_of(st))
     ran = BN.run(suite, filters=["kf", "huber-kf"], store=Store(tmp_path / "s"))
@@ -116,7 +105,7 @@ def test_the_bench_on_a_two_worker_cluster_equals_serial(tmp_path):
     distributed = pytest.importorskip("distributed")
     from navlab.cluster import DaskExecutor
 
-    suite = _tiny()
+    suite = BN.TINY
     serial = BN.run(suite, filters=FILTERS, store=Store(tmp_path / "a"))
     cluster = distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", host="127.0.0.1"
@@ -140,7 +129,7 @@ def test_the_problems_experiment_reproduces_its_table(tmp_path):
     from navlab import metrics as M
     from navlab.experiment import run_experiment
 
-    b = BN.run(_tiny(), filters=FILTERS, store=Store(tmp_path / "s"))
+    b = BN.run(BN.TINY, filters=FILTERS, store=Store(tmp_path / "s"))
     prob = BN.to_json(b)["problems"][0]
     res = run_experiment(ExperimentSpec.from_dict(prob["spec"]))
     sm = M.summary(res)
@@ -150,7 +139,7 @@ def test_the_problems_experiment_reproduces_its_table(tmp_path):
 
 @pytest.mark.parametrize("fmt", ["markdown", "latex"])
 def test_bench_tables_for_a_paper(tmp_path, fmt):
-    b = BN.run(_tiny(), filters=["kf", "huber-kf", "oracle-kf"], store=Store(tmp_path / "s"))
+    b = BN.run(BN.TINY, filters=["kf", "huber-kf", "oracle-kf"], store=Store(tmp_path / "s"))
     text = BN.paper(b, fmt)
     assert text.count("overall standing") == 1 and "cv2d student-t" in text
     assert (
