@@ -118,63 +118,45 @@ with st.sidebar:  # every setting is bound to the URL: a shared link reproduces 
             sp["height_m"] = field_widget(P, "height_m", "rd_height_m_pr", "Street height (m, ellipsoidal)")
         contamination, scale = outlier_widgets(tag or "_sl", "Extra injected outliers α")
 
-upload_error = None
 if rec == "upload":
-    st.markdown(
-        "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`: "
-        "specific force in m/s², rates in rad/s, vehicle axes x right, y forward, z up — or give the "
-        "mounting under *Geometry and timing*), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m` ellipsoidal, "
-        "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
-        "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). Both files on one time base `t_s`; a drive "
-        "may start at rest (aligned there) or in motion (initialised from the GNSS). The docs page "
-        "*Data sources* (docs/data.md), section *Your own drive*, says what each column does."
-    )
-    u1, u2, u3 = st.columns(3)
-    f_imu = u1.file_uploader("imu.csv", type=["csv", "txt"], key="rd_up_imu")
-    f_gnss = u2.file_uploader("gnss.csv", type=["csv", "txt"], key="rd_up_gnss")
-    f_truth = u3.file_uploader("truth.csv (optional)", type=["csv", "txt"], key="rd_up_truth")
-    if f_imu is None or f_gnss is None:
-        st.info("Upload at least imu.csv and gnss.csv.")
-        st.stop()
-    try:
-        folder = R.save_upload(
-            f_imu.getvalue(),
-            f_gnss.getvalue(),
-            f_truth.getvalue() if f_truth is not None else None,
-            uploads=session_uploads(),
+    sp["data_dir"] = str(
+        R.upload_folder(
+            st,
+            "Upload **imu.csv** (`t_s, f_x_mps2, f_y_mps2, f_z_mps2, w_x_radps, w_y_radps, w_z_radps`: "
+            "specific force in m/s², rates in rad/s, vehicle axes x right, y forward, z up — or give the "
+            "mounting under *Geometry and timing*), **gnss.csv** (`t_s, lat_deg, lon_deg, h_m` ellipsoidal, "
+            "optional `sigma_n_m, sigma_e_m, sigma_u_m, vn_mps, ve_mps, vu_mps`) and optionally "
+            "**truth.csv** (`t_s, lat_deg, lon_deg, h_m`). Both files on one time base `t_s`; a drive "
+            "may start at rest (aligned there) or in motion (initialised from the GNSS). The docs page "
+            "*Data sources* (docs/data.md), section *Your own drive*, says what each column does.",
+            (
+                ("imu.csv", "rd_up_imu", True),
+                ("gnss.csv", "rd_up_gnss", True),
+                ("truth.csv", "rd_up_truth", False),
+            ),
+            R.save_upload,
+            session_uploads(),
         )
-    except NavlabError as exc:
-        st.error(str(exc))
-        st.stop()
-    sp["data_dir"] = str(folder)
-
+    )
 elif rec == "upload-pr":
-    st.markdown(
-        "Upload **pseudoranges.csv** (`t_s, sat_id, system, pseudorange_m, sat_x_m, sat_y_m, sat_z_m`, "
-        "optional `var_m2, elevation_deg, cn0_dbhz`: one row per satellite and epoch, corrected for "
-        "the satellite clock and the atmosphere, satellite ECEF at transmit time), optionally "
-        "**odometry.csv** (`t_s, speed_mps, yaw_rate_radps`) and **truth.csv** (`t_s, lat_deg, "
-        "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). docs/data.md, section *Your own pseudoranges*, says "
-        "what each column does; a smartLoc sequence runs from the CLI (`--set scenario.data_dir=`)."
-    )
-    u1, u2, u3 = st.columns(3)
-    f_pr = u1.file_uploader("pseudoranges.csv", type=["csv", "txt"], key="rd_up_pr")
-    f_odo = u2.file_uploader("odometry.csv (optional)", type=["csv", "txt"], key="rd_up_odo")
-    f_gt = u3.file_uploader("truth.csv (optional)", type=["csv", "txt"], key="rd_up_prtruth")
-    if f_pr is None:
-        st.info("Upload at least pseudoranges.csv.")
-        st.stop()
-    try:
-        folder = R.save_pr_upload(
-            f_pr.getvalue(),
-            f_odo.getvalue() if f_odo is not None else None,
-            f_gt.getvalue() if f_gt is not None else None,
-            uploads=session_uploads(),
+    sp["data_dir"] = str(
+        R.upload_folder(
+            st,
+            "Upload **pseudoranges.csv** (`t_s, sat_id, system, pseudorange_m, sat_x_m, sat_y_m, sat_z_m`, "
+            "optional `var_m2, elevation_deg, cn0_dbhz`: one row per satellite and epoch, corrected for "
+            "the satellite clock and the atmosphere, satellite ECEF at transmit time), optionally "
+            "**odometry.csv** (`t_s, speed_mps, yaw_rate_radps`) and **truth.csv** (`t_s, lat_deg, "
+            "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). docs/data.md, section *Your own pseudoranges*, says "
+            "what each column does; a smartLoc sequence runs from the CLI (`--set scenario.data_dir=`).",
+            (
+                ("pseudoranges.csv", "rd_up_pr", True),
+                ("odometry.csv", "rd_up_odo", False),
+                ("truth.csv", "rd_up_prtruth", False),
+            ),
+            R.save_pr_upload,
+            session_uploads(),
         )
-    except NavlabError as exc:
-        st.error(str(exc))
-        st.stop()
-    sp["data_dir"] = str(folder)
+    )
 
 if not filters:
     st.warning("Choose at least one filter.")

@@ -266,6 +266,34 @@ def save_pr_upload(
     return d
 
 
+def upload_folder(
+    st: Any,
+    intro: str,
+    files: Sequence[tuple[str, str, bool]],
+    save: Callable[..., Path],
+    uploads: SessionUploads,
+) -> Path:
+    """The upload block of a recording: ``intro``, one uploader per file (name, widget key,
+    required) and the folder ``save(*contents, uploads=…)`` made; where a required file is missing
+    or a file is broken, a message and the page stops there. ``st`` = streamlit.
+    """
+    st.markdown(intro)
+    got = [
+        c.file_uploader(name if required else f"{name} (optional)", type=["csv", "txt"], key=key)
+        for c, (name, key, required) in zip(st.columns(len(files)), files, strict=True)
+    ]
+    missing = [name for (name, _, required), f in zip(files, got, strict=True) if required and f is None]
+    if missing:
+        st.info(f"Upload at least {' and '.join(missing)}.")
+        st.stop()
+    try:
+        return save(*(None if f is None else f.getvalue() for f in got), uploads=uploads)
+    except NavlabError as exc:
+        st.error(str(exc))
+        st.stop()
+    raise AssertionError("unreachable: st.stop() ends the script")
+
+
 def _pr_findings(spec: ExperimentSpec) -> list[Finding]:
     """What an own-pseudoranges run will be fed: epochs, satellites, clocks, odometry, truth."""
     ep = _pr_epochs(spec)
