@@ -146,7 +146,8 @@ elif rec == "upload-pr":
             "optional `var_m2, elevation_deg, cn0_dbhz`: one row per satellite and epoch, corrected for "
             "the satellite clock and the atmosphere, satellite ECEF at transmit time), optionally "
             "**odometry.csv** (`t_s, speed_mps, yaw_rate_radps`) and **truth.csv** (`t_s, lat_deg, "
-            "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). docs/data.md, section *Your own pseudoranges*, says "
+            "lon_deg, h_m` or ECEF `x_m, y_m, z_m`). The docs page *Data sources* (docs/data.md), section "
+            "*Your own pseudoranges*, says "
             "what each column does; a smartLoc sequence runs from the CLI (`--set scenario.data_dir=`).",
             (
                 ("pseudoranges.csv", "rd_up_pr", True),
