@@ -36,13 +36,19 @@ _run = threading.local()  # this script run's page-menu container (script runs a
 
 
 def _warm() -> None:
-    """Import and exercise the heavy paths once (plotly validators, every filter, a tiny run)."""
+    """Import and exercise the heavy paths once (plotly validators, a tiny run of the filters the
+    Compare page opens with, so that their compiled kernels are loaded, or on a fresh install
+    compiled, before the first Run).
+    """
     try:
         from navlab.experiment import ExperimentSpec
+        from navlab.scenarios.base import get_scenario_class
         from navlab.ui import figures as F
         from navlab.ui.runner import iter_chunks
 
-        for res in iter_chunks(ExperimentSpec(runs=2, epochs=5)):
+        spec = ExperimentSpec(runs=2, epochs=5)
+        spec = spec.replace(filters=get_scenario_class(spec.scenario).default_filters)
+        for res in iter_chunks(spec):
             F.error_vs_time(res, "pos").to_json()
             F.r_vs_rhat(res, 0, outlier_strip=True).to_json()
             F.nis_vs_chi2(res).to_json()
