@@ -282,21 +282,26 @@ def _band(res: Results, key: str) -> tuple[float, float] | None:
 
 
 def _band_sentence(
-    res: Results, fr: FilterRun, ok: np.ndarray, fixed: np.ndarray, present, sage_husa: bool = True
+    res: Results,
+    fr: FilterRun,
+    ok: np.ndarray,
+    fixed: np.ndarray,
+    present,
+    band: tuple[float, float],
+    sage_husa: bool = True,
 ) -> str:
     """Flag 9 of a filter with an R̂ band (the Sage–Husa family, the VB filters) said as what it
     mostly is: R̂ held at a bound of its band (a repaired S, also flag 9, is rare beside it).
     """
     d = res.data
     R0 = np.atleast_2d(np.asarray(d.model.R0, dtype=float))
-    band = _band(res, fr.key)
     pct = 100.0 * float(fixed[present].mean())
     tail = (
         ": there R̂ is the bound, not an estimate. These are not outlier detections; the band is "
         "the filter's r_min, r_max (ALGORITHMS.md §3.1, §4.1 step 4)."
     )
     generic = f"{fr.label} — R̂ held at a bound of its band (flag 9) on {_g(pct)} % of the measurements"
-    if band is None or fr.R_hat is None or not np.allclose(R0, np.diag(np.diag(R0))):
+    if fr.R_hat is None or not np.allclose(R0, np.diag(np.diag(R0))):
         return generic + tail
     lo, hi = band
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -346,8 +351,10 @@ def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation |
         return None
     n = int(fixed.any(axis=(1, 2)).sum())
     cls = registry().get(fr.key)
-    if cls is not None and _band(res, fr.key) is not None:  # a filter with an R̂ band (§3.1, §4.1)
-        s = _band_sentence(res, fr, ok, fixed, present, cls.__module__.startswith("navlab.filters.sage_husa"))
+    band = _band(res, fr.key) if cls is not None else None
+    if band is not None:  # a filter with an R̂ band (§3.1, §4.1)
+        sage_husa = cls.__module__.startswith("navlab.filters.sage_husa")
+        s = _band_sentence(res, fr, ok, fixed, present, band, sage_husa)
     else:
         s = (
             f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"

@@ -142,7 +142,7 @@ MEASUREMENT_SPACE_UPDATE = Kernel(
 
 
 def vb_iterations(
-    M, nu, ok, alpha, beta_minus, r0, huber, gamma, irls, robust_beta, adapt, iters, tol, r_min, r_max
+    M, nu, ok, alpha, beta_minus, huber, gamma, irls, robust_beta, adapt, iters, tol, r0, r_min, r_max
 ):  # pragma: no cover - compiled by numba
     """The VB iterations of one epoch for ONE run (S0 eqs. 15–21), each from the prior.
 
@@ -196,7 +196,7 @@ def vb_iterations(
 
 VB_ITERATIONS = RunStep(
     vb_iterations,
-    n_runs=6,
+    n_runs=5,
     outs=((1, float), (1, float), (1, float), (1, bool), (None, float), (None, float), (None, bool)),
     uses=(MEASUREMENT_SPACE_UPDATE,),
 )
@@ -400,9 +400,9 @@ class _VBBase(KalmanUpdate):
             bool(getattr(p, "irls", False)),
             bool(getattr(p, "robust_beta", False)),
         )
-        opts = (self.huber, *huber, p.adapt, p.iters, p.tol, p.r_min, p.r_max)  # (AKF: no Huber)
-        r0 = np.broadcast_to(np.diagonal(np.asarray(model.R0, dtype=float)), (B, z.shape[1]))
-        runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta, r0)
+        r0 = np.ascontiguousarray(np.diagonal(np.asarray(model.R0, dtype=float)))  # shared by the runs
+        opts = (self.huber, *huber, p.adapt, p.iters, p.tol, r0, p.r_min, p.r_max)  # (AKF: no Huber)
+        runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta)
         beta, Rt, w, held, iters, delta, fixed = VB_ITERATIONS(runs, opts)
         flags = _down(w < 1.0)
         flags[held & (flags == 0)] = NUMERICAL_FIX  # R̂ held at its band (as the Sage–Husa family's)

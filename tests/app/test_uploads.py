@@ -4,6 +4,7 @@ and own recordings (BOM, broken files), and that uploaded files do not outlive t
 from __future__ import annotations
 
 import gc
+import importlib
 import os
 import sys
 import time
@@ -151,15 +152,20 @@ needs_rtkx = pytest.mark.skipif(
 )
 
 
+def _example(name: str):
+    """The module of examples/NAME.py (the converters the tests make uploads with)."""
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.pop(0)
+
+
 @needs_rtkx
 def test_own_drive_with_an_imu_gap_runs_on_the_page_with_its_notes(open_page, tmp_path, monkeypatch):
     """Issue 12 item 5 on the Real data page: a 2 s IMU gap is a note, not IndexError; the drive
     starts in motion and the page says what the filters were fed, before and after the run."""
-    sys.path.insert(0, str(ROOT / "examples"))
-    try:
-        import convert_drive0708
-    finally:
-        sys.path.pop(0)
+    convert_drive0708 = _example("convert_drive0708")
     src = tmp_path / "src"
     assert convert_drive0708.main(["--out", str(src), "--seconds", "50"]) == 0
     imu = pd.read_csv(src / "imu.csv", comment="#")
@@ -204,11 +210,7 @@ def test_own_pseudoranges_upload_runs_on_the_page_with_its_checks_and_cli_line(
 ):
     """Issue 24: the pseudorange upload beside the drive upload — the whole upload by default, a
     pre-run summary and time estimate, the run, and a CLI line naming the upload's folder."""
-    sys.path.insert(0, str(ROOT / "examples"))
-    try:
-        import convert_smartloc
-    finally:
-        sys.path.pop(0)
+    convert_smartloc = _example("convert_smartloc")
     src = tmp_path / "src"
     assert convert_smartloc.main(["--out", str(src), "--seconds", "8"]) == 0
     up = tmp_path / "up"

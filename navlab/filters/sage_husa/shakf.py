@@ -127,7 +127,7 @@ class SageHusa(KalmanUpdate):
         st = super().next_state(model, state, k, z, x, P, nz)
         if not self.params.full:
             return st
-        d = nz.stats["d_k"][0]
+        d = forgetting_weight(st.k, self.params.b)  # this update's d_k
         r = np.where(np.isfinite(z), (1 - d) * state.r + d * (z - model.h(state.x, k)), state.r)
         Knu = x - state.x  # K ν = x⁺ − x⁻
         F = model.F(k)
