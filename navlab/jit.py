@@ -108,7 +108,7 @@ class RunStep:
 
     ``fn(*one_run, *params) -> tuple`` is plain numba-compatible Python, one equation a line as
     the paper prints it. ``step(runs, params)`` calls it for r = 0 … B−1 with ``a[r]`` of every
-    array of ``runs`` (leading axis B) and ``params`` as they are, and returns its results
+    array of ``runs`` (leading axis B) and ``params`` shared by the runs, and returns its results
     stacked over the runs. ``outs`` declares them: per result, the index of the run argument
     whose one-run shape it has (None: a scalar) and its dtype. With numba the loop and ``fn``
     are compiled together (``fn``'s helpers in ``uses``, as for :class:`Kernel`); without it, or
@@ -131,6 +131,7 @@ class RunStep:
         if len(runs) != self.n_runs:
             raise TypeError(f"{self.fn.__name__} takes {self.n_runs} arrays over the runs")
         runs = [_contiguous(a) for a in runs]
+        params = tuple(_param(v) for v in params)
         B = runs[0].shape[0]
         outs = [np.empty((B,) if i is None else (B, *runs[i].shape[1:]), dt) for i, dt in self.outs]
         loop = self._compiled(len(params))
@@ -194,6 +195,20 @@ def _contiguous(a: Any) -> np.ndarray:
             return a  # the usual case: as it is
     a = np.asarray(a)
     return carray(a) if a.dtype.kind in "fiu" else np.require(a, requirements=["C", "W"])
+
+
+def _param(v: Any) -> Any:
+    """A shared parameter in one canonical type (Python scalars, C-contiguous writeable arrays).
+
+    A read-only or strided array or a numpy scalar would compile another loop (seconds).
+    """
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    if isinstance(v, int | np.integer):
+        return int(v)
+    if isinstance(v, float | np.floating):
+        return float(v)
+    return _contiguous(v)
 
 
 def carray(a: Any) -> np.ndarray:

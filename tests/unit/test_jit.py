@@ -203,3 +203,22 @@ def test_one_compiled_signature_per_kernel_whatever_the_arguments():
     earth.dcm_to_rotvec(np.broadcast_to(C[0], (2, 3, 3)))
     assert len(earth._ROTVEC_TO_DCM.get().signatures) == 1
     assert len(earth._DCM_TO_ROTVEC.get().signatures) == 1
+
+
+@needs_numba
+def test_one_compiled_signature_per_run_step_whatever_the_shared_parameters():
+    """A read-only or numpy-typed shared parameter (the diag R0 of a one-channel model is a
+    read-only view) must not compile another specialisation of a RunStep's loop."""
+
+    def scaled(x, a, s):  # pragma: no cover - compiled by numba
+        return (x * a * s[0],)
+
+    step = jit.RunStep(scaled, n_runs=1, outs=((0, float),))
+    x = np.ones((3, 2))
+    s = np.diagonal(np.eye(1))  # a read-only view
+    assert not s.flags.writeable
+    outs = [step((x,), (2.0, np.array([3.0])))[0], step((x,), (np.float64(2.0), s * 3))[0]]
+    outs.append(step((x,), (2.0, np.broadcast_to(3.0, (1,))))[0])
+    for out in outs:
+        np.testing.assert_array_equal(out, 6.0)
+    assert len(step.get().signatures) == 1
