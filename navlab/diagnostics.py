@@ -20,15 +20,17 @@ Kinds (the rule each one applies; thresholds are stated here and were not tuned 
     Replacement run-away (NNMFUKF, ALGORITHMS.md §6.4 pitfall): in at least one run the measurement
     was replaced by a prediction (flag 4) on ``REPLACEMENT_CHAIN_MIN`` or more consecutive epochs;
     chained predictions integrate their errors like a random walk.
+``band``
+    R̂ held at a bound of its band (flag 6) on more than ``navlab.metrics.FLAG_SHOW_PCT`` % of the present
+    measurements of the runs the filter is judged on (:func:`navlab.metrics.judge`, as the
+    tables): the filters with an R̂ band (the Sage–Husa family, ``vb-akf``, ``hakf``) keep the
+    eigenvalues of R0^-1/2 R̂ R0^-1/2 in [r_min, r_max] (ALGORITHMS.md §4.1 step 4; the VB filters
+    per channel, §3.1). With a deliberate band (drive0708, own-drive: [0.25, 16]) R̂ there is the
+    bound, not an estimate; the sentence says which bound and on what share (:func:`band_sides`).
 ``numerical_fix``
-    Numerical fixes (flag 9) on more than ``NUMERICAL_FIX_PCT`` % of the present measurements of
-    the runs the filter is judged on (:func:`navlab.metrics.judge`, as the tables).
-    For the filters with an R̂ band (the Sage–Husa family, ``vb-akf``, ``hakf``) flag 9 marks R̂
-    held at a bound of its band: the eigenvalues of R0^-1/2 R̂ R0^-1/2 kept in [r_min, r_max]
-    (ALGORITHMS.md §4.1 step 4; the VB filters per channel, §3.1). With a deliberate band
-    (drive0708, own-drive: [0.25, 16]) that is a bound, not a numerical failure; the sentence says
-    which bound and on what share (:func:`band_sides`).
-    A numerical fix is never an outlier detection.
+    Numerical fixes (flag 9: a covariance repaired to stay positive-definite) on more than
+    ``navlab.metrics.FLAG_SHOW_PCT`` % of those measurements.
+    Neither is ever an outlier detection.
 ``divergence``
     Runs the experiment marks as diverged (``FilterRun.diverged``); they are left out of the
     curves and the metrics.
@@ -48,7 +50,8 @@ from urllib.parse import urlencode
 import numpy as np
 
 from navlab.errors import NavlabError
-from navlab.filters.base import NUMERICAL_FIX, REJECTED, REJECTED_AUX, REPLACED
+from navlab.filters.base import NUMERICAL_FIX, R_HAT_AT_BAND, REJECTED, REJECTED_AUX, REPLACED
+from navlab.metrics import FLAG_SHOW_PCT
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results
@@ -56,9 +59,10 @@ if TYPE_CHECKING:
 LOCKOUT_MIN_EPOCHS = 10  # consecutive epochs with every present measurement rejected
 LOCKOUT_P_GROWTH = 2.0  # … while the headline group's variance grew at least this much
 REPLACEMENT_CHAIN_MIN = 10  # consecutive epochs with a measurement replaced by a prediction
-NUMERICAL_FIX_PCT = 1.0  # numerical fixes on more than this share of measurements (%)
 
-KINDS = ("lockout", "runaway", "numerical_fix", "divergence")
+KINDS = ("lockout", "runaway", "band", "numerical_fix", "divergence")
+#: the kinds that say what a share of flags means (divergence is shown apart, above the charts)
+FLAG_KINDS = ("lockout", "runaway", "band", "numerical_fix")
 
 LEARN_PAGE = "Learn"  # relative link: works from every page and under a server base path
 # the Learn page's tiny example set to show each mechanism (its URL parameters)
@@ -66,8 +70,10 @@ LEARN_EXAMPLES: dict[str, dict[str, object]] = {
     # true noise 3× the assumed one: the gate rejects run after run while P grows (epochs 10–13
     # and 16–20 of the default seed)
     "lockout": {"ex_epochs": 20, "ex_noise": 3.0},
-    # no outlier, smaller true noise: ννᵀ − HP⁻Hᵀ < 0 and R̂ is clamped (flag 9) in the first epochs
-    "numerical_fix": {"ex_epochs": 20, "ex_noise": 0.5, "ex_outk": 0, "ex_seed": 1},
+    # no outlier, smaller true noise: ννᵀ − HP⁻Hᵀ < 0 and R̂ is held at its band (flag 6) in the
+    # first epochs
+    "band": {"ex_epochs": 20, "ex_noise": 0.5, "ex_outk": 0, "ex_seed": 1},
+    "numerical_fix": {},
     "runaway": {"ex_epochs": 30},
     "divergence": {},
 }
@@ -285,22 +291,22 @@ def _band_sentence(
     res: Results,
     fr: FilterRun,
     ok: np.ndarray,
-    fixed: np.ndarray,
+    held: np.ndarray,
     present,
     band: tuple[float, float],
     sage_husa: bool = True,
 ) -> str:
-    """Flag 9 of a filter with an R̂ band (the Sage–Husa family, the VB filters) said as what it
-    mostly is: R̂ held at a bound of its band (a repaired S, also flag 9, is rare beside it).
+    """Flag 6 of a filter with an R̂ band (the Sage–Husa family, the VB filters): at which bound
+    R̂ was held, on what share of the measurements.
     """
     d = res.data
     R0 = np.atleast_2d(np.asarray(d.model.R0, dtype=float))
-    pct = 100.0 * float(fixed[present].mean())
+    pct = 100.0 * float(held[present].mean())
     tail = (
         ": there R̂ is the bound, not an estimate. These are not outlier detections; the band is "
         "the filter's r_min, r_max (ALGORITHMS.md §3.1, §4.1 step 4)."
     )
-    generic = f"{fr.label} — R̂ held at a bound of its band (flag 9) on {_g(pct)} % of the measurements"
+    generic = f"{fr.label} — R̂ held at a bound of its band (flag 6) on {_g(pct)} % of the measurements"
     if fr.R_hat is None or not np.allclose(R0, np.diag(np.diag(R0))):
         return generic + tail
     lo, hi = band
@@ -309,7 +315,7 @@ def _band_sentence(
     finite = np.isfinite(tr)
     low, up = band_sides(np.where(finite, tr, 0.0), R0.shape[0], lo, hi)
     low, up = low & finite, up & finite
-    fx = fixed & present
+    fx = held & present
     n_present = int(present.sum())
 
     def share(epochs: np.ndarray) -> float:
@@ -324,7 +330,7 @@ def _band_sentence(
     parts = [f"{what} on {_g(v)} %" for v, what in found if v > 0]
     if not parts:
         return generic + tail
-    s = f"{fr.label} — R̂ held at " + ", at ".join(parts) + " of the measurements (flag 9)"
+    s = f"{fr.label} — R̂ held at " + ", at ".join(parts) + " of the measurements (flag 6)"
     if found[0][0] > 0 and sage_husa:
         s += (
             "; at the lower bound the update (1 − d)R̂ + d(ννᵀ − HP⁻Hᵀ) fell below r_min × R0 "
@@ -336,33 +342,61 @@ def _band_sentence(
     )
 
 
-def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
+def _flag_share(
+    res: Results, fr: FilterRun, ok: np.ndarray, code: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where flag ``code`` stands (runs judged, epochs 1…K, channels) and the present measurements,
+    when it stands on more than ``navlab.metrics.FLAG_SHOW_PCT`` % of them; else None.
+    """
+    if not _any_flag(fr, code):  # 0 % of the measurements
+        return None
+    present = np.isfinite(res.data.z[ok, 1:])
+    flagged = fr.flags[ok, 1:] == code
+    if not present.any() or 100.0 * float(flagged[present].mean()) <= FLAG_SHOW_PCT:
+        return None
+    return flagged, present
+
+
+def _explanation(
+    fr: FilterRun, ok: np.ndarray, kind: str, flagged: np.ndarray, present, s: str
+) -> Explanation:
+    pct = 100.0 * float(flagged[present].mean())
+    n = int(flagged.any(axis=(1, 2)).sum())
+    return Explanation(fr.key, fr.label, kind, pct, "%", n, int(ok.sum()), s, learn_link(fr.key, kind))
+
+
+def _band_held(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
     from navlab.filters import registry
 
-    if not _any_flag(fr, NUMERICAL_FIX):  # no fix: 0 % of the measurements
+    found = _flag_share(res, fr, ok, R_HAT_AT_BAND)
+    if found is None:
         return None
-    d = res.data
-    present = np.isfinite(d.z[ok, 1:])
-    if not present.any():
-        return None
-    fixed = fr.flags[ok, 1:] == NUMERICAL_FIX
-    pct = 100.0 * float(fixed[present].mean())
-    if pct <= NUMERICAL_FIX_PCT:
-        return None
-    n = int(fixed.any(axis=(1, 2)).sum())
+    held, present = found
     cls = registry().get(fr.key)
     band = _band(res, fr.key) if cls is not None else None
-    if band is not None:  # a filter with an R̂ band (§3.1, §4.1)
-        sage_husa = cls.__module__.startswith("navlab.filters.sage_husa")
-        s = _band_sentence(res, fr, ok, fixed, present, band, sage_husa)
-    else:
+    if band is None:  # a filter whose band navlab cannot read (a plug-in's own parameters)
         s = (
-            f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"
-            f"definite) on {_g(pct)} % of the measurements; these are not outlier detections."
+            f"{fr.label} — R̂ held at a bound of its band (flag 6) on "
+            f"{_g(100.0 * float(held[present].mean()))} % of the measurements: there R̂ is the "
+            "bound, not an estimate. These are not outlier detections."
         )
-    return Explanation(
-        fr.key, fr.label, "numerical_fix", pct, "%", n, int(ok.sum()), s, learn_link(fr.key, "numerical_fix")
+    else:
+        sage_husa = cls.__module__.startswith("navlab.filters.sage_husa")
+        s = _band_sentence(res, fr, ok, held, present, band, sage_husa)
+    return _explanation(fr, ok, "band", held, present, s)
+
+
+def _numerical_fix(res: Results, fr: FilterRun, ok: np.ndarray) -> Explanation | None:
+    found = _flag_share(res, fr, ok, NUMERICAL_FIX)
+    if found is None:
+        return None
+    fixed, present = found
+    s = (
+        f"{fr.label} — needed a numerical fix (flag 9: a covariance repaired to stay positive-"
+        f"definite) on {_g(100.0 * float(fixed[present].mean()))} % of the measurements; these are "
+        "not outlier detections."
     )
+    return _explanation(fr, ok, "numerical_fix", fixed, present, s)
 
 
 def _divergence(res: Results, fr: FilterRun) -> Explanation | None:
@@ -400,6 +434,7 @@ def explain(res: Results, kinds: tuple[str, ...] = KINDS) -> list[Explanation]:
         found = {
             "lockout": lambda fr=fr: _lockout(res, fr, group, jd.judged[fr.key]),
             "runaway": lambda fr=fr: _runaway(res, fr, group),
+            "band": lambda fr=fr: _band_held(res, fr, jd.judged[fr.key]),
             "numerical_fix": lambda fr=fr: _numerical_fix(res, fr, jd.judged[fr.key]),
             "divergence": lambda fr=fr: _divergence(res, fr),
         }

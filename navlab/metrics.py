@@ -27,8 +27,9 @@ How a number is made (the statistics spec, docs/STATISTICS.md):
   influence values of :class:`navlab.stats.MeanSqrtRatio`, benchmarks/throughput.py).
 * The R̂ error compares R̂ with the variance the noise was actually drawn from: on clean epochs
   (the headline ``rhat_err_pct``; the oracle reads 0) and, separately, on contaminated ones.
-  Detection and false-alarm rates count outlier decisions only (flag codes 1–5); numerical fixes
-  (code 9) are their own rate, ``numfix_pct``.
+  Detection and false-alarm rates count outlier decisions only (flag codes 1–5); an R̂ held at its
+  band (code 6, filters that estimate R) and numerical fixes (code 9) are rates of their own,
+  ``band_pct`` and ``numfix_pct``.
 
 :func:`summarize` turns :class:`navlab.experiment.Results` into the tidy table every output uses
 (CLI ``--format json|csv``, the app's downloads, sweeps); :func:`compare` adds the paired
@@ -60,7 +61,8 @@ NEES_BOUND = 1e6  # NEES above this at any window epoch: diverged
 BOUND_SIGMAS = 100.0  # default position-error bound: this many nominal measurement σ
 OUTLIER_CODES = (1, 2, 3, 4, 5)  # flag codes that are outlier decisions (ALGORITHMS.md §0.3)
 NUMFIX_CODE = 9
-NUMFIX_SHOW_PCT = 1.0  # numerical fixes above this share of entries are pointed out on screen
+BAND_CODE = 6  # R̂ held at a bound of its band [r_min, r_max] × R0 (not an outlier decision)
+FLAG_SHOW_PCT = 1.0  # R̂ at its band, numerical fixes: pointed out above this share of entries (%)
 DIVERGENCE_RULE = (
     "a run is diverged for a filter when its state becomes non-finite, or inside the analysis "
     "window its position error exceeds {bound} or its NEES exceeds 1e6; every filter diverging in "
@@ -400,6 +402,8 @@ def run_stats(data: Any, fr: FilterRun) -> RunStats:
         s["detected"] = per_run(decided & mask)
         s["false_alarm"] = per_run(decided & clean)
         s["numfix"] = per_run((flags == NUMFIX_CODE) & present)
+        if fr.R_hat is not None:  # a filter that estimates R (those with a band flag code 6)
+            s["band"] = per_run((flags == BAND_CODE) & present)
         s.update(dm["counts"])
         for name, m in data.extras.get("metrics", {}).items():
             if isinstance(m, QuantileMetric):
@@ -485,6 +489,8 @@ def estimators(st: RunStats, data: Any, runs: Array) -> dict[str, tuple[S.Estima
         out["detected_pct"] = (S.Ratio(s["detected"], s["contaminated"], scale=100.0), "%")
         out["false_alarm_pct"] = (S.Ratio(s["false_alarm"], s["clean"], scale=100.0), "%")
     out["numfix_pct"] = (S.Ratio(s["numfix"], s["entries"], scale=100.0), "%")
+    if "band" in s:
+        out["band_pct"] = (S.Ratio(s["band"], s["entries"], scale=100.0), "%")
     return out
 
 
@@ -495,7 +501,16 @@ def any_outliers(data: Any) -> bool:
 
 
 # the metrics after the errors in every table: consistency, the truth-free score, R̂, flags
-QUALITY_METRICS = ("anees", "anis", "nlpd", "rhat_err_pct", "detected_pct", "false_alarm_pct", "numfix_pct")
+QUALITY_METRICS = (
+    "anees",
+    "anis",
+    "nlpd",
+    "rhat_err_pct",
+    "detected_pct",
+    "false_alarm_pct",
+    "band_pct",
+    "numfix_pct",
+)
 
 
 def direction(metric: str) -> int:

@@ -31,6 +31,7 @@ NAMES = {
     "rhat_err_contaminated_pct": "R̂ error, outlier epochs (%)",
     "detected_pct": "outliers flagged (%)",
     "false_alarm_pct": "false alarms (%)",
+    "band_pct": "R̂ at its band (%)",
     "numfix_pct": "numerical fixes (%)",
     "diverged": "diverged runs",
     "us_per_run_step": "µs per run·step",
@@ -48,6 +49,8 @@ HELP = {
     "on clean epochs",
     "detected_pct": "share of contaminated measurements the filter flagged as outliers (codes 1–5)",
     "false_alarm_pct": "share of clean measurements flagged as outliers (codes 1–5)",
+    "band_pct": "share of measurements where the filter's R̂ was held at a bound of its band "
+    "[r_min, r_max] × R0 (code 6): there R̂ is the bound, not an estimate",
     "numfix_pct": "share of measurements where the filter needed a numerical repair (code 9)",
     "diverged": "runs lost to divergence (rule in the footnote)",
     "h_err_median": "median of the horizontal position error over all epochs and runs",
@@ -383,20 +386,21 @@ def footnotes(
     for r in skipped.itertuples():
         what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
         out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden).")
-    fixes = t[(t.metric == "numfix_pct") & (t.value > M.NUMFIX_SHOW_PCT)]
     explained = set()
     if explanations and sm.arrays:  # the known failure mechanisms (need the per-epoch arrays)
-        from navlab.diagnostics import explain
+        from navlab.diagnostics import FLAG_KINDS, explain
 
-        for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):
+        for e in explain(res, kinds=FLAG_KINDS):
             out.append(f"{e.sentence} (the Learn page shows how: filter {e.filter})")
             explained.add((e.filter, e.kind))
-    for r in fixes.itertuples():
-        if (r.filter, "numerical_fix") not in explained:
-            out.append(
-                f"{r.label}: numerical fixes (flag 9) on {S.sig3(r.value)} % of measurements — "
-                "not outlier decisions."
-            )
+    said = {
+        "band_pct": ("band", "R̂ held at its band (flag 6)"),
+        "numfix_pct": ("numerical_fix", "numerical fixes (flag 9)"),
+    }
+    for r in t[t.metric.isin(list(said)) & (t.value > M.FLAG_SHOW_PCT)].itertuples():
+        kind, what = said[r.metric]
+        if (r.filter, kind) not in explained:
+            out.append(f"{r.label}: {what} on {S.sig3(r.value)} % of measurements — not outlier decisions.")
     return out
 
 

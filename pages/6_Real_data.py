@@ -2,7 +2,7 @@
 
 import streamlit as st
 
-from navlab.diagnostics import explain
+from navlab.diagnostics import FLAG_KINDS, explain
 from navlab.errors import NavlabError
 from navlab.filters.base import registry
 from navlab.noise import OUTLIERS
@@ -243,7 +243,7 @@ else:
     if not ft.empty and ft.shape[1]:
         st.caption("Share of measurement entries per decision (%)")
         st.dataframe(ft.round(2), key="rd_flagtable")
-    for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # what a flag share means
+    for e in explain(res, kinds=FLAG_KINDS):  # what a flag share means
         st.info(e.markdown(), icon=":material/lightbulb:")
 
 st.markdown("##### Data source and licence")

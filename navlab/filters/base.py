@@ -125,13 +125,14 @@ class KFState(NamedTuple):
 
 
 # Per-channel flag codes (ALGORITHMS.md §0.3)
-ACCEPTED, DOWNWEIGHTED, REJECTED, REJECTED_AUX, REPLACED, EPOCH_ANOMALY, NUMERICAL_FIX = (
+ACCEPTED, DOWNWEIGHTED, REJECTED, REJECTED_AUX, REPLACED, EPOCH_ANOMALY, R_HAT_AT_BAND, NUMERICAL_FIX = (
     0,
     1,
     2,
     3,
     4,
     5,
+    6,
     9,
 )
 FLAG_NAMES = {
@@ -141,6 +142,7 @@ FLAG_NAMES = {
     3: "rejected (aux. detector)",
     4: "replaced by prediction",
     5: "epoch anomaly",
+    6: "R̂ held at its band",
     9: "numerical fix",
 }
 

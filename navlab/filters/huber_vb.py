@@ -52,7 +52,7 @@ import numpy as np
 from navlab.errors import NavlabError
 from navlab.filters.base import (
     DOWNWEIGHTED,
-    NUMERICAL_FIX,
+    R_HAT_AT_BAND,
     KFLimit,
     KFState,
     Model,
@@ -405,7 +405,7 @@ class _VBBase(KalmanUpdate):
         runs = (batched(mk.M, B), mk.nu, mk.ok, alpha, state.beta)
         beta, Rt, w, held, iters, delta, fixed = VB_ITERATIONS(runs, opts)
         flags = _down(w < 1.0)
-        flags[held & (flags == 0)] = NUMERICAL_FIX  # R̂ held at its band (as the Sage–Husa family's)
+        flags[held & (flags == 0)] = R_HAT_AT_BAND  # R̂ held at its band (as the Sage–Husa family's)
         return Noise(
             mask_missing(z, mk.nu, diag_embed(Rt)).R,  # the R in the last gain, R̃^(N−1)
             R_hat=diag_embed(beta / alpha),  # R̂ = diag(β^(N)/α)  (β/α, not the IG mean; §3.1 a)

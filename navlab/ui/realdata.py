@@ -568,11 +568,6 @@ def flags_figure(res: Results, run: int = 0) -> go.Figure:
     return readable(fig)
 
 
-#: Column names of :func:`flag_table` where the flag's short name would mislead on this page: the
-#: Sage–Husa family's flag 9 is mostly R̂ held at its band (navlab.diagnostics), not a repair.
-FLAG_COLUMNS = {"numerical fix": "numerical fix or R̂ at its band"}
-
-
 def flag_table(res: Results) -> pd.DataFrame:
     """Share of (epoch, channel) entries per flag code and filter, in %."""
     rows = []
@@ -582,7 +577,7 @@ def flag_table(res: Results) -> pd.DataFrame:
         row = {"filter": fr.label}
         for code, name in FLAG_NAMES.items():
             if code:
-                row[FLAG_COLUMNS.get(name, name)] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
+                row[name] = 100.0 * float(np.mean(fl == code)) if fl.size else 0.0
         rows.append(row)
     df = pd.DataFrame(rows).set_index("filter")
     return df.loc[:, (df != 0).any(axis=0)] if not df.empty else df

@@ -15,7 +15,7 @@ import numpy as np
 import streamlit as st
 
 from navlab import tables
-from navlab.diagnostics import explain
+from navlab.diagnostics import FLAG_KINDS, explain
 from navlab.metrics import summary
 from navlab.pcrb import floor_text
 from navlab.scenarios import scenario_registry
@@ -282,7 +282,7 @@ def show_table(table: Any, notes: Any, res: Results, ref: str | None = None) -> 
             if floor:
                 st.markdown(floor)
         divergence_warnings(res)
-        for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
+        for e in explain(res, kinds=FLAG_KINDS):  # divergence: above
             st.info(e.markdown(), icon=":material/lightbulb:")
         st.caption("  \n".join(t.notes))
         with st.expander("What each column means"):
@@ -440,7 +440,7 @@ class NoiseView:
                 )
         with self.notes.container():
             divergence_warnings(res)
-            for e in explain(res, kinds=("lockout", "runaway", "numerical_fix")):  # divergence: above
+            for e in explain(res, kinds=FLAG_KINDS):  # divergence: above
                 st.info(e.markdown(), icon=":material/lightbulb:")
         if self.stat is None:
             self.internals.caption("None of the chosen filters reports per-step statistics.")

@@ -11,7 +11,7 @@ import pytest
 
 from navlab import diagnostics as D
 from navlab.experiment import ExperimentSpec, run_experiment
-from navlab.filters.base import NUMERICAL_FIX, REJECTED, REPLACED
+from navlab.filters.base import NUMERICAL_FIX, R_HAT_AT_BAND, REJECTED, REPLACED
 
 
 @pytest.fixture(scope="module")
@@ -80,8 +80,8 @@ def test_filters_that_do_not_lock_out_get_no_sentence(r_step, quiet):
     assert not [e for e in D.explain(r_step) if e.filter in ("kf", "oracle-kf")]
     ex = D.explain(quiet)
     assert not [e for e in ex if e.filter == "kf"]
-    # Sage–Husa's R̂ really is clamped in its first epochs; nothing else is said about it
-    assert {e.kind for e in ex if e.filter == "sage-husa"} <= {"numerical_fix"}
+    # Sage–Husa's R̂ really is held at its band in its first epochs; nothing else is said about it
+    assert {e.kind for e in ex if e.filter == "sage-husa"} <= {"band"}
     # what is said about the χ²-gated KF is true of its flags (a gate can lock out even with the
     # right R and no outliers: a chance rejection early on, then P grows too slowly to catch up)
     for e in ex:
@@ -118,7 +118,7 @@ def test_rejections_without_growing_p_are_no_lockout(quiet):
     assert not [e for e in D.explain(r) if e.kind == "lockout"]
 
 
-def test_numerical_fix_rate(quiet):
+def test_band_rate(quiet):
     fr = quiet.runs["sage-husa"]
     K, m = quiet.data.K, quiet.data.z.shape[2]
     total = quiet.data.B * K * m
@@ -126,8 +126,8 @@ def test_numerical_fix_rate(quiet):
         flags = np.zeros_like(fr.flags)
         count = round(share * total)
         idx = np.unravel_index(np.arange(count), (quiet.data.B, K, m))
-        flags[idx[0], idx[1] + 1, idx[2]] = NUMERICAL_FIX
-        ex = [e for e in D.explain(_with(quiet, "sage-husa", flags=flags)) if e.kind == "numerical_fix"]
+        flags[idx[0], idx[1] + 1, idx[2]] = R_HAT_AT_BAND
+        ex = [e for e in D.explain(_with(quiet, "sage-husa", flags=flags)) if e.kind == "band"]
         assert bool(ex) is found
         if found:
             assert ex[0].value == pytest.approx(100 * count / total) and ex[0].unit == "%"
@@ -137,11 +137,13 @@ def test_numerical_fix_rate(quiet):
                 "positive-definiteness" not in ex[0].sentence and "not outlier detections" in ex[0].sentence
             )
             assert parse_qs(urlparse(ex[0].learn).query)["filter"] == ["sage-husa"]
-    # outside the Sage–Husa family: the generic sentence
-    flags = np.zeros_like(quiet.runs["kf"].flags)
-    flags[:, 1:5] = NUMERICAL_FIX
-    (e,) = [e for e in D.explain(_with(quiet, "kf", flags=flags)) if e.filter == "kf"]
-    assert "covariance repaired" in e.sentence and "Sage–Husa" not in e.sentence
+    # a repair (flag 9) is said as one, for a filter with a band too, never as R̂ at its band
+    for key in ("kf", "sage-husa"):
+        flags = np.zeros_like(quiet.runs[key].flags)
+        flags[:, 1:5] = NUMERICAL_FIX
+        (e,) = [e for e in D.explain(_with(quiet, key, flags=flags)) if e.filter == key]
+        assert e.kind == "numerical_fix" and "covariance repaired" in e.sentence
+        assert "band" not in e.sentence
 
 
 def test_band_bound_named_with_its_share(quiet):
@@ -149,11 +151,11 @@ def test_band_bound_named_with_its_share(quiet):
     fr = quiet.runs["sage-husa"]
     R0 = np.diag(quiet.data.model.R0)
     flags = np.zeros_like(fr.flags)
-    flags[:, 1:21] = NUMERICAL_FIX  # 20 of 60 epochs, every channel
+    flags[:, 1:21] = R_HAT_AT_BAND  # 20 of 60 epochs, every channel
     R_hat = fr.R_hat.copy()
     R_hat[:, 1:11] = 1e4 * R0  # the first 10: at r_max × R0
     r = _with(quiet, "sage-husa", flags=flags, R_hat=R_hat)
-    (e,) = [e for e in D.explain(r) if e.kind == "numerical_fix"]
+    (e,) = [e for e in D.explain(r) if e.kind == "band"]
     assert e.value == pytest.approx(100 * 20 / 60)
     s = e.sentence
     assert "lower bound r_min = 0.01 × R0 (σ 0.1× the nominal σ) on 16.7 %" in s

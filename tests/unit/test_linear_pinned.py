@@ -14,6 +14,9 @@ in the true R, isolated and continuous gross errors, one missing channel and one
 The Sage–Husa family's entries were regenerated once, deliberately (issue 24): its R̂ band became
 relative to the nominal R0 (ALGORITHMS.md §4.1 step 4), which changes them where R0's variances
 differ (the cv4 and corr cases); the one-run rewrite of the family had matched the old pins first.
+Their flags were rewritten once more when R̂ held at its band got its own code 6 (it was 9, the
+numerical fix's): every changed flag was a 9 that became 6, or 5 (RAKF, an abnormal epoch whose R̂
+was also held: the band marks only channels with no other code); every other quantity unchanged.
 Regenerate only deliberately: ``NAVLAB_REGEN_PIN=1 python tests/unit/test_linear_pinned.py``.
 """
 

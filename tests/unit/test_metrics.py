@@ -327,3 +327,18 @@ def test_a_p_at_the_floor_is_marked_as_a_bound_in_every_output(huber_diverges):
     rows = tables.summary_rows(res, compare_to="chi2-kf")  # what --format json|csv writes
     assert {"p_bound", "p_holm_bound"} <= set(rows.columns)
     assert "p < " in tables.verdict_cell(kf.rename(None).to_dict() | {"filter": "kf"}, "χ² KF")
+
+
+def test_r_hat_at_its_band_is_its_own_rate_not_a_fix_nor_a_decision():
+    """Flag 6 (R̂ held at its band) counts in band_pct only: not in numfix_pct, not as a detection
+    or a false alarm; a filter without R̂ has no band_pct."""
+    res = run_experiment(ExperimentSpec(filters=("kf", "sage-husa"), runs=10, epochs=40, contamination=0.1))
+    base = summarize(res)
+    fl = res.runs["sage-husa"].flags
+    fl[:, 1:] = np.where(fl[:, 1:] == 0, 6, fl[:, 1:])  # every untouched entry held at the band
+    res.__dict__.pop("_summary", None)
+    df = summarize(res)
+    assert value(df, "sage-husa", "band_pct").value > 50
+    for metric in ("numfix_pct", "false_alarm_pct", "detected_pct"):
+        assert value(df, "sage-husa", metric).value == value(base, "sage-husa", metric).value
+    assert not (df[df["filter"] == "kf"].metric == "band_pct").any()

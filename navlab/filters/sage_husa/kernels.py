@@ -132,7 +132,7 @@ def clamp_to_band(R, R0, L0, lo, hi):  # pragma: no cover - compiled by numba
 
     The eigenvalues of R̂ relative to the nominal R0 = L0 L0ᵀ (those of L0⁻¹ R̂ L0⁻ᵀ) are clamped
     into [lo, hi]: with R0 = σ² I, R̂'s eigenvalues into [lo σ², hi σ²]. Returns ``(R', changed
-    (m,))``: ``changed`` marks the channels whose variance R_ii the clamp moved (flag 9). A
+    (m,))``: ``changed`` marks the channels whose variance R_ii the clamp moved (flag 6). A
     diverged run's non-finite R̂ comes back NaN, every channel marked (the experiment loop records
     the divergence) instead of stopping the whole batch.
     """

@@ -127,7 +127,8 @@ def rakf_step(
 
     P = P⁻, nu = ν and M = H P⁻ Hᵀ with missing channels masked (ok False). Returns R̂_k, R̂_k
     masked (unit variance on a missing channel), λ_k (NaN: a diverged run, every flag 9), ν', the
-    clip weights c/|e_i| and the flags (9 R̂ clamped or S repaired, 5 abnormal epoch, 1 clipped).
+    clip weights c/|e_i| and the flags (9 S repaired, 6 R̂ held at its band, 5 abnormal epoch,
+    1 clipped).
     """
     m = nu.shape[0]
     R, clamped = R_prev.copy(), np.zeros(m, dtype=np.bool_)
@@ -157,10 +158,12 @@ def rakf_step(
         e = np.linalg.solve(L, nu)  # e = L_S⁻¹ ν
     w, flags = np.ones(m), np.zeros(m, dtype=np.int8)
     for i in range(m):
-        if clamped[i] or sfix:
+        if sfix:
             flags[i] = 9
         elif abnormal and ok[i]:
             flags[i] = 5
+        elif clamped[i]:
+            flags[i] = 6  # R̂ held at its band: only where no other code stands
         if ok[i] and abs(e[i]) > c:  # ψ_c(e) = clip(e, −c, c)
             w[i] = c / abs(e[i])
             e[i] = c if e[i] > 0 else -c

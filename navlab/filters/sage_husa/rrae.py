@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, Teaching, band_param, register
+from navlab.filters.base import R_HAT_AT_BAND, KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     RAE_RHAT,
@@ -129,7 +129,7 @@ class RRAE(KalmanUpdate):
         sig = np.sqrt(diag(S))
         nz = self.weigh(pr.mk, R, S, pr.mk.nu / sig, sig, det)  # 3–4  the weights and what they leave
         nz.R_hat = R_hat
-        nz.flags[clamped & (nz.flags == 0)] = NUMERICAL_FIX
+        nz.flags[clamped & (nz.flags == 0)] = R_HAT_AT_BAND
         return nz
 
     def detect(self, model: Model, state: RAEState, k: int, z: Array) -> Any:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import DOWNWEIGHTED, NUMERICAL_FIX, KFLimit, Model, Teaching, band_param, register
+from navlab.filters.base import DOWNWEIGHTED, R_HAT_AT_BAND, KFLimit, Model, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import (
     SAGE_HUSA_RHAT,
@@ -112,7 +112,7 @@ class RSSHAKF(KalmanUpdate):
             scale_diag(R, infl),
             R_hat=R_hat,
             weights=1.0 / infl,
-            flags=np.where(out_ch, DOWNWEIGHTED, np.where(clamped, NUMERICAL_FIX, 0)).astype(np.int8),
+            flags=np.where(out_ch, DOWNWEIGHTED, np.where(clamped, R_HAT_AT_BAND, 0)).astype(np.int8),
             stats={"nu_tilde": nt},
             state={"R": R_hat, "k": kk},
         )

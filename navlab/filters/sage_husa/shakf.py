@@ -5,7 +5,7 @@ Fading-memory estimate of R from the innovations, step by step (§4.1 numbering)
     1  x⁻ = F x⁺ (+ q̂) ;  P⁻ = F P⁺ Fᵀ + Q̂
     2  ν = z − H x⁻ − r̂
     3  R̂_k = (1 − d_k) R̂_{k−1} + d_k (ν νᵀ − H P⁻ Hᵀ),   d_k = (1 − b)/(1 − b^{k+1})
-    4  eigenvalues of R̂_k clamped into [0.01 min R0_ii, 1e4 max R0_ii] (flag 9 where clamped)
+    4  eigenvalues of R̂_k clamped into [0.01 min R0_ii, 1e4 max R0_ii] (flag 6 where clamped)
     5  KF update with R̂_k (Joseph form)
     optional (``full``): r̂, Q̂ (with the same guard) and q̂ by the same fading memory.
 """
@@ -17,7 +17,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from navlab.filters.base import NUMERICAL_FIX, KFLimit, Model, SideInfo, Teaching, band_param, register
+from navlab.filters.base import R_HAT_AT_BAND, KFLimit, Model, SideInfo, Teaching, band_param, register
 from navlab.filters.kalman import KalmanUpdate, Noise, Prior
 from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, forgetting_weight
 from navlab.linalg import Array, batched, eigh_clamp, mask_missing, mT, predict_cov
@@ -106,7 +106,7 @@ class SageHusa(KalmanUpdate):
         return super().innovation(model, state, k, z - state.r, side)  # 2  ν = z − H x⁻ − r̂
 
     def noise(self, model: Model, state: SHState, pr: Prior, z: Array) -> Noise:
-        """3–4  R̂_k, its eigenvalues clamped (flag 9 where a variance moved); 5 is the KF update."""
+        """3–4  R̂_k, its eigenvalues clamped (flag 6 where a variance moved); 5 is the KF update."""
         mk, kk = pr.mk, state.k + 1
         d = forgetting_weight(kk, self.params.b)  # d_k, k counted from 1 at the first update
         R, clamped = state.R, np.zeros(z.shape, dtype=bool)
@@ -115,7 +115,7 @@ class SageHusa(KalmanUpdate):
         return Noise(
             mask_missing(z, mk.nu, R).R,
             R_hat=R,
-            flags=np.where(clamped, NUMERICAL_FIX, 0).astype(np.int8),
+            flags=np.where(clamped, R_HAT_AT_BAND, 0).astype(np.int8),
             stats={"d_k": np.full(z.shape[0], d)},
             state={"R": R, "k": kk},
         )
