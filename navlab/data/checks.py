@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from navlab.ins.align import course_heading
 from navlab.linalg import Array
 
 if TYPE_CHECKING:
@@ -56,10 +57,6 @@ class Finding(NamedTuple):
 # ----------------------------------------------------------------------------- before a run
 
 
-def _course(v_enu: Array) -> Array:
-    return np.arctan2(v_enu[:, 0], v_enu[:, 1])  # clockwise from north
-
-
 def heading_change_slope(
     t_g: Array, v_enu: Array, t_imu: Array, w_up: Array, window_s: float, min_speed_mps: float = 4.0
 ) -> tuple[float, float, int]:
@@ -74,7 +71,7 @@ def heading_change_slope(
     if t0.size < 5:
         return float("nan"), 0.0, 0
     sp = np.hypot(v_enu[:, 0], v_enu[:, 1])
-    crs = np.unwrap(_course(v_enu))
+    crs = np.unwrap(course_heading(v_enu))
     c0, c1 = np.interp(t0, t_g, crs), np.interp(t0 + window_s, t_g, crs)
     s0, s1 = np.interp(t0, t_g, sp), np.interp(t0 + window_s, t_g, sp)
     moving = (np.minimum(s0, s1) > min_speed_mps) & (
@@ -175,7 +172,7 @@ def time_offset_hint(
     psi_g = np.empty(len(t))
     for j in range(piece.max() + 1):  # unwrap inside each piece
         m = piece == j
-        psi_g[m] = -np.unwrap(_course(v[m]))
+        psi_g[m] = -np.unwrap(course_heading(v[m]))  # the piece's offset absorbs 2π
     # nuisance columns: a per-piece offset and drift (time relative to the piece's mean)
     A = np.zeros((len(t), 2 * (piece.max() + 1)))
     for j in range(piece.max() + 1):
