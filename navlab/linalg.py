@@ -6,7 +6,7 @@ KF with a common P0) and (B, n, n) once it depends on the data. Everything here 
 filter written with these helpers handles both without branches.
 
 Why the kernels look the way they do: with B runs of tiny matrices, numpy's per-call overhead,
-not arithmetic, is the cost (a stacked LAPACK call on 2×2 systems costs ≈ 10× its arithmetic), so
+not arithmetic, is the cost (a stacked LAPACK call on 2×2 systems costs far more than its arithmetic), so
 a few kernels take a shorter road than the textbook formula. Each states the formula it equals
 (to round-off) and is tested against it (tests/contract/test_kernel_properties.py, hypothesis
 over B, n, m and missing-channel patterns). A shortcut stays only where it saves ≥ 10 % of some
@@ -58,7 +58,7 @@ SERIAL_GEMM = 65536 * 4
 
 # ------------------------------------------------------------------------------ shapes
 def mT(A: Array) -> Array:
-    """Transpose of the last two axes (the method, not np.swapaxes: a hot path, 10× less overhead)."""
+    """Transpose of the last two axes (the array method: less call overhead than np.swapaxes)."""
     return A.swapaxes(-1, -2)
 
 
@@ -91,7 +91,7 @@ def bcast(a: Array, shape: tuple[int, ...]) -> Array:
     """``np.broadcast_to(a, shape)``: a read-only view (``a`` itself when it has the shape).
 
     A C-contiguous ``a`` that only gains leading axes gets its zero-stride view built directly
-    (≈ 1 µs instead of ≈ 10 µs for ``np.broadcast_to``, which is called every epoch).
+    (``np.broadcast_to`` is called every epoch; ``benchmarks/tricks.py --trick bcast-view``).
     """
     a = np.asarray(a)
     if a.shape == shape:
@@ -533,10 +533,9 @@ def quad(v: Array, S: Array) -> Array:
     The method depends on d and on whether S is shared, never on the batch, so a value depends on
     its own v and S only, never on the other runs of the chunk it was computed with: the closed
     form for d ≤ 2; for d = 3 an unpivoted LDLᵀ elimination with the batch axes last (stable for
-    positive-definite S; a shared S factored once; ≈ 2× faster than LAPACK for thousands of
-    matrices); for d ≥ 4 an LU solve per matrix (LAPACK; faster than the elimination from d = 4 on
-    at any batch size), or, for a shared S, its inverse once and the form element by element
-    (the KF's NEES at 10 000 runs: ≈ 10× faster than a solve per run; equal to it to round-off).
+    positive-definite S; a shared S factored once); for d ≥ 4 an LU solve per matrix (LAPACK), or,
+    for a shared S, its inverse once and the form element by element (equal to a solve per run to
+    round-off); ``benchmarks/tricks.py --trick quad-shortcuts`` measures them.
     Compiled (navlab.jit), d ≥ 4: a Cholesky factor per distinct matrix (a shared S factored once)
     and |L⁻¹ v|² (:func:`_quad_runs`); the numpy paths above are its reference.
     LU, one matrix at a time, also decides the entries a shortcut could not (a zero pivot or a

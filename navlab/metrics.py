@@ -299,7 +299,8 @@ def epoch_major(a: Array) -> Array:
     records the filters' outputs in (navlab.experiment._Recorder) — copied only if it is not one.
 
     The per-run statistics are computed on this one layout: elementwise arithmetic between two
-    arrays of different layouts is a strided, transposing pass (≈ 5× slower), and a sum over the
+    arrays of different layouts is a strided, transposing pass (benchmarks/throughput.py times the
+    metrics), and a sum over the
     epochs then adds them in epoch order whatever the layout the arrays came in.
     """
     return np.ascontiguousarray(a.swapaxes(0, 1)).swapaxes(0, 1)
@@ -310,7 +311,8 @@ def per_run(a: Array, where: Array | None = None) -> Array:
     ``where``, of the entries where it is True only (the sum of ``np.where(where, a, 0)``, the
     same bits, without that temporary array).
 
-    Two single-axis sums: on an epoch-major boolean array one sum over both axes is ≈ 20× slower.
+    Two single-axis sums: on an epoch-major boolean array one sum over both axes is a slow strided
+    pass.
     """
     s = a.sum(axis=1) if where is None else np.add.reduce(a, axis=1, where=where)
     return (s.sum(axis=1) if s.ndim > 1 else s).astype(float)
