@@ -116,18 +116,14 @@ def square_root(P, method):  # pragma: no cover - compiled by numba
     CHOLESKY: the Cholesky factor where P_s is positive definite (flag False), else the SVD's.
     A non-finite P (a diverged run) gives NaN, flagged.
     """
-    n = P.shape[0]
     Ps = 0.5 * (P + P.T)  # a  P_s = (P + Pᵀ)/2
-    L = np.zeros((n, n))
+    L = np.zeros(P.shape)
     if method == CHOLESKY and cholesky_lower(Ps, L):
         return L, False
     if not np.all(np.isfinite(Ps)):
-        return np.full((n, n), np.nan), True
+        return np.full(P.shape, np.nan), True
     w, U = np.linalg.eigh(Ps)  # a  P_s = U Σ_s Tᵀ,  Σ_s = |eig(P_s)|
-    for j in range(n):
-        for i in range(n):
-            L[i, j] = U[i, j] * np.sqrt(abs(w[j]))  # b  L = U Σ_s^{1/2}
-    return L, w.min() < -1e-9 * abs(np.trace(Ps))
+    return U * np.sqrt(np.abs(w)), w.min() < -1e-9 * abs(np.trace(Ps))  # b  L = U Σ_s^{1/2}
 
 
 SQUARE_ROOT = Kernel(square_root, uses=(CHOLESKY_LOWER,))
@@ -139,55 +135,22 @@ def sigma_points(x, P, c, method):  # pragma: no cover - compiled by numba
     n = x.shape[0]
     chi = np.empty((2 * n + 1, n))
     chi[0] = x  # c  χ_0 = x̄
-    for j in range(n):
-        for i in range(n):
-            chi[1 + j, i] = x[i] + c * L[i, j]  # c  χ_j = x̄ + √(n+λ) L_j
-            chi[1 + n + j, i] = x[i] - c * L[i, j]  # c  χ_{j+n} = x̄ − √(n+λ) L_j
+    chi[1 : n + 1] = x + c * L.T  # c  χ_j = x̄ + √(n+λ) L_j
+    chi[n + 1 :] = x - c * L.T  # c  χ_{j+n} = x̄ − √(n+λ) L_j
     return chi, neg
 
 
 SIGMA = Kernel(sigma_points, uses=(SQUARE_ROOT,))
 
 
-def ut_mean(Y, Wm):  # pragma: no cover - compiled by numba
-    """Σ_i Wm_i Y_i over the sigma-point images Y (2n+1, p) of ONE run."""
-    mean = np.zeros(Y.shape[1])
-    for s in range(Y.shape[0]):
-        for i in range(Y.shape[1]):
-            mean[i] += Wm[s] * Y[s, i]
-    return mean
-
-
-def ut_cov(X, mx, Y, my, Wc, symmetric):  # pragma: no cover - compiled by numba
-    """Σ_i Wc_i (X_i − mx)(Y_i − my)ᵀ over the sigma points X (2n+1, p), Y (2n+1, q) of ONE run.
-
-    ``symmetric``: X is Y (and mx my), so only the upper triangle is summed, the lower mirrored.
-    """
-    p, q = X.shape[1], Y.shape[1]
-    C = np.zeros((p, q))
-    for s in range(X.shape[0]):
-        for i in range(p):
-            w = Wc[s] * (X[s, i] - mx[i])
-            for j in range(i if symmetric else 0, q):
-                C[i, j] += w * (Y[s, j] - my[j])
-    for i in range(p if symmetric else 0):
-        for j in range(i):
-            C[i, j] = C[j, i]
-    return C
-
-
-UT_MEAN, UT_COV = Kernel(ut_mean), Kernel(ut_cov)
-
-
 def time_update(chi_f, Q, Wm, Wc, c, method, redraw):  # pragma: no cover - compiled by numba
     """§1.3 steps 2–3 for ONE run from the propagated sigma points χ* = f(χ): x⁻, P⁻ and the
     sigma points of the measurement prediction (redrawn from (x⁻, P⁻), or χ*) with their flag.
     """
-    x = ut_mean(chi_f, Wm)  # 2  x⁻ = Σ Wm_i χ*_i
-    P = ut_cov(chi_f, x, chi_f, x, Wc, True)  # 2  P⁻ = Σ Wc_i (χ*_i − x⁻)(χ*_i − x⁻)ᵀ + Q
-    for i in range(x.shape[0]):
-        for j in range(x.shape[0]):
-            P[i, j] += 0.5 * (Q[i, j] + Q[j, i])  # (Q's symmetric part: P⁻ exactly symmetric)
+    x = Wm @ chi_f  # 2  x⁻ = Σ Wm_i χ*_i
+    d = chi_f - x
+    P = (d.T * Wc) @ d + Q  # 2  P⁻ = Σ Wc_i (χ*_i − x⁻)(χ*_i − x⁻)ᵀ + Q
+    P = 0.5 * (P + P.T)
     if not redraw:
         return x, P, chi_f.copy(), False  # 3  (option) reuse χ*
     chi, neg = sigma_points(x, P, c, method)  # 3  redraw χ from (x⁻, P⁻)
@@ -196,40 +159,31 @@ def time_update(chi_f, Q, Wm, Wc, c, method, redraw):  # pragma: no cover - comp
 
 def measurement_moments(chi, Y, x, Wm, Wc):  # pragma: no cover - compiled by numba
     """§1.3 steps 4–6 for ONE run from the sigma points χ and their images Y = h(χ): ẑ⁻, A, Pxy."""
-    z_hat = ut_mean(Y, Wm)  # 4  ẑ⁻ = Σ Wm_i Y_i
-    A = ut_cov(Y, z_hat, Y, z_hat, Wc, True)  # 5  A = Σ Wc_i (Y_i − ẑ⁻)(Y_i − ẑ⁻)ᵀ
-    Pxy = ut_cov(chi, x, Y, z_hat, Wc, False)  # 6  Pxy = Σ Wc_i (χ_i − x⁻)(Y_i − ẑ⁻)ᵀ
+    z_hat = Wm @ Y  # 4  ẑ⁻ = Σ Wm_i Y_i
+    dY = Y - z_hat
+    A = (dY.T * Wc) @ dY  # 5  A = Σ Wc_i (Y_i − ẑ⁻)(Y_i − ẑ⁻)ᵀ
+    Pxy = ((chi - x).T * Wc) @ dY  # 6  Pxy = Σ Wc_i (χ_i − x⁻)(Y_i − ẑ⁻)ᵀ
     return z_hat, A, Pxy
 
 
 def lu_solve(S, B):  # pragma: no cover - compiled by numba
-    """S⁻¹ B for ONE S (m, m), B (m, q) by Gaussian elimination with partial pivoting (LU), and
-    False where S is singular (a zero pivot).
+    """S⁻¹ B for ONE S (m, m), B (m, q) by Gaussian elimination with partial pivoting, and False
+    where S is singular (a zero pivot).
     """
-    m, q = B.shape
     A, X = S.copy(), B.copy()
+    m = A.shape[0]
     for k in range(m):
-        p = k
-        for i in range(k + 1, m):
-            if abs(A[i, k]) > abs(A[p, k]):
-                p = i
-        if not abs(A[p, k]) > 0.0:
+        p = k + np.argmax(np.abs(A[k:, k]))
+        if A[p, k] == 0.0:
             return X, False
-        for j in range(m):
-            A[k, j], A[p, j] = A[p, j], A[k, j]
-        for j in range(q):
-            X[k, j], X[p, j] = X[p, j], X[k, j]
-        for i in range(k + 1, m):
-            f = A[i, k] / A[k, k]
-            for j in range(k, m):
-                A[i, j] -= f * A[k, j]
-            for j in range(q):
-                X[i, j] -= f * X[k, j]
+        A[k], A[p], X[k], X[p] = A[p].copy(), A[k].copy(), X[p].copy(), X[k].copy()
+        f = A[k + 1 :, k] / A[k, k]
+        A[k + 1 :] -= np.outer(f, A[k])
+        X[k + 1 :] -= np.outer(f, X[k])
     for k in range(m - 1, -1, -1):
-        for j in range(q):
-            for c in range(k + 1, m):
-                X[k, j] -= A[k, c] * X[c, j]
-            X[k, j] /= A[k, k]
+        for c in range(k + 1, m):
+            X[k] -= A[k, c] * X[c]
+        X[k] /= A[k, k]
     return X, True
 
 
@@ -240,12 +194,8 @@ def solve_rows(S, Y):  # pragma: no cover - compiled by numba
     non-symmetric S); where S is singular, S + 1e-12·tr(S)/m·I (§0.2 rule 3; flag 9).
     """
     m = S.shape[0]
-    symmetric = True
-    for i in range(m):
-        for j in range(i):
-            symmetric = symmetric and S[i, j] == S[j, i]
     L = np.zeros((m, m))
-    if symmetric and cholesky_lower(S, L):
+    if np.all(S == S.T) and cholesky_lower(S, L):
         X = Y.copy()
         for i in range(Y.shape[0]):
             cholesky_solve(L, X[i])  # S = L Lᵀ
@@ -264,41 +214,15 @@ def gain(P, A, Pxy, R, symmetric):  # pragma: no cover - compiled by numba
 
     ``symmetric`` False: Pyy is left as it is (the literal form of §5, A' = diag(σ) A).
     """
-    n, m = Pxy.shape
     Pyy = A + R  # 6  Pyy = A + R
-    for i in range(m if symmetric else 0):
-        for j in range(i):
-            Pyy[i, j] = Pyy[j, i] = 0.5 * (Pyy[i, j] + Pyy[j, i])
-    K, fixed = solve_rows(Pyy.T, Pxy)  # 7  K = Pxy Pyy⁻¹
-    KPyy = np.zeros((n, m))
-    for i in range(n):
-        for c in range(m):
-            for d in range(m):
-                KPyy[i, d] += K[i, c] * Pyy[c, d]
-    P1 = np.empty((n, n))
-    for i in range(n):
-        for j in range(i, n):
-            t = 0.0
-            for c in range(m):
-                t += KPyy[i, c] * K[j, c] + KPyy[j, c] * K[i, c]
-            P1[i, j] = P1[j, i] = 0.5 * (P[i, j] + P[j, i] - t)  # 8  P⁺ = P⁻ − K Pyy Kᵀ, symmetrised
-    return K, P1, Pyy, fixed
+    if symmetric:
+        Pyy = 0.5 * (Pyy + Pyy.T)
+    K, fixed = solve_rows(np.ascontiguousarray(Pyy.T), Pxy)  # 7  K = Pxy Pyy⁻¹
+    P1 = P - K @ Pyy @ K.T  # 8  P⁺ = P⁻ − K Pyy Kᵀ
+    return K, 0.5 * (P1 + P1.T), Pyy, fixed  # 8  symmetrise
 
 
 GAIN = Kernel(gain, uses=(SOLVE_ROWS,))
-
-
-def update(x, P, V, A, Pxy, R, symmetric):  # pragma: no cover - compiled by numba
-    """§1.3 steps 6–8 for ONE run: x⁺, P⁺, Pyy and whether Pyy needed a fix."""
-    K, P1, Pyy, fixed = gain(P, A, Pxy, R, symmetric)  # 6–8  K, P⁺
-    x1 = x.copy()
-    for i in range(x.shape[0]):
-        for c in range(V.shape[0]):
-            x1[i] += K[i, c] * V[c]  # 8  x⁺ = x⁻ + K V
-    return x1, P1, Pyy, fixed
-
-
-UPDATE = Kernel(update, uses=(GAIN,))
 
 
 def chi2_test(V, A, R, ok, thresholds, xi):  # pragma: no cover - compiled by numba
@@ -306,15 +230,9 @@ def chi2_test(V, A, R, ok, thresholds, xi):  # pragma: no cover - compiled by nu
 
     ``thresholds[d]``: χ²_{1−α}(d) (d = 0 reads as 1). Returns γ, ξε and whether γ > ξε.
     """
-    m = V.shape[0]
     Pyy = A + R
-    for i in range(m):
-        for j in range(i):
-            Pyy[i, j] = Pyy[j, i] = 0.5 * (Pyy[i, j] + Pyy[j, i])
-    X, _ = solve_rows(Pyy, V.reshape((1, m)))
-    gamma = 0.0
-    for i in range(m):
-        gamma += V[i] * X[0, i]  # 2  γ = Vᵀ Pyy⁻¹ V
+    X, _ = solve_rows(0.5 * (Pyy + Pyy.T), V.reshape((1, V.shape[0])))
+    gamma = V @ X[0]  # 2  γ = Vᵀ Pyy⁻¹ V
     dof = np.sum(ok)
     thr = xi * thresholds[dof]  # ξ ε,  ε = χ²_{1−α}(m)
     return gamma, thr, gamma > thr and dof > 0  # 3  γ > ξ ε: the filter is inconsistent
@@ -346,16 +264,11 @@ def fading_update(
         if gate > 0.0 and not abs(V[i]) > gate * np.sqrt(max(A[i, i] + R[i, i], 1e-300)):
             sig[i] = 1.0  # option per_channel_gate: only |V_i|/√Pyy_ii > gate fades
     s = np.ones(n)
-    several = False
-    for i in range(m):
-        several = several or np.sum(M[i]) > 1
-        for j in range(n):
-            if M[i, j]:
-                s[j] = max(s[j], sig[i])  # 4  s_j = σ_i(j), the state(s) channel i observes
-    if np.all(sig == 1.0) and np.all(s == 1.0):  # 3  σ = 1: the ordinary SVD-UKF update
-        x1, P1, Pyy1, fixed = update(x, P, V, A, Pxy, R, True)
-        return x1, P1, Pyy1, fixed, sig, False
-    dx, dz = np.sqrt(s), np.sqrt(sig)  # 4  D_x = diag(√s), D_z = diag(√σ)
+    for i in range(m):  # 4  s_j = σ_i(j): the largest σ_i of the channels observing state j
+        s = np.where(M[i], np.maximum(s, sig[i]), s)
+    dx, dz = np.sqrt(s), np.sqrt(sig)  # 4  D_x = diag(√s), D_z = diag(√σ)  (σ = 1: step 3, D = I)
+    literal = literal and (np.any(sig != 1.0) or np.any(s != 1.0))  # σ = 1: the symmetric step 3
+    several = np.any(np.sum(M, axis=1) > 1)  # a row of H observes several states
     if (recompute or several) and np.any(sig > 1.0):  # A', Pxy' from sigma points of P⁻' (caller)
         return x.copy(), dx.reshape((n, 1)) * P * dx, A + R, False, sig, True
     if literal:  # S2's eq. 13 style
@@ -364,8 +277,8 @@ def fading_update(
         P1 = dx.reshape((n, 1)) * P * dx  # 4  P⁻' = D_x P⁻ D_x
         A1 = dz.reshape((m, 1)) * A * dz  # 4  A' = D_z A D_z
         Pxy1 = dx.reshape((n, 1)) * Pxy * dz  # 4  Pxy' = D_x Pxy D_z
-    x1, P2, Pyy1, fixed = update(x, P1, V, A1, Pxy1, R, not literal)  # 4  Pyy' = A' + R, K, x⁺, P⁺
-    return x1, P2, Pyy1, fixed, sig, False
+    K, P2, Pyy, fixed = gain(P1, A1, Pxy1, R, not literal)  # 4  Pyy' = A' + R, K = Pxy' Pyy'⁻¹, P⁺
+    return x + K @ V, P2, Pyy, fixed, sig, False  # 4  x⁺ = x⁻ + K V
 
 
 def _sigma_shape(x: tuple, *_: tuple) -> tuple[int, int]:
@@ -380,7 +293,7 @@ TIME_UPDATE = RunStep(
     time_update,
     n_runs=2,
     outs=((lambda chi_f, Q: Q[:1], float), (1, float), (0, float), (None, bool)),
-    uses=(UT_MEAN, UT_COV, SIGMA),
+    uses=(SIGMA,),
 )
 MOMENTS = RunStep(
     measurement_moments,
@@ -390,7 +303,6 @@ MOMENTS = RunStep(
         (lambda chi, Y, x: (Y[1], Y[1]), float),
         (lambda chi, Y, x: (x[0], Y[1]), float),
     ),
-    uses=(UT_MEAN, UT_COV),
 )
 GAIN_STEP = RunStep(
     gain, n_runs=4, outs=((2, float), (0, float), (1, float), (None, bool)), uses=(SOLVE_ROWS,)
@@ -402,7 +314,7 @@ FADING_UPDATE = RunStep(
     fading_update,
     n_runs=9,
     outs=((0, float), (1, float), (3, float), (None, bool), (2, float), (None, bool)),
-    uses=(UPDATE,),
+    uses=(GAIN,),
 )
 
 

@@ -15,7 +15,7 @@ import pytest
 from navlab.experiment import ExperimentSpec, run_experiment, run_filters
 from navlab.filters import ukf
 from navlab.filters.base import LinearModel, SideInfo, make_filter
-from navlab.filters.ukf import SVD, sigma_points, square_root, ut_cov, ut_mean, ut_weights
+from navlab.filters.ukf import SVD, measurement_moments, sigma_points, square_root, ut_weights
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios.base import make_scenario
 
@@ -74,8 +74,8 @@ def test_ut_polar_to_cartesian_matches_closed_form():
     w = ut_weights(2, 1.0, 2.0, 1.0)  # κ = 3 − n: matches the 4th moment of a Gaussian
     chi, _ = sigma_points(x[0], P, w.c, SVD)  # the one-run step, uncompiled
     Y = np.stack([chi[..., 0] * np.cos(chi[..., 1]), chi[..., 0] * np.sin(chi[..., 1])], axis=-1)
-    mean = ut_mean(Y, w.Wm)[None]
-    cov = ut_cov(Y, mean[0], Y, mean[0], w.Wc, True)[None]
+    mean, cov, _ = measurement_moments(chi, Y, x[0], w.Wm, w.Wc)  # §1.3 4–6 (ẑ⁻, A), uncompiled
+    mean, cov = mean[None], cov[None]
     e = np.exp(-(st**2) / 2)
     m_true = np.array([mr * np.cos(mt) * e, mr * np.sin(mt) * e])
     Er2 = mr**2 + sr**2
