@@ -193,9 +193,12 @@ def solve_rows(S, Y):  # pragma: no cover - compiled by numba
     Cholesky where S is exactly symmetric and positive definite, LU otherwise (the literal form's
     non-symmetric S); where S is singular, S + 1e-12·tr(S)/m·I (§0.2 rule 3; flag 9).
     """
-    m = S.shape[0]
+    m, symmetric = S.shape[0], True
+    for i in range(m):
+        for j in range(i):
+            symmetric = symmetric and S[i, j] == S[j, i]
     L = np.zeros((m, m))
-    if np.all(S == S.T) and cholesky_lower(S, L):
+    if symmetric and cholesky_lower(S, L):
         X = Y.copy()
         for i in range(Y.shape[0]):
             cholesky_solve(L, X[i])  # S = L Lᵀ
@@ -214,12 +217,25 @@ def gain(P, A, Pxy, R, symmetric):  # pragma: no cover - compiled by numba
 
     ``symmetric`` False: Pyy is left as it is (the literal form of §5, A' = diag(σ) A).
     """
+    n, m = Pxy.shape
     Pyy = A + R  # 6  Pyy = A + R
-    if symmetric:
-        Pyy = 0.5 * (Pyy + Pyy.T)
-    K, fixed = solve_rows(np.ascontiguousarray(Pyy.T), Pxy)  # 7  K = Pxy Pyy⁻¹
-    P1 = P - K @ Pyy @ K.T  # 8  P⁺ = P⁻ − K Pyy Kᵀ
-    return K, 0.5 * (P1 + P1.T), Pyy, fixed  # 8  symmetrise
+    for i in range(m if symmetric else 0):
+        for j in range(i):
+            Pyy[i, j] = Pyy[j, i] = 0.5 * (Pyy[i, j] + Pyy[j, i])
+    K, fixed = solve_rows(Pyy.T, Pxy)  # 7  K = Pxy Pyy⁻¹
+    KPyy = np.zeros((n, m))  # (loops: products of small matrices, no BLAS call and no temporary)
+    for i in range(n):
+        for c in range(m):
+            for d in range(m):
+                KPyy[i, d] += K[i, c] * Pyy[c, d]
+    P1 = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for c in range(m):
+                t += KPyy[i, c] * K[j, c] + KPyy[j, c] * K[i, c]
+            P1[i, j] = P1[j, i] = 0.5 * (P[i, j] + P[j, i] - t)  # 8  P⁺ = P⁻ − K Pyy Kᵀ, symmetrised
+    return K, P1, Pyy, fixed
 
 
 GAIN = Kernel(gain, uses=(SOLVE_ROWS,))
@@ -231,7 +247,7 @@ def chi2_test(V, A, R, ok, thresholds, xi):  # pragma: no cover - compiled by nu
     ``thresholds[d]``: χ²_{1−α}(d) (d = 0 reads as 1). Returns γ, ξε and whether γ > ξε.
     """
     Pyy = A + R
-    X, _ = solve_rows(0.5 * (Pyy + Pyy.T), V.reshape((1, V.shape[0])))
+    X, _ = solve_rows((0.5 * (Pyy + Pyy.T)).T, V.reshape((1, V.shape[0])))
     gamma = V @ X[0]  # 2  γ = Vᵀ Pyy⁻¹ V
     dof = np.sum(ok)
     thr = xi * thresholds[dof]  # ξ ε,  ε = χ²_{1−α}(m)
@@ -263,22 +279,29 @@ def fading_update(
             sig[i] = sigma_max if q > sigma_max else (1.0 if q < 1.0 else q)
         if gate > 0.0 and not abs(V[i]) > gate * np.sqrt(max(A[i, i] + R[i, i], 1e-300)):
             sig[i] = 1.0  # option per_channel_gate: only |V_i|/√Pyy_ii > gate fades
-    s = np.ones(n)
+    s, several = np.ones(n), False
     for i in range(m):  # 4  s_j = σ_i(j): the largest σ_i of the channels observing state j
-        s = np.where(M[i], np.maximum(s, sig[i]), s)
-    dx, dz = np.sqrt(s), np.sqrt(sig)  # 4  D_x = diag(√s), D_z = diag(√σ)  (σ = 1: step 3, D = I)
-    literal = literal and (np.any(sig != 1.0) or np.any(s != 1.0))  # σ = 1: the symmetric step 3
-    several = np.any(np.sum(M, axis=1) > 1)  # a row of H observes several states
-    if (recompute or several) and np.any(sig > 1.0):  # A', Pxy' from sigma points of P⁻' (caller)
+        several = several or M[i].sum() > 1  # (a row of H observing several states)
+        for j in range(n):
+            s[j] = max(s[j], sig[i]) if M[i, j] else s[j]
+    dx, dz = np.sqrt(s), np.sqrt(sig)  # 4  D_x = diag(√s), D_z = diag(√σ)
+    faded = (sig != 1.0).any() or (s != 1.0).any()
+    if (recompute or several) and (sig > 1.0).any():  # A', Pxy' from sigma points of P⁻' (caller)
         return x.copy(), dx.reshape((n, 1)) * P * dx, A + R, False, sig, True
-    if literal:  # S2's eq. 13 style
+    if not faded:  # 3  σ = 1: the ordinary SVD-UKF update
+        P1, A1, Pxy1, literal = P, A, Pxy, False
+    elif literal:  # S2's eq. 13 style
         P1, A1, Pxy1 = s.reshape((n, 1)) * P, sig.reshape((m, 1)) * A, s.reshape((n, 1)) * Pxy
     else:
         P1 = dx.reshape((n, 1)) * P * dx  # 4  P⁻' = D_x P⁻ D_x
         A1 = dz.reshape((m, 1)) * A * dz  # 4  A' = D_z A D_z
         Pxy1 = dx.reshape((n, 1)) * Pxy * dz  # 4  Pxy' = D_x Pxy D_z
     K, P2, Pyy, fixed = gain(P1, A1, Pxy1, R, not literal)  # 4  Pyy' = A' + R, K = Pxy' Pyy'⁻¹, P⁺
-    return x + K @ V, P2, Pyy, fixed, sig, False  # 4  x⁺ = x⁻ + K V
+    x1 = x.copy()
+    for i in range(n):
+        for c in range(m):
+            x1[i] += K[i, c] * V[c]  # 4  x⁺ = x⁻ + K V
+    return x1, P2, Pyy, fixed, sig, False
 
 
 def _sigma_shape(x: tuple, *_: tuple) -> tuple[int, int]:
@@ -587,10 +610,13 @@ class _FadingBase(_UKFBase):
         """§5 steps 3–4 of every run with the residual V and noise R (NNMFUKF: replaced). Returns
         x⁺, P⁺, Pyy', fixed (B,) and σ (B, m).
         """
-        p = self.params
+        p, P = self.params, batched(state.P, V.shape[0])
+        if not reject.any():  # 3  every run passes: σ = 1, the ordinary SVD-UKF update
+            K, P, Pyy, fixed = GAIN_STEP((P, ms.A, ms.Pxy, R), (True,))
+            return state.x + mv(K, V), P, Pyy, fixed, np.ones_like(V)
         M = channel_state_map(model, state.x, k)
         opts = (float(p.sigma_max), float(p.per_channel_gate), p.form == "literal", bool(p.recompute_sigma))
-        run = (state.x, batched(state.P, V.shape[0]), V, ms.A, ms.Pxy, R, ms.ok, reject, M)
+        run = (state.x, P, V, ms.A, ms.Pxy, R, ms.ok, reject, M)
         with np.errstate(over="ignore"):  # a diverged run's V_i² may overflow: σ_i = σ_max
             x, P, Pyy, fixed, sig, redo = FADING_UPDATE(run, opts)  # 3–4  σ, the (faded) update
         if redo.any():  # A', Pxy' from sigma points of (x⁻, P⁻') (exact for any h), the unscaled update
