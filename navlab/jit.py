@@ -110,7 +110,9 @@ class RunStep:
     the paper prints it. ``step(runs, params)`` calls it for r = 0 … B−1 with ``a[r]`` of every
     array of ``runs`` (leading axis B) and ``params`` shared by the runs, and returns its results
     stacked over the runs. ``outs`` declares them: per result, the index of the run argument
-    whose one-run shape it has (None: a scalar) and its dtype. With numba the loop and ``fn``
+    whose one-run shape it has (None: a scalar; or a function of the run arguments' one-run
+    shapes that returns its shape, e.g. ``lambda x, P: (2 * x[0] + 1, x[0])``) and its dtype.
+    With numba the loop and ``fn``
     are compiled together (``fn``'s helpers in ``uses``, as for :class:`Kernel`); without it, or
     within :func:`numpy_paths`, the same loop runs the same Python uncompiled: the fallback and
     the tests' oracle.
@@ -120,7 +122,7 @@ class RunStep:
         self,
         fn: Callable,
         n_runs: int,
-        outs: tuple[tuple[int | None, type], ...],
+        outs: tuple[tuple[int | Callable[..., tuple[int, ...]] | None, type], ...],
         uses: tuple[Kernel, ...] = (),
     ) -> None:
         self.step = Kernel(fn, uses)
@@ -133,7 +135,7 @@ class RunStep:
         runs = [_contiguous(a) for a in runs]
         params = tuple(_param(v) for v in params)
         B = runs[0].shape[0]
-        outs = [np.empty((B,) if i is None else (B, *runs[i].shape[1:]), dt) for i, dt in self.outs]
+        outs = [np.empty((B, *_one_run_shape(i, runs)), dt) for i, dt in self.outs]
         loop = self._compiled(len(params))
         if loop is not None:
             loop(*runs, *params, *outs)
@@ -159,6 +161,15 @@ class RunStep:
                 todo.extend(kernel.uses)
             self._loop = _runs_loop(self.fn.__name__, code, step, self.n_runs, n_params, len(self.outs))
         return self._loop
+
+
+def _one_run_shape(spec: Any, runs: list[np.ndarray]) -> tuple[int, ...]:
+    """The one-run shape of a result declared by ``spec`` (see :class:`RunStep`)."""
+    if spec is None:
+        return ()
+    if callable(spec):
+        return tuple(spec(*[a.shape[1:] for a in runs]))
+    return runs[spec].shape[1:]
 
 
 def _runs_loop(

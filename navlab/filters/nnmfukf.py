@@ -43,12 +43,8 @@ from navlab.filters.base import (
     register,
 )
 from navlab.filters.rbf import RBFNet, train
-from navlab.filters.ukf import (
-    MFUKFParams,
-    UKFState,
-    _FadingBase,
-)
-from navlab.linalg import Array, batched, mask_missing, sym
+from navlab.filters.ukf import CHI2_TEST, MFUKFParams, UKFState, _FadingBase
+from navlab.linalg import Array
 from navlab.params import param
 
 
@@ -57,7 +53,7 @@ class NNState(NamedTuple):
 
     x: Array
     P: Array
-    chi_f: Array | None
+    chi: Array | None
     neg: Array | None
     x_prev: Array  # x̂⁺_{k−1} (set by predict)
     g_prev: Array  # (B, m) GPS value used at k−1 (raw or predicted)
@@ -181,7 +177,7 @@ class NNMFUKF(_FadingBase):
         return NNState(
             x=x0,
             P=P0,
-            chi_f=None,
+            chi=None,
             neg=None,
             x_prev=x0,
             g_prev=np.full((B, m), np.nan),
@@ -256,13 +252,8 @@ class NNMFUKF(_FadingBase):
     # -- the step -------------------------------------------------------------------------
     def update(self, model: Model, state: NNState, k: int, z: Array, side: SideInfo):
         p = self.params
-        mp = self._predict_measurement(model, state, k)
-        V = z - mp.z_hat
-        mk = mask_missing(z, V, model.R0, U=mp.Pxy, M=mp.A)  # missing channels: zero gain column
-        ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
-        Pyy0 = sym(A + R)
-        # one solve: γ and the unfaded gain (valid unless an observation is replaced below)
-        gamma, thr, reject, Kt0, fixed0 = self._test(V, Pyy0, ok, Pxy)
+        ms = self._measure(model, state, k, z)  # 1  ẑ⁻, V, A, Pxy, γ against ξε
+        V, R, reject = ms.V, ms.R, ms.reject
         B, m = z.shape
         replaced = np.zeros(B, dtype=bool)
         rep_mask = np.zeros((B, m), dtype=bool)
@@ -289,43 +280,38 @@ class NNMFUKF(_FadingBase):
             if p.max_run > 0:
                 use &= state.run_len < p.max_run
             if use.any():
-                # replacement of the observation (§6.3); the prediction is only used where `use`
+                # 3  replacement of the observation (§6.3); the prediction is only used where `use`
                 if u is None:
                     u = self._features(model, state.x_prev, k)
                 g_hat = state.g_prev + st.net.predict(u)
                 z_rep = ref - g_hat
-                rep = use[:, None] & ok & np.isfinite(z_rep)
+                rep = use[:, None] & ms.ok & np.isfinite(z_rep)
                 if p.replace == "flagged":
-                    rep &= np.abs(V) > p.c_replace * np.sqrt(np.diagonal(Pyy0, axis1=-2, axis2=-1))
+                    Pyy_d = np.diagonal(ms.A, axis1=-2, axis2=-1) + np.diagonal(R, axis1=-2, axis2=-1)
+                    rep &= np.abs(V) > p.c_replace * np.sqrt(Pyy_d)
                 if rep.any():
                     r_d = np.diagonal(R, axis1=-2, axis2=-1)
                     r_new = np.where(rep, np.maximum(r_d, st.net.sigma_nn**2), r_d)
-                    R2 = R + (r_new - r_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
-                    z2 = np.where(rep, z_rep, z)
-                    mk = mask_missing(z2, z2 - mp.z_hat, R2, U=mp.Pxy, M=mp.A)
-                    ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
+                    R = R + (r_new - r_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
+                    V = np.where(ms.ok, np.where(rep, z_rep, z) - ms.z_hat, 0.0)  # V' = z' − ẑ⁻
                     replaced = rep.any(axis=1)
-                    Pyy0 = sym(A + R)
-                    # runs not replaced keep V, R, Pyy0 bit for bit: re-solve the replaced ones only
-                    i = np.flatnonzero(replaced)
-                    _, _, rej2, Kt_i, fix_i = self._test(V[i], batched(Pyy0, B)[i], ok[i], batched(Pxy, B)[i])
-                    Kt0, fixed0 = Kt0.copy(), fixed0.copy()
-                    Kt0[i], fixed0[i] = Kt_i, fix_i
-                    if p.retest_after_replace:
+                    if p.retest_after_replace:  # option: no fading where the replaced V' passes
+                        i = np.flatnonzero(replaced)
+                        _, _, rej2 = CHI2_TEST((V[i], ms.A[i], R[i], ms.ok[i]), self._test(m))
                         reject = reject.copy()
                         reject[i] &= rej2
                     g_raw = np.where(rep, g_hat, g_raw)
                 rep_mask = rep
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0)
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, ms, V, R, reject)  # 2–3  σ_i, the update
         flags = np.zeros(z.shape, dtype=np.int8)
-        flags[reject[:, None] & ok] = EPOCH_ANOMALY
-        flags[rep_mask & ok] = REPLACED
-        flag_fix(flags, fixed | mp.neg)
+        flags[reject[:, None] & ms.ok] = EPOCH_ANOMALY
+        flags[rep_mask & ms.ok] = REPLACED
+        flag_fix(flags, fixed | ms.neg)
         trained = st.net.trained if st.net is not None else np.zeros(B, dtype=bool)
         run_len = np.where(replaced, state.run_len + 1, 0)
         stats = {
-            "gamma": gamma,
-            "gamma_threshold": thr,
+            "gamma": ms.gamma,
+            "gamma_threshold": ms.threshold,
             "fading": sig,
             "rejected": reject.astype(float),
             "replaced": replaced.astype(float),
@@ -336,7 +322,7 @@ class NNMFUKF(_FadingBase):
         new = st._replace(
             x=x,
             P=P,
-            chi_f=None,
+            chi=None,
             neg=None,
             g_prev=g_raw if g_raw is not None else state.g_prev,
             pass_prev=~reject,

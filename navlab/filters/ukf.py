@@ -6,26 +6,22 @@ for GPS/INS", Acta Geodaetica et Cartographica Sinica 44(4), 2015, §2.1–2.2) 
 factor σ_i = max(1, (V_i² − R_ii)/A_ii) and the symmetric scaling of eq. 13 are the spec's
 RECONSTRUCTION (§5, §10 items 20–22).
 
-Batched: x (B, n), P (B, n, n), sigma points (B, 2n+1, n); ``f(·, k)`` and ``h(·, k)`` are called
-once per sigma point on a (B, n) batch, as the Model protocol allows. The step numbers of §1.3
-and §5 stand at the lines that implement them.
+One implementation (STYLE: the textbook step, compiled, is the filter). The steps are written
+once, for ONE run, one equation a line with the step numbers of §1.3 and §5 at the lines: the
+sigma points (§1.3 a–c), the time update's moments (1–3), the measurement prediction's (4–6), the
+innovation, gain and posterior (6–8), the χ² test (§5 2–3) and the fading factors with the faded
+update (§5 4). :class:`navlab.jit.RunStep` loops each over the Monte Carlo runs (compiled by
+numba; the same Python uncompiled without it, and as the tests' oracle). The model's f and h are
+batched callables, so they are applied between the steps to the sigma points of every run at
+once (one call on (B·(2n+1), n) rows).
 
-Speed tricks kept (each re-measured by ``python benchmarks/tricks.py --trick NAME``; the plain
-sigma-point transcription, one run, is :mod:`navlab.filters.reference.ukf`, and the contract
-tests compare every filter with it):
-
-* for a model with ``linear = True`` the unscented transform is evaluated in closed form (the
-  moments of the symmetric sigma points of a linear map, :func:`ukf_time_update`;
-  ``ukf-linear-closed-form``), with a Cholesky factor as the square root where P is positive
-  definite (:func:`linear_sqrt`: any factor gives the same moments of a linear map; the SVD
-  repair where it is not; ``ukf-linear-cholesky``);
-* the SVD "square root" of a symmetric P through ``eigh`` (:func:`svd_sqrt`: the same sigma
-  points as ``svd``, column order and signs aside; ``ukf-svd-by-eigh``);
-* MFUKF/NNMFUKF: the χ² test's solve also gives the unfaded gain, and only the runs whose
-  factors are not all 1 are solved again (:meth:`_FadingBase._fade`; ``ukf-fade-subset``).
-
-Measured below 10 % and removed: a "P is PSD by construction" flag in the state that skipped the
-Cholesky factor, a cache of the channel-to-state map.
+The one batched path: for a model with ``linear = True`` (and the default ``resample="redraw"``)
+the moments of §1.3 steps 1–6 are evaluated in closed form over the runs, without the 2n+1 sigma
+points (:func:`linear_time_update`, :func:`linear_moments`: the moments of the symmetric sigma
+points of a linear map, tested against the steps; ``python benchmarks/tricks.py --trick
+ukf-linear-closed-form`` prints what it is worth). A linear map's moments depend on the square
+root only through L Lᵀ, so there (and for ``sqrt_method="cholesky"``) the square root is the
+Cholesky factor where P is positive definite, the SVD factor elsewhere.
 
 References
 ----------
@@ -39,6 +35,7 @@ satellites", Int. J. Adapt. Control Signal Process. 28, 2014 (multiple fading fa
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -55,23 +52,23 @@ from navlab.filters.base import (
     flag_fix,
     register,
 )
+from navlab.jit import Kernel, RunStep
 from navlab.linalg import (
+    CHOLESKY_LOWER,
+    CHOLESKY_SOLVE,
     Array,
     batched,
-    bcast,
     chi2_threshold,
-    diag,
+    cholesky_lower,
+    cholesky_solve,
     mask_missing,
     mT,
     mv,
-    solve_sym,
     sym,
 )
 from navlab.params import param
 
-# ---------------------------------------------------------------------------------------------
-# Unscented-transform kernels (pure functions, batched)
-# ---------------------------------------------------------------------------------------------
+SVD, CHOLESKY = 0, 1  # the square root of the sigma points (:func:`square_root`)
 
 
 class UTWeights(NamedTuple):
@@ -104,288 +101,325 @@ def ut_weights(n: int, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0
     return UTWeights(Wm, Wc, float(np.sqrt(n + lam)))
 
 
-def svd_sqrt(P: Array) -> tuple[Array, Array]:
-    """SVD "square root" L = U·diag(√s) of (P + Pᵀ)/2, and a negative-definiteness flag.
+# ---------------------------------------------------------------------------------------------
+# The steps, written for ONE run (navlab.jit.RunStep loops them over the runs, compiled)
+# ---------------------------------------------------------------------------------------------
 
-    ALGORITHMS.md §1.3 a–b. For symmetric P the singular values are |eigenvalues| and the singular
-    vectors are the eigenvectors (up to sign), so the factor is computed with ``eigh`` (the same L
-    up to column order and sign, which leave the symmetric sigma-point set unchanged; ~2× faster than
-    ``svd`` on stacked 15×15). A negative eigenvalue is thus silently replaced by its absolute value
-    (S2's "suppression of negative definiteness"); the flag (shape P.shape[:-2]) is True where
-    min eig(P_s) < −1e-9·trace(P_s).
+
+def square_root(P, method):  # pragma: no cover - compiled by numba
+    """§1.3 a–b for ONE P: L with L Lᵀ = |P_s|, P_s = (P + Pᵀ)/2, and the negative-definiteness flag.
+
+    SVD (S2): L = U Σ_s^{1/2} from P_s = U Σ_s Tᵀ. For symmetric P_s the singular values are the
+    |eigenvalues| and U its eigenvectors (up to sign and order, which leave the symmetric sigma
+    points unchanged), so ``eigh`` computes it; a negative eigenvalue becomes its absolute value
+    (S2's "suppression of negative definiteness"), flagged where min eig(P_s) < −1e-9·tr P_s.
+    CHOLESKY: the Cholesky factor where P_s is positive definite (flag False), else the SVD's.
+    A non-finite P (a diverged run) gives NaN, flagged.
     """
-    Ps = sym(P)
-    w, U = np.linalg.eigh(Ps)
-    tr = np.trace(Ps, axis1=-2, axis2=-1)[..., None]
-    neg = np.any(w < -1e-9 * np.abs(tr), axis=-1)
-    return U * np.sqrt(np.abs(w))[..., None, :], neg
+    Ps = 0.5 * (P + P.T)  # a  P_s = (P + Pᵀ)/2
+    L = np.zeros(P.shape)
+    if method == CHOLESKY and cholesky_lower(Ps, L):
+        return L, False
+    if not np.all(np.isfinite(Ps)):
+        return np.full(P.shape, np.nan), True
+    w, U = np.linalg.eigh(Ps)  # a  P_s = U Σ_s Tᵀ,  Σ_s = |eig(P_s)|
+    return U * np.sqrt(np.abs(w)), w.min() < -1e-9 * abs(np.trace(Ps))  # b  L = U Σ_s^{1/2}
 
 
-def chol_sqrt(P: Array) -> tuple[Array, Array]:
-    """Cholesky factor of (P + Pᵀ)/2 (option ``sqrt_method="cholesky"``); where any P of the stack
-    is not positive definite the whole stack falls back to :func:`svd_sqrt` (and its flag).
+SQUARE_ROOT = Kernel(square_root, uses=(CHOLESKY_LOWER,))
+
+
+def sigma_points(x, P, c, method):  # pragma: no cover - compiled by numba
+    """§1.3 c for ONE run: χ (2n+1, n) of mean x and covariance P (c = √(n+λ)), and the flag of a."""
+    L, neg = square_root(P, method)  # a–b
+    n = x.shape[0]
+    chi = np.empty((2 * n + 1, n))
+    chi[0] = x  # c  χ_0 = x̄
+    chi[1 : n + 1] = x + c * L.T  # c  χ_j = x̄ + √(n+λ) L_j
+    chi[n + 1 :] = x - c * L.T  # c  χ_{j+n} = x̄ − √(n+λ) L_j
+    return chi, neg
+
+
+SIGMA = Kernel(sigma_points, uses=(SQUARE_ROOT,))
+
+
+def time_update(chi_f, Q, Wm, Wc, c, method, redraw):  # pragma: no cover - compiled by numba
+    """§1.3 steps 2–3 for ONE run from the propagated sigma points χ* = f(χ): x⁻, P⁻ and the
+    sigma points of the measurement prediction (redrawn from (x⁻, P⁻), or χ*) with their flag.
     """
-    Ps = sym(P)
-    try:
-        return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
-    except np.linalg.LinAlgError:
-        return svd_sqrt(Ps)
+    x = Wm @ chi_f  # 2  x⁻ = Σ Wm_i χ*_i
+    d = chi_f - x
+    P = (d.T * Wc) @ d + Q  # 2  P⁻ = Σ Wc_i (χ*_i − x⁻)(χ*_i − x⁻)ᵀ + Q
+    P = 0.5 * (P + P.T)
+    if not redraw:
+        return x, P, chi_f.copy(), False  # 3  (option) reuse χ*
+    chi, neg = sigma_points(x, P, c, method)  # 3  redraw χ from (x⁻, P⁻)
+    return x, P, chi, neg
 
 
-def linear_sqrt(P: Array, symmetric: bool = False) -> tuple[Array, Array]:
-    """A square root L (L Lᵀ = |P_s|) for the unscented transform of a LINEAR map, and the flag.
+def measurement_moments(chi, Y, x, Wm, Wc):  # pragma: no cover - compiled by numba
+    """§1.3 steps 4–6 for ONE run from the sigma points χ and their images Y = h(χ): ẑ⁻, A, Pxy."""
+    z_hat = Wm @ Y  # 4  ẑ⁻ = Σ Wm_i Y_i
+    dY = Y - z_hat
+    A = (dY.T * Wc) @ dY  # 5  A = Σ Wc_i (Y_i − ẑ⁻)(Y_i − ẑ⁻)ᵀ
+    Pxy = ((chi - x).T * Wc) @ dY  # 6  Pxy = Σ Wc_i (χ_i − x⁻)(Y_i − ẑ⁻)ᵀ
+    return z_hat, A, Pxy
 
-    For linear f, h the sigma-point moments depend on the square root only through L Lᵀ, so any
-    factor gives the same x⁻, P⁻, A, Pxy. Where (P + Pᵀ)/2 is positive definite (Cholesky succeeds)
-    L Lᵀ = P_s = |P_s| up to round-off: the Cholesky factor (≈ 17× cheaper than ``eigh`` on a stack
-    of 15×15) gives the SVD sigma points' moments, and the flag is False (a successful Cholesky
-    bounds min eig(P_s) ≥ −O(n·eps·‖P_s‖), far above −1e-9·trace(P_s)). Where any P of the stack
-    is not positive definite, the whole stack takes :func:`svd_sqrt` (the SVD repair |P_s| and its
-    flag, exactly as before). ``symmetric``: P is known to be exactly symmetric (the output of
-    :func:`sym`), so the symmetrisation is skipped (it would return P bit for bit).
+
+def lu_solve(S, B):  # pragma: no cover - compiled by numba
+    """S⁻¹ B for ONE S (m, m), B (m, q) by Gaussian elimination with partial pivoting, and False
+    where S is singular (a zero pivot).
     """
-    Ps = P if symmetric else sym(P)
-    try:
-        return np.linalg.cholesky(Ps), np.zeros(Ps.shape[:-2], dtype=bool)
-    except np.linalg.LinAlgError:
-        return svd_sqrt(Ps)
+    A, X = S.copy(), B.copy()
+    m = A.shape[0]
+    for k in range(m):
+        p = k + np.argmax(np.abs(A[k:, k]))
+        if A[p, k] == 0.0:
+            return X, False
+        A[k], A[p], X[k], X[p] = A[p].copy(), A[k].copy(), X[p].copy(), X[k].copy()
+        f = A[k + 1 :, k] / A[k, k]
+        A[k + 1 :] -= np.outer(f, A[k])
+        X[k + 1 :] -= np.outer(f, X[k])
+    for k in range(m - 1, -1, -1):
+        for c in range(k + 1, m):
+            X[k] -= A[k, c] * X[c]
+        X[k] /= A[k, k]
+    return X, True
 
 
-def sigma_points(x: Array, P: Array, c: float, method: str = "svd") -> tuple[Array, Array]:
-    """Symmetric sigma points χ (B, 2n+1, n) of mean x (B, n) and P ((n, n) or (B, n, n)).
+def solve_rows(S, Y):  # pragma: no cover - compiled by numba
+    """X with rows X_i = S⁻¹ Y_i (X = Y S⁻ᵀ) for ONE S (m, m), Y (q, m), and whether S needed a fix.
 
-    ``method``: "svd" (S2, default) or "cholesky" (faster; identical results for linear f, h,
-    different sigma points otherwise).
+    Cholesky where S is exactly symmetric and positive definite, LU otherwise (the literal form's
+    non-symmetric S); where S is singular, S + 1e-12·tr(S)/m·I (§0.2 rule 3; flag 9).
     """
-    L, neg = chol_sqrt(P) if method == "cholesky" else svd_sqrt(P)
-    D = c * mT(L)  # rows = c·L_j
-    B, n = x.shape
-    D = np.broadcast_to(D, (B, n, n))
-    chi = np.concatenate([x[:, None, :], x[:, None, :] + D, x[:, None, :] - D], axis=1)
-    return chi, np.broadcast_to(neg, (B,))
+    m, symmetric = S.shape[0], True
+    for i in range(m):
+        for j in range(i):
+            symmetric = symmetric and S[i, j] == S[j, i]
+    L = np.zeros((m, m))
+    if symmetric and cholesky_lower(S, L):
+        X = Y.copy()
+        for i in range(Y.shape[0]):
+            cholesky_solve(L, X[i])  # S = L Lᵀ
+        return X, False
+    X, regular = lu_solve(S, Y.T)
+    if not regular:
+        X, _ = lu_solve(S + max(1e-12 * np.trace(S) / m, 1e-300) * np.eye(m), Y.T)
+    return X.T.copy(), not regular
 
 
-def ut_mean_cov(Y: Array, w: UTWeights) -> tuple[Array, Array, Array]:
-    """Weighted mean (B, p) and covariance (B, p, p) of sigma images Y (B, 2n+1, p), and Y − mean."""
-    mean = np.einsum("i,bip->bp", w.Wm, Y)
-    d = Y - mean[:, None, :]
-    cov = mT(d * w.Wc[None, :, None]) @ d
-    return mean, cov, d
+SOLVE_ROWS = Kernel(solve_rows, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE, Kernel(lu_solve)))
 
 
-def ut_cross(dX: Array, dY: Array, w: UTWeights) -> Array:
-    """Cross covariance Σ Wc_i dX_i dY_iᵀ (B, n, p)."""
-    return mT(dX * w.Wc[None, :, None]) @ dY
+def gain(P, A, Pxy, R, symmetric):  # pragma: no cover - compiled by numba
+    """§1.3 steps 6–8 of the covariance for ONE run: K, P⁺, Pyy and whether Pyy needed a fix.
 
-
-def propagate_f(model: Model, chi: Array, k: int) -> Array:
-    """f(χ_i, k) for every sigma point: (B, 2n+1, n) -> (B, 2n+1, n)."""
-    if getattr(model, "linear", False):
-        F = model.F(k)
-        return chi @ mT(F)  # (n,n) or (B,n,n): both broadcast over the sigma axis
-    return np.stack([model.f(chi[:, i], k) for i in range(chi.shape[1])], axis=1)
-
-
-def propagate_h(model: Model, chi: Array, k: int) -> Array:
-    """h(χ_i, k) for every sigma point: (B, 2n+1, n) -> (B, 2n+1, m)."""
-    if getattr(model, "linear", False):
-        H = model.H(chi[:, 0], k)
-        return chi @ mT(H)
-    return np.stack([model.h(chi[:, i], k) for i in range(chi.shape[1])], axis=1)
-
-
-class UKFState(NamedTuple):
-    """Per-run state of the UKF family: mean (B, n), covariance (B, n, n), propagated sigma points
-    (kept only for the ``reuse`` option) and the time update's negative-definiteness flag (B,).
+    ``symmetric`` False: Pyy is left as it is (the literal form of §5, A' = diag(σ) A).
     """
+    n, m = Pxy.shape
+    Pyy = A + R  # 6  Pyy = A + R
+    for i in range(m if symmetric else 0):
+        for j in range(i):
+            Pyy[i, j] = Pyy[j, i] = 0.5 * (Pyy[i, j] + Pyy[j, i])
+    K, fixed = solve_rows(Pyy.T, Pxy)  # 7  K = Pxy Pyy⁻¹
+    KPyy = np.zeros((n, m))  # (loops: products of small matrices, no BLAS call and no temporary)
+    for i in range(n):
+        for c in range(m):
+            for d in range(m):
+                KPyy[i, d] += K[i, c] * Pyy[c, d]
+    P1 = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            t = 0.0
+            for c in range(m):
+                t += KPyy[i, c] * K[j, c] + KPyy[j, c] * K[i, c]
+            P1[i, j] = P1[j, i] = 0.5 * (P[i, j] + P[j, i] - t)  # 8  P⁺ = P⁻ − K Pyy Kᵀ, symmetrised
+    return K, P1, Pyy, fixed
 
-    x: Array
-    P: Array
-    chi_f: Array | None = None
-    neg: Array | None = None
+
+GAIN = Kernel(gain, uses=(SOLVE_ROWS,))
 
 
-class MeasPred(NamedTuple):
-    """Measurement prediction of §1.3 steps 3–6 (R not yet added)."""
+def chi2_test(V, A, R, ok, thresholds, xi):  # pragma: no cover - compiled by numba
+    """§5 steps 2–3 for ONE run: γ = Vᵀ Pyy⁻¹ V against ξ·χ²_{1−α}(channels present).
 
-    z_hat: Array  # (B, m)
-    A: Array  # (B, m, m) sigma-point covariance of h WITHOUT R
-    Pxy: Array  # (B, n, m)
-    neg: Array  # (B,) SVD repaired a negative-definite P (this step)
-
-
-def ukf_time_update(
-    model: Model,
-    x: Array,
-    P: Array,
-    k: int,
-    w: UTWeights,
-    keep_sigma: bool = False,
-    method: str = "svd",
-    symmetric: bool = False,
-) -> UKFState:
-    """§1.3 steps 1–2: χ from (x⁺, P⁺); χ* = f(χ); x⁻ = Σ Wm χ*; P⁻ = Σ Wc (χ* − x⁻)(·)ᵀ + Q.
-
-    For a linear f (``model.linear``) the unscented transform is evaluated in closed form (the
-    speed trick this module keeps; the sigma-point path below is its reference): with
-    χ_j = x ± c·L_j, χ*_j − x⁻ = ±c·F L_j and x⁻ = F x (the symmetric images average to the
-    centre), so P⁻ = Σ Wc_i (χ*_i − x⁻)(·)ᵀ + Q = 2·Wc_1·c² (F L)(F L)ᵀ + Q, without building the
-    2n+1 points. ``keep_sigma`` (option ``resample="reuse"``) keeps the propagated χ*.
-    ``symmetric``: P is exactly symmetric already (every P the filters carry is), so the
-    symmetrisation of step a is skipped (it would return P bit for bit).
+    ``thresholds[d]``: χ²_{1−α}(d) (d = 0 reads as 1). Returns γ, ξε and whether γ > ξε.
     """
-    B = x.shape[0]
-    if not keep_sigma and getattr(model, "linear", False):
-        F = model.F(k)
-        L, neg = linear_sqrt(P, symmetric)  # any square root: L Lᵀ = |P_s| (SVD repair where P_s ≱ 0)
-        G = F @ L
-        P_p = sym(w.c2 * (G @ mT(G)) + model.Q(k))  # 2  P⁻ = 2 Wc_1 c² (F L)(F L)ᵀ + Q
-        return UKFState(mv(F, x), P_p, None, bcast(neg, (B,)).copy())  # 2  x⁻ = F x
-    chi, neg = sigma_points(x, P, w.c, method)  # 1  χ from (x⁺, P⁺)
-    chi_f = propagate_f(model, chi, k)  # 1  χ* = f(χ)
-    x_p, P_p, _ = ut_mean_cov(chi_f, w)  # 2  x⁻ = Σ Wm χ*, Σ Wc (χ* − x⁻)(·)ᵀ
-    return UKFState(x_p, sym(P_p + model.Q(k)), chi_f, neg.copy())  # 2  + Q
-
-
-def ukf_measurement_prediction(
-    model: Model,
-    state: UKFState,
-    k: int,
-    w: UTWeights,
-    resample: str = "redraw",
-    method: str = "svd",
-    symmetric: bool = False,
-) -> MeasPred:
-    """§1.3 steps 3–6: sigma points (redrawn from (x⁻, P⁻), or the propagated χ*), Y = h(χ), ẑ⁻, A, Pxy.
-
-    For a linear h with redrawn sigma points χ = x⁻ ± c·L_j the transform is again in closed form
-    (see :func:`ukf_time_update`): Y_i − ẑ⁻ = ±c·H L_j, ẑ⁻ = H x⁻, A = 2·Wc_1·c² (H L)(H L)ᵀ,
-    Pxy = 2·Wc_1·c² L (H L)ᵀ.
-    """
-    B = state.x.shape[0]
-    reuse = resample == "reuse" and state.chi_f is not None
-    if not reuse and getattr(model, "linear", False):
-        H = model.H(state.x, k)
-        L, neg = linear_sqrt(state.P, symmetric)  # 3  (redraw) χ = x⁻ ± c·L_j
-        HL = H @ L
-        A = w.c2 * (HL @ mT(HL))  # 5  A = Σ Wc (Y − ẑ⁻)(Y − ẑ⁻)ᵀ
-        Pxy = w.c2 * (L @ mT(HL))  # 6  Pxy = Σ Wc (χ − x⁻)(Y − ẑ⁻)ᵀ
-        neg = bcast(neg, (B,))
-        if state.neg is not None:
-            neg = neg | state.neg
-        return MeasPred(mv(H, state.x), A, Pxy, neg)  # 4  ẑ⁻ = H x⁻
-    if reuse:  # option: the propagated χ* (FilterPy 2.0.0 redraws instead: its predict() ends
-        # by drawing σ-points from (x⁻, P⁻), which is "redraw" here, equal to it to round-off)
-        chi, neg = state.chi_f, np.zeros(B, dtype=bool)
-    else:
-        chi, neg = sigma_points(state.x, state.P, w.c, method)  # 3  redraw from (x⁻, P⁻)
-    z_hat, A, dY = ut_mean_cov(propagate_h(model, chi, k), w)  # 4–5  Y = h(χ), ẑ⁻, A
-    Pxy = ut_cross(chi - state.x[:, None, :], dY, w)  # 6  Pxy
-    if state.neg is not None:
-        neg = neg | state.neg
-    return MeasPred(z_hat, A, Pxy, neg)
+    Pyy = A + R
+    X, _ = solve_rows((0.5 * (Pyy + Pyy.T)).T, V.reshape((1, V.shape[0])))
+    gamma = V @ X[0]  # 2  γ = Vᵀ Pyy⁻¹ V
+    dof = np.sum(ok)
+    thr = xi * thresholds[dof]  # ξ ε,  ε = χ²_{1−α}(m)
+    return gamma, thr, gamma > thr and dof > 0  # 3  γ > ξ ε: the filter is inconsistent
 
 
 def fading_update(
-    x: Array,
-    P: Array,
-    V: Array,
-    A: Array,
-    Pxy: Array,
-    R: Array,
-    s: Array,
-    sig: Array,
-    form: str = "symmetric",
-) -> tuple[Array, Array, Array, Array]:
-    """Measurement update with state scale s (B, n) and channel factors σ (B, m) (§5 step 4).
+    x, P, V, A, Pxy, R, ok, reject, M, sigma_max, gate, literal, recompute
+):  # pragma: no cover - compiled by numba
+    """§5 step 4 for ONE run: the fading factors σ and the faded update (§1.3 7–8 with P⁻', A', Pxy').
 
-    symmetric: P⁻' = D_x P⁻ D_x, A' = D_z A D_z, Pxy' = D_x Pxy D_z with D = diag(√·);
-    literal:   P⁻' = diag(s) P⁻, A' = diag(σ) A, Pxy' = diag(s) Pxy (S2's eq. 13 style, P⁺ symmetrised).
-    Then Pyy' = A' + R, K = Pxy' Pyy'⁻¹, x⁺ = x⁻ + K V, P⁺ = P⁻' − K Pyy' Kᵀ. With s = σ = 1 this
-    is exactly the SVD-UKF update of §1.3 steps 6–8.
+    M (m, n): the states each channel observes (row i of H). σ_i = min(σ_max, max(1, (V_i² −
+    R_ii)/A_ii)) on a rejected epoch (1 where the channel is missing or A_ii ≤ 0; with ``gate`` > 0
+    only where |V_i|/√Pyy_ii > gate), s_j = the largest σ_i of the channels observing state j (1
+    if none). Symmetric form: P⁻' = D_x P⁻ D_x, A' = D_z A D_z, Pxy' = D_x Pxy D_z with
+    D = diag(√·); ``literal``: P⁻' = diag(s) P⁻, A' = diag(σ) A, Pxy' = diag(s) Pxy (S2's eq. 13
+    style). With σ = 1 it is the SVD-UKF update.
 
-    Returns x⁺, P⁺, Pyy', fixed (B,) (Pyy' needed a numerical fix).
+    Where A', Pxy' must come from sigma points of (x⁻, P⁻') — a row of H observes several states, or
+    ``recompute`` — and some σ_i > 1, the run is returned with x⁻, P⁻' and ``redo`` True: the caller
+    redraws them (h is a batched callable) and does the unscaled update. Returns x⁺, P⁺, Pyy', fixed,
+    σ, redo.
     """
-    if form == "literal":
-        P1 = s[:, :, None] * P
-        A1 = sig[:, :, None] * A
-        Pxy1 = s[:, :, None] * Pxy
+    m, n = M.shape
+    sig = np.ones(m)
+    for i in range(m):
+        if reject and ok[i] and A[i, i] > 0.0:  # 4  σ_i = min(σ_max, max(1, (V_i² − R_ii)/A_ii))
+            q = (V[i] ** 2 - R[i, i]) / A[i, i]
+            sig[i] = sigma_max if q > sigma_max else (1.0 if q < 1.0 else q)
+        if gate > 0.0 and not abs(V[i]) > gate * np.sqrt(max(A[i, i] + R[i, i], 1e-300)):
+            sig[i] = 1.0  # option per_channel_gate: only |V_i|/√Pyy_ii > gate fades
+    s, several = np.ones(n), False
+    for i in range(m):  # 4  s_j = σ_i(j): the largest σ_i of the channels observing state j
+        several = several or M[i].sum() > 1  # (a row of H observing several states)
+        for j in range(n):
+            s[j] = max(s[j], sig[i]) if M[i, j] else s[j]
+    dx, dz = np.sqrt(s), np.sqrt(sig)  # 4  D_x = diag(√s), D_z = diag(√σ)
+    faded = (sig != 1.0).any() or (s != 1.0).any()
+    if (recompute or several) and (sig > 1.0).any():  # A', Pxy' from sigma points of P⁻' (caller)
+        return x.copy(), dx.reshape((n, 1)) * P * dx, A + R, False, sig, True
+    if not faded:  # 3  σ = 1: the ordinary SVD-UKF update
+        P1, A1, Pxy1, literal = P, A, Pxy, False
+    elif literal:  # S2's eq. 13 style
+        P1, A1, Pxy1 = s.reshape((n, 1)) * P, sig.reshape((m, 1)) * A, s.reshape((n, 1)) * Pxy
     else:
-        dx, dz = np.sqrt(s), np.sqrt(sig)
-        P1 = dx[:, :, None] * P * dx[:, None, :]
-        A1 = dz[:, :, None] * A * dz[:, None, :]
-        Pxy1 = dx[:, :, None] * Pxy * dz[:, None, :]
-    Pyy = A1 + R
-    if form != "literal":
-        Pyy = sym(Pyy)
-    Kt, fixed = solve_sym(mT(Pyy), mT(Pxy1))  # K = Pxy' Pyy'⁻¹  (§1.3 step 7)
-    x1, P2 = apply_gain(x, P1, V, Pyy, Kt)
-    return x1, P2, Pyy, bcast(fixed, x.shape[:1])
+        P1 = dx.reshape((n, 1)) * P * dx  # 4  P⁻' = D_x P⁻ D_x
+        A1 = dz.reshape((m, 1)) * A * dz  # 4  A' = D_z A D_z
+        Pxy1 = dx.reshape((n, 1)) * Pxy * dz  # 4  Pxy' = D_x Pxy D_z
+    K, P2, Pyy, fixed = gain(P1, A1, Pxy1, R, not literal)  # 4  Pyy' = A' + R, K = Pxy' Pyy'⁻¹, P⁺
+    x1 = x.copy()
+    for i in range(n):
+        for c in range(m):
+            x1[i] += K[i, c] * V[c]  # 4  x⁺ = x⁻ + K V
+    return x1, P2, Pyy, fixed, sig, False
 
 
-def apply_gain(x: Array, P: Array, V: Array, Pyy: Array, Kt: Array) -> tuple[Array, Array]:
-    """§1.3 step 8 with Kᵀ = Pyy⁻¹ Pxyᵀ given: x⁺ = x⁻ + K V, P⁺ = sym(P⁻ − K Pyy Kᵀ)."""
-    K = mT(Kt)
-    return x + (K @ V[..., None])[..., 0], sym(P - K @ Pyy @ Kt)
+def _sigma_shape(x: tuple, *_: tuple) -> tuple[int, int]:
+    return (2 * x[0] + 1, x[0])
+
+
+SQUARE_ROOTS = RunStep(square_root, n_runs=1, outs=((0, float), (None, bool)), uses=(CHOLESKY_LOWER,))
+SIGMA_POINTS = RunStep(
+    sigma_points, n_runs=2, outs=((_sigma_shape, float), (None, bool)), uses=(SQUARE_ROOT,)
+)
+TIME_UPDATE = RunStep(
+    time_update,
+    n_runs=2,
+    outs=((lambda chi_f, Q: Q[:1], float), (1, float), (0, float), (None, bool)),
+    uses=(SIGMA,),
+)
+MOMENTS = RunStep(
+    measurement_moments,
+    n_runs=3,
+    outs=(
+        (lambda chi, Y, x: Y[1:], float),
+        (lambda chi, Y, x: (Y[1], Y[1]), float),
+        (lambda chi, Y, x: (x[0], Y[1]), float),
+    ),
+)
+GAIN_STEP = RunStep(
+    gain, n_runs=4, outs=((2, float), (0, float), (1, float), (None, bool)), uses=(SOLVE_ROWS,)
+)
+CHI2_TEST = RunStep(
+    chi2_test, n_runs=4, outs=((None, float), (None, float), (None, bool)), uses=(SOLVE_ROWS,)
+)
+FADING_UPDATE = RunStep(
+    fading_update,
+    n_runs=9,
+    outs=((0, float), (1, float), (3, float), (None, bool), (2, float), (None, bool)),
+    uses=(GAIN,),
+)
 
 
 # ---------------------------------------------------------------------------------------------
-# Fading factors (§5)
+# Between the steps: f and h of the sigma points; a linear model's moments in closed form
 # ---------------------------------------------------------------------------------------------
 
 
-def channel_state_map(model: Model, x: Array, k: int) -> tuple[Array, bool]:
-    """Which states each channel inflates: M (m, n) or (B, m, n) bool, and whether it is exact.
+def propagate(fn: Callable[[Array, int], Array], chi: Array, k: int) -> Array:
+    """The model's f or h of every run's sigma points in one call: (B, 2n+1, n) -> (B, 2n+1, ·)."""
+    B, N, n = chi.shape
+    return np.asarray(fn(chi.reshape(B * N, n), k), dtype=float).reshape(B, N, -1)
 
-    Row i of the measurement Jacobian H = ∂h/∂x selects the states channel i observes (§5: "the
-    state that row i of H observes"; j(i) = i for S2's ordering [δp, δv, …] with H = [I₆ 0]). The
-    closed-form scaling of A and Pxy is exact only when every row observes exactly one state
-    (``exact``); otherwise the caller recomputes A', Pxy' from sigma points.
+
+def linear_sqrt(P: Array) -> tuple[Array, Array]:
+    """§1.3 a–b for a linear model ((n, n) or (B, n, n)): any L with L Lᵀ = |P_s| gives its moments,
+    so the Cholesky factor of every P at once (P_s = P: every P the filters carry is exactly
+    symmetric), or (where some P is not positive definite) each one's :func:`square_root`.
+    """
+    try:
+        return np.linalg.cholesky(P), np.zeros(P.shape[:-2], dtype=bool)
+    except np.linalg.LinAlgError:
+        n = P.shape[-1]
+        L, neg = SQUARE_ROOTS((P.reshape(-1, n, n),), (CHOLESKY,))
+        return L.reshape(P.shape), neg.reshape(P.shape[:-2])
+
+
+def linear_time_update(model: Model, x: Array, P: Array, k: int, w: UTWeights) -> tuple[Array, ...]:
+    """§1.3 steps 1–2 for a linear f, in closed form (the one batched path): with χ_j = x ± c L_j,
+    χ*_j − x⁻ = ±c F L_j and x⁻ = F x, so P⁻ = Σ Wc_i (χ*_i − x⁻)(·)ᵀ + Q = 2 Wc_1 c² (F L)(F L)ᵀ + Q.
+    Returns x⁻, P⁻ and the flag of a.
+    """
+    F = model.F(k)
+    L, neg = linear_sqrt(P)  # 1  χ from (x⁺, P⁺)
+    G = F @ L
+    return mv(F, x), sym(w.c2 * (G @ mT(G)) + model.Q(k)), neg  # 2  x⁻ = F x, P⁻
+
+
+def linear_moments(model: Model, x: Array, P: Array, k: int, w: UTWeights) -> tuple[Array, ...]:
+    """§1.3 steps 3–6 for a linear h, in closed form (the one batched path): with χ = x⁻ ± c L_j,
+    Y_i − ẑ⁻ = ±c H L_j and ẑ⁻ = H x⁻, so A = 2 Wc_1 c² (H L)(H L)ᵀ and Pxy = 2 Wc_1 c² L (H L)ᵀ.
+    Returns ẑ⁻, A, Pxy and the flag of a.
+    """
+    H = model.H(x, k)
+    L, neg = linear_sqrt(P)  # 3  χ = x⁻ ± c L_j
+    HL = H @ L
+    return mv(H, x), w.c2 * (HL @ mT(HL)), w.c2 * (L @ mT(HL)), neg  # 4–6  ẑ⁻, A, Pxy
+
+
+def channel_state_map(model: Model, x: Array, k: int) -> Array:
+    """Which states each channel inflates: M (B, m, n) bool, row i of H = ∂h/∂x (§5: "the state
+    that row i of H observes"; j(i) = i for S2's ordering [δp, δv, …] with H = [I₆ 0]).
     """
     H = np.asarray(model.H(x, k), dtype=float)
     scale = np.max(np.abs(H), axis=-1, keepdims=True)
-    M = np.abs(H) > 1e-12 * np.maximum(scale, 1e-300)
-    return M, bool(np.all(M.sum(axis=-1) <= 1))
-
-
-def fading_factors(
-    V: Array,
-    A: Array,
-    R: Array,
-    ok: Array,
-    reject: Array,
-    sigma_max: float,
-    gate: float = 0.0,
-    Pyy: Array | None = None,
-) -> Array:
-    """σ_i = min(σ_max, max(1, (V_i² − R_ii)/A_ii)) on rejected epochs, 1 elsewhere (§5 step 4).
-
-    A_ii ≤ 0 or a missing channel gives σ_i = 1. ``gate`` > 0: only channels with
-    |V_i|/√Pyy_ii > gate are inflated (option ``per_channel_gate``).
-    """
-    a = diag(A)
-    r = diag(R)
-    good = (a > 0) & ok & reject[:, None]
-    # the division is guarded (A_ii > 0 where used); A_ii → 0⁺ or a diverged run's V may overflow
-    # the ratio to inf, which the clip to σ_max below handles
-    with np.errstate(over="ignore"):
-        raw = np.where(good, (V**2 - r) / np.where(good, a, 1.0), 1.0)
-    sig = np.clip(raw, 1.0, sigma_max)
-    if gate > 0 and Pyy is not None:
-        big = np.abs(V) > gate * np.sqrt(np.maximum(diag(Pyy), 1e-300))
-        sig = np.where(big, sig, 1.0)
-    return sig
-
-
-def state_scale(sig: Array, M: Array) -> Array:
-    """s_j = max over channels i observing state j of σ_i, 1 for unobserved states: (B, n)."""
-    Mb = np.broadcast_to(M, (sig.shape[0], *M.shape[-2:]))
-    return np.max(np.where(Mb, sig[:, :, None], 1.0), axis=1)
+    return batched(np.abs(H) > 1e-12 * np.maximum(scale, 1e-300), x.shape[0])
 
 
 # ---------------------------------------------------------------------------------------------
 # Filters
 # ---------------------------------------------------------------------------------------------
+
+
+class UKFState(NamedTuple):
+    """Per-run state of the UKF family: mean (B, n), covariance (B, n, n), the sigma points of the
+    measurement prediction (B, 2n+1, n: redrawn from (x⁻, P⁻), or the propagated χ*; None in the
+    closed form) and the negative-definiteness flag of the square roots (B,).
+    """
+
+    x: Array
+    P: Array
+    chi: Array | None = None
+    neg: Array | None = None
+
+
+class Moments(NamedTuple):
+    """§1.3 steps 3–6 of every run: ẑ⁻ (B, m), A (B, m, m), Pxy (B, n, m) and the flag of a."""
+
+    z_hat: Array
+    A: Array
+    Pxy: Array
+    neg: Array
 
 
 @dataclass(frozen=True)
@@ -410,7 +444,7 @@ class UKFParams:
 
 
 class _UKFBase(Filter):
-    """Shared init/predict of the UKF family (the weights depend on n, fixed at init)."""
+    """Shared init, time update and measurement moments of the UKF family."""
 
     family = "nonlinear"
     paper = "Tan, Wang, Zhao 2015 (S2), Acta Geod. Cartogr. Sin. 44(4)"
@@ -419,10 +453,18 @@ class _UKFBase(Filter):
         p = self.params
         return ut_weights(int(n), float(p.alpha_ut), float(p.beta_ut), float(p.kappa))
 
+    def _method(self, model: Model) -> int:
+        """Cholesky where P is positive definite for a linear model (any factor gives its moments)."""
+        linear = getattr(model, "linear", False)
+        return CHOLESKY if self.params.sqrt_method == "cholesky" or linear else SVD
+
+    def _closed_form(self, model: Model) -> bool:
+        """A linear model's moments in closed form (the one batched path; redrawn sigma points)."""
+        return bool(getattr(model, "linear", False)) and self.params.resample == "redraw"
+
     def init(self, model: Model, x0: Array, P0: Array) -> Any:
         x0 = np.array(x0, dtype=float)
         self._weights(x0.shape[1])  # validates n + λ > 0 before the first step
-        # every P the filter carries is symmetric bit for bit (P0 here, then the output of sym)
         return self._init_state(model, x0, sym(np.array(P0, dtype=float)))
 
     def _init_state(self, model: Model, x0: Array, P0: Array) -> Any:
@@ -430,23 +472,31 @@ class _UKFBase(Filter):
 
     def predict(self, model: Model, state: Any, k: int) -> Any:
         w = self._weights(state.x.shape[1])
-        ts = ukf_time_update(
-            model,
-            state.x,
-            state.P,
-            k,
-            w,
-            self.params.resample == "reuse",
-            self.params.sqrt_method,
-            symmetric=True,
-        )
-        return state._replace(x=ts.x, P=ts.P, chi_f=ts.chi_f, neg=ts.neg)
+        if self._closed_form(model):
+            x, P, neg = linear_time_update(model, state.x, state.P, k, w)  # 1–2
+            return state._replace(x=x, P=P, chi=None, neg=neg)
+        method, redraw, B = self._method(model), self.params.resample == "redraw", state.x.shape[0]
+        chi, neg = SIGMA_POINTS((state.x, batched(state.P, B)), (w.c, method))  # 1  χ from (x⁺, P⁺)
+        chi_f = propagate(model.f, chi, k)  # 1  χ* = f(χ)
+        Q = batched(np.asarray(model.Q(k), dtype=float), B)
+        x, P, chi, neg2 = TIME_UPDATE((chi_f, Q), (w.Wm, w.Wc, w.c, method, redraw))  # 2–3
+        return state._replace(x=x, P=P, chi=chi, neg=neg | neg2)
 
-    def _predict_measurement(self, model: Model, state: Any, k: int) -> MeasPred:
-        w = self._weights(state.x.shape[1])
-        return ukf_measurement_prediction(
-            model, state, k, w, self.params.resample, self.params.sqrt_method, symmetric=True
-        )
+    def _moments(self, model: Model, state: Any, k: int) -> Moments:
+        """§1.3 steps 3–6 of every run: ẑ⁻, A, Pxy from the state's sigma points (drawn from (x⁻, P⁻)
+        where it has none), or in closed form for a linear model.
+        """
+        w, B = self._weights(state.x.shape[1]), state.x.shape[0]
+        neg = state.neg if state.neg is not None else np.zeros(B, dtype=bool)
+        if self._closed_form(model):
+            z_hat, A, Pxy, neg2 = linear_moments(model, state.x, state.P, k, w)  # 3–6
+            return Moments(z_hat, A, Pxy, neg | neg2)
+        chi = state.chi
+        if chi is None:  # 3  redraw χ from (x⁻, P⁻)
+            chi, neg2 = SIGMA_POINTS((state.x, batched(state.P, B)), (w.c, self._method(model)))
+            neg = neg | neg2
+        Y = propagate(model.h, chi, k)  # 4  Y_i = h(χ_i)
+        return Moments(*MOMENTS((chi, Y, state.x), (w.Wm, w.Wc)), neg)  # 4–6  ẑ⁻, A, Pxy
 
 
 @register
@@ -485,12 +535,15 @@ class SVDUKF(_UKFBase):
     )
 
     def update(self, model: Model, state: UKFState, k: int, z: Array, side: SideInfo):
-        mp = self._predict_measurement(model, state, k)  # 3–6  ẑ⁻, A, Pxy
-        mk = mask_missing(z, z - mp.z_hat, model.R0, U=mp.Pxy, M=mp.A)  # missing: zero gain column
-        Pyy = sym(mk.M + mk.R)  # 6  Pyy = A + R
-        Kt, fixed = solve_sym(mT(Pyy), mT(mk.U))  # 7  V = z − ẑ⁻, K = Pxy Pyy⁻¹
-        x, P = apply_gain(state.x, state.P, mk.nu, Pyy, Kt)  # 8  x⁺ = x⁻ + K V, P⁺ = P⁻ − K Pyy Kᵀ
-        flags = flag_fix(np.zeros(z.shape, dtype=np.int8), bcast(fixed, z.shape[:1]) | mp.neg)
+        mo = self._moments(model, state, k)  # 3–6  ẑ⁻, A, Pxy
+        mk = mask_missing(z, z - mo.z_hat, model.R0, U=mo.Pxy, M=mo.A)  # 7  V = z − ẑ⁻ (missing: dropped)
+        cov = (state.P, mk.M, mk.U, np.asarray(mk.R, dtype=float))
+        if all(a.ndim == 2 for a in cov):  # P⁻, A, Pxy, R shared by the runs: K and P⁺ once
+            K, P, Pyy, fixed = (a[0] for a in GAIN_STEP(tuple(a[None] for a in cov), (True,)))  # 6–8
+        else:
+            K, P, Pyy, fixed = GAIN_STEP(tuple(batched(a, z.shape[0]) for a in cov), (True,))  # 6–8
+        x = state.x + mv(K, mk.nu)  # 8  x⁺ = x⁻ + K V
+        flags = flag_fix(np.zeros(z.shape, dtype=np.int8), fixed | mo.neg)
         return UKFState(x, P), StepOut(x=x, P=P, innov=mk.nu, S=Pyy, R_used=mk.R, flags=flags)
 
 
@@ -519,86 +572,61 @@ class MFUKFParams(UKFParams):
     )
 
 
+class Measured(NamedTuple):
+    """§5 steps 1–3 of every run: ẑ⁻, V, A, Pxy, R (missing channels dropped), the channels
+    present, γ, ξε, the test's verdict and the flag of the sigma points' square roots.
+    """
+
+    z_hat: Array
+    V: Array
+    A: Array
+    Pxy: Array
+    R: Array
+    ok: Array
+    gamma: Array
+    threshold: Array
+    reject: Array
+    neg: Array
+
+
 class _FadingBase(_UKFBase):
     """The χ² test and the fading update shared by MFUKF and NNMFUKF."""
 
-    def _test(self, V: Array, Pyy: Array, ok: Array, Pxy: Array) -> tuple[Array, ...]:
-        """γ = Vᵀ Pyy⁻¹ V against ξ·χ²_{1−α}(available channels) (§5 steps 2–3), and the unfaded gain.
+    def _test(self, m: int) -> tuple[Array, float]:
+        """The test's parameters: χ²_{1−α}(d) for d = 0 … m (0 reads as 1) and ξ."""
+        return chi2_threshold(self.params.alpha, np.arange(m + 1), m), float(self.params.xi)
 
-        One batched solve with the right-hand sides [V | Pxyᵀ] gives γ and Kᵀ = Pyy⁻¹ Pxyᵀ, the
-        gain of every run whose fading factors turn out to be 1 (a speed trick: one LAPACK call
-        instead of two; ``benchmarks/tricks.py``). Returns (γ, threshold, reject, Kᵀ, fixed).
-        """
-        p = self.params
-        B = V.shape[0]
-        X, fixed = solve_sym(Pyy, np.concatenate([V[..., None], batched(mT(Pxy), B)], axis=-1))
-        gamma = np.einsum("bi,bi->b", V, X[..., 0])  # 2  γ = Vᵀ Pyy⁻¹ V
-        dof = ok.sum(axis=1)
-        thr = p.xi * chi2_threshold(p.alpha, np.maximum(dof, 1), V.shape[1])  # ξ ε
-        reject = (gamma > thr) & (dof > 0)  # 3  γ > ξ ε: the filter is inconsistent
-        return gamma, thr, reject, X[..., 1:], bcast(fixed, (B,))
+    def _measure(self, model: Model, state: Any, k: int, z: Array) -> Measured:
+        """§5 steps 1–3: the SVD-UKF's measurement prediction (§1.3 3–7) and the χ² test."""
+        mo = self._moments(model, state, k)  # 1  ẑ⁻, A, Pxy
+        mk = mask_missing(z, z - mo.z_hat, model.R0, U=mo.Pxy, M=mo.A)  # V = z − ẑ⁻ (missing: dropped)
+        A, Pxy, R = (batched(np.asarray(a, dtype=float), z.shape[0]) for a in (mk.M, mk.U, mk.R))
+        gamma, thr, reject = CHI2_TEST((mk.nu, A, R, mk.ok), self._test(z.shape[1]))  # 2–3
+        return Measured(mo.z_hat, mk.nu, A, Pxy, R, mk.ok, gamma, thr, reject, mo.neg)
 
     def _fade(
-        self,
-        model: Model,
-        state: Any,
-        k: int,
-        V: Array,
-        A: Array,
-        Pxy: Array,
-        R: Array,
-        ok: Array,
-        reject: Array,
-        Pyy0: Array,
-        Kt0: Array,
-        fixed0: Array,
+        self, model: Model, state: Any, k: int, ms: Measured, V: Array, R: Array, reject: Array
     ) -> tuple[Array, Array, Array, Array, Array]:
-        """σ, s and the update of §5 steps 3–4. Returns x⁺, P⁺, Pyy', fixed, σ.
-
-        ``Kt0``, ``fixed0``: the unfaded gain Kᵀ = Pyy0⁻¹ Pxyᵀ from :meth:`_test`. A run whose
-        factors are all 1 takes it (the update with σ = s = 1 is exactly the unfaded SVD-UKF
-        update, step 3); only the faded runs are solved again (step 4).
+        """§5 steps 3–4 of every run with the residual V and noise R (NNMFUKF: replaced). Returns
+        x⁺, P⁺, Pyy', fixed (B,) and σ (B, m).
         """
-        p = self.params
-        B = V.shape[0]
+        p, P = self.params, batched(state.P, V.shape[0])
         if not reject.any():  # 3  every run passes: σ = 1, the ordinary SVD-UKF update
-            x, P = apply_gain(state.x, state.P, V, Pyy0, Kt0)
-            return x, P, batched(Pyy0, B), fixed0, np.ones_like(V)
-        sig = fading_factors(V, A, R, ok, reject, p.sigma_max, p.per_channel_gate, Pyy0)  # 4  σ_i
-        M, exact = channel_state_map(model, state.x, k)
-        s = state_scale(sig, M)  # 4  s_j = σ_i(j)
-        if (p.recompute_sigma or not exact) and np.any(sig > 1.0):
-            # exact for any h: sigma points of (x⁻, P⁻') give A', Pxy'; then an unscaled update
-            dx = np.sqrt(s)
-            P1 = dx[:, :, None] * state.P * dx[:, None, :]
-            w = self._weights(state.x.shape[1])
-            mp = ukf_measurement_prediction(model, UKFState(state.x, P1), k, w, "redraw", p.sqrt_method)
-            mk = mask_missing(np.where(ok, 0.0, np.nan), V, U=mp.Pxy, M=mp.A)
-            one_n, one_m = np.ones_like(s), np.ones_like(sig)
-            x, P, Pyy, fixed = fading_update(state.x, P1, V, mk.M, mk.U, R, one_n, one_m)
-            return x, P, Pyy, fixed | mp.neg, sig
-        fade = np.any(sig != 1.0, axis=1) | np.any(s != 1.0, axis=1)
-        if fade.all():  # 4  every run fades
-            x, P, Pyy, fixed = fading_update(state.x, state.P, V, A, Pxy, R, s, sig, p.form)
-            return x, P, Pyy, fixed, sig
-        # the runs that do not fade: the unfaded gain (step 3); the faded ones (a subset): step 4
-        x, P = apply_gain(state.x, state.P, V, Pyy0, Kt0)
-        Pyy, fixed = batched(Pyy0, B), fixed0
-        if fade.any():
-            i = np.flatnonzero(fade)
-            xf, Pf, Pyyf, fixf = fading_update(
-                state.x[i],
-                batched(state.P, B)[i],
-                V[i],
-                batched(A, B)[i],
-                batched(Pxy, B)[i],
-                batched(R, B)[i],
-                s[i],
-                sig[i],
-                p.form,
-            )
-            x, P, Pyy, fixed = x.copy(), batched(P, B).copy(), Pyy.copy(), fixed.copy()
-            x[i], P[i], Pyy[i], fixed[i] = xf, Pf, Pyyf, fixf
+            K, P, Pyy, fixed = GAIN_STEP((P, ms.A, ms.Pxy, R), (True,))
+            return state.x + mv(K, V), P, Pyy, fixed, np.ones_like(V)
+        M = channel_state_map(model, state.x, k)
+        opts = (float(p.sigma_max), float(p.per_channel_gate), p.form == "literal", bool(p.recompute_sigma))
+        run = (state.x, P, V, ms.A, ms.Pxy, R, ms.ok, reject, M)
+        with np.errstate(over="ignore"):  # a diverged run's V_i² may overflow: σ_i = σ_max
+            x, P, Pyy, fixed, sig, redo = FADING_UPDATE(run, opts)  # 3–4  σ, the (faded) update
+        if redo.any():  # A', Pxy' from sigma points of (x⁻, P⁻') (exact for any h), the unscaled update
+            i = np.flatnonzero(redo)
+            mo = self._moments(model, UKFState(x[i], P[i]), k)
+            z = np.where(ms.ok[i], 0.0, np.nan)  # the channels present (V is the one above)
+            mk = mask_missing(z, V[i], U=batched(mo.Pxy, i.size), M=batched(mo.A, i.size))
+            run = (x[i], P[i], V[i], mk.M, mk.U, R[i], ms.ok[i], np.zeros(i.size, dtype=bool), M[i])
+            x[i], P[i], Pyy[i], fix, _, _ = FADING_UPDATE(run, opts)  # σ = 1: the update with A', Pxy'
+            fixed[i] = fix | mo.neg
         return x, P, Pyy, fixed, sig
 
 
@@ -647,16 +675,12 @@ class MFUKF(_FadingBase):
     )
 
     def update(self, model: Model, state: UKFState, k: int, z: Array, side: SideInfo):
-        mp = self._predict_measurement(model, state, k)
-        V = z - mp.z_hat
-        mk = mask_missing(z, V, model.R0, U=mp.Pxy, M=mp.A)  # missing channels: zero gain column
-        ok, V, A, Pxy, R = mk.ok, mk.nu, mk.M, mk.U, mk.R
-        Pyy0 = sym(A + R)  # Pyy = A + R
-        gamma, thr, reject, Kt0, fixed0 = self._test(V, Pyy0, ok, Pxy)  # 2–3
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, V, A, Pxy, R, ok, reject, Pyy0, Kt0, fixed0)
+        ms = self._measure(model, state, k, z)  # 1–3  ẑ⁻, V, A, Pxy, the χ² test
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, ms, ms.V, ms.R, ms.reject)  # 3–4
         flags = np.zeros(z.shape, dtype=np.int8)
-        flags[reject[:, None] & ok] = EPOCH_ANOMALY  # flag 5 on every channel of a rejected epoch
-        flag_fix(flags, fixed | mp.neg)
-        stats = {"gamma": gamma, "gamma_threshold": thr, "fading": sig, "rejected": reject.astype(float)}
-        out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
+        flags[ms.reject[:, None] & ms.ok] = EPOCH_ANOMALY  # flag 5 on every channel of a rejected epoch
+        flag_fix(flags, fixed | ms.neg)
+        stats = {"gamma": ms.gamma, "gamma_threshold": ms.threshold, "fading": sig}
+        stats["rejected"] = ms.reject.astype(float)
+        out = StepOut(x=x, P=P, innov=ms.V, S=Pyy, R_used=ms.R, flags=flags, stats=stats)
         return UKFState(x, P), out

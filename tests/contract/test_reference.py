@@ -23,9 +23,11 @@ def test_most_filters_have_a_reference():
     # has none)
     missing = sorted(set(FILTERS) - set(FILTERS.plugin_sources) - set(REFERENCES))
     # wls is plain already; the NNMFUKF's network is tested on its own (tests/unit/test_nnmfukf.py);
-    # the VB and Sage–Husa filters' one-run steps are their implementation, compiled and not
-    # (tests/unit/test_jit_kernels.py), their numbers pinned (tests/unit/test_linear_pinned.py)
+    # the VB, Sage–Husa and UKF filters' one-run steps are their implementation, compiled and not
+    # (tests/unit/test_jit_kernels.py), their numbers pinned (tests/unit/test_linear_pinned.py,
+    # test_ukf_pinned.py); the UKF's against FilterPy (tests/unit/test_ukf.py)
     one_run = {"vb-akf", "hakf", "student-t-kf", "sage-husa", "irakf", "rrae", "rakf", "rsshakf"}
+    one_run |= {"svd-ukf", "mfukf"}
     assert set(missing) <= {"wls", "nnmfukf", "nnmfukf-guarded", *one_run}, missing
 
 

@@ -1,5 +1,6 @@
 """Compiled kernels (navlab.jit) against their numpy reference paths, and navlab without numba."""
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -222,3 +223,23 @@ def test_one_compiled_signature_per_run_step_whatever_the_shared_parameters():
     for out in outs:
         np.testing.assert_array_equal(out, 6.0)
     assert len(step.get().signatures) == 1
+
+
+def test_run_step_result_shaped_by_a_function_of_the_run_arguments():
+    """``outs`` may give a result's one-run shape as a function of the run arguments' one-run
+    shapes (the UKF's sigma points (2n+1, n) of a mean (n,)); compiled and uncompiled alike."""
+
+    def doubled(x, c):  # pragma: no cover - compiled by numba
+        out = np.empty((2, x.shape[0]))
+        out[0] = x
+        out[1] = c * x
+        return out, x.sum()
+
+    step = jit.RunStep(doubled, n_runs=1, outs=((lambda x: (2, *x), float), (None, float)))
+    x = np.arange(6.0).reshape(3, 2)
+    for paths in (contextlib.nullcontext(), jit.numpy_paths()):
+        with paths:
+            out, s = step((x,), (3.0,))
+        np.testing.assert_array_equal(out[:, 0], x)
+        np.testing.assert_array_equal(out[:, 1], 3.0 * x)
+        np.testing.assert_array_equal(s, x.sum(axis=1))

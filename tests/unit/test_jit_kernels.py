@@ -3,7 +3,10 @@
 Kernels: linalg's Cholesky solve (solve_sym, kf_gain), Joseph form and quadratic form; the VB
 iterations of vb-akf / hakf / student-t-kf (huber_vb.vb_iterations, one run, uncompiled
 as the oracle); the one-run steps of the Sage–Husa family (sage_husa.kernels, RAKF's step), every
-option; the INS model's f, h, H (ins.lc, through the drive0708 scenario).
+option; the one-run steps of the UKF family (ukf: sigma points, moments, update, χ² test, fading;
+a linear model's closed form feeds the update steps, ``resample="reuse"`` and the nonlinear
+pseudorange model take the sigma points), every option; the INS model's f, h, H (ins.lc, through
+the drive0708 scenario).
 Each is compared with ``jit.numpy_paths()`` on the same inputs.
 """
 
@@ -174,7 +177,19 @@ SAGE_HUSA_CASES = [
 ]
 
 
-@pytest.mark.parametrize(("key", "params"), VB_CASES + SAGE_HUSA_CASES)
+NN_SMALL = {"train_start": 5, "train_end": 40, "min_pairs": 10, "j_min": 3, "j_max": 20}
+UKF_CASES = [
+    ("svd-ukf", {}),
+    ("svd-ukf", {"resample": "reuse", "alpha_ut": 0.5, "kappa": 1.0}),
+    ("mfukf", {}),
+    ("mfukf", {"form": "literal", "per_channel_gate": 1.0}),
+    ("mfukf", {"recompute_sigma": True, "resample": "reuse", "sqrt_method": "cholesky"}),
+    ("nnmfukf", NN_SMALL),
+    ("nnmfukf-guarded", {**NN_SMALL, "mode": "online", "retest_after_replace": True}),
+]
+
+
+@pytest.mark.parametrize(("key", "params"), VB_CASES + SAGE_HUSA_CASES + UKF_CASES)
 def test_compiled_one_run_steps_equal_numpy(key, params):
     """cv2d with outliers and a missing channel: every output of the filter, both paths."""
     scen = make_scenario("cv2d", {"epochs": 80})
@@ -197,7 +212,11 @@ def test_compiled_one_run_steps_equal_numpy(key, params):
 @pytest.mark.parametrize(
     ("scenario", "filters"),
     [
-        ("gps-ins-pseudorange", ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf")),  # m = 8
+        # m = 8; the UKF's SVD sigma points of a nonlinear h
+        (
+            "gps-ins-pseudorange",
+            ("kf", "chi2-kf", "vb-akf", "hakf", "sage-husa", "irakf", "svd-ukf", "mfukf"),
+        ),
         ("gps-ins-rtk", ("kf", "hakf", "sage-husa", "mfukf")),  # m = 6
     ],
 )

@@ -1,4 +1,9 @@
-"""SVD-UKF and MFUKF (ALGORITHMS.md §1.3, §5): limits, closed forms and an independent UKF."""
+"""SVD-UKF and MFUKF (ALGORITHMS.md §1.3, §5): limits, closed forms and an independent UKF.
+
+The one-run steps are the implementation (navlab/filters/ukf.py); FilterPy's UnscentedKalmanFilter
+is the independent oracle (the SVD-UKF on a nonlinear model; the MFUKF's fading on FilterPy's own
+innovation); a linear model's closed-form moments, the one batched path, equal the steps.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +13,9 @@ import numpy as np
 import pytest
 
 from navlab.experiment import ExperimentSpec, run_experiment, run_filters
+from navlab.filters import ukf
 from navlab.filters.base import LinearModel, SideInfo, make_filter
-from navlab.filters.ukf import sigma_points, svd_sqrt, ut_mean_cov, ut_weights
+from navlab.filters.ukf import SVD, measurement_moments, sigma_points, square_root, ut_weights
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios.base import make_scenario
 
@@ -66,9 +72,10 @@ def test_ut_polar_to_cartesian_matches_closed_form():
     x = np.array([[mr, mt]])
     P = np.diag([sr**2, st**2])
     w = ut_weights(2, 1.0, 2.0, 1.0)  # κ = 3 − n: matches the 4th moment of a Gaussian
-    chi, _ = sigma_points(x, P, w.c)
+    chi, _ = sigma_points(x[0], P, w.c, SVD)  # the one-run step, uncompiled
     Y = np.stack([chi[..., 0] * np.cos(chi[..., 1]), chi[..., 0] * np.sin(chi[..., 1])], axis=-1)
-    mean, cov, _ = ut_mean_cov(Y, w)
+    mean, cov, _ = measurement_moments(chi, Y, x[0], w.Wm, w.Wc)  # §1.3 4–6 (ẑ⁻, A), uncompiled
+    mean, cov = mean[None], cov[None]
     e = np.exp(-(st**2) / 2)
     m_true = np.array([mr * np.cos(mt) * e, mr * np.sin(mt) * e])
     Er2 = mr**2 + sr**2
@@ -97,11 +104,17 @@ def test_ut_polar_to_cartesian_matches_closed_form():
 
 def test_svd_sqrt_flags_negative_definite_and_uses_absolute_value():
     P = np.diag([4.0, 1.0, -0.5])
-    L, neg = svd_sqrt(P)
-    assert bool(neg)
-    assert np.allclose(L @ L.T, np.abs(P))
-    L2, neg2 = svd_sqrt(np.diag([4.0, 1.0, 0.5]))
-    assert not bool(neg2) and np.allclose(L2 @ L2.T, np.diag([4.0, 1.0, 0.5]))
+    for method in (ukf.SVD, ukf.CHOLESKY):  # Cholesky fails on it: the SVD factor
+        L, neg = square_root(P, method)
+        assert bool(neg)
+        assert np.allclose(L @ L.T, np.abs(P))
+        L2, neg2 = square_root(np.diag([4.0, 1.0, 0.5]), method)
+        assert not bool(neg2) and np.allclose(L2 @ L2.T, np.diag([4.0, 1.0, 0.5]))
+    # the compiled steps flag it too, run by run, and a diverged run comes back NaN, flagged
+    Ps = np.stack([P, np.eye(3), np.full((3, 3), np.nan)])
+    L, neg = ukf.SQUARE_ROOTS((Ps,), (ukf.CHOLESKY,))
+    assert neg.tolist() == [True, False, True] and np.isnan(L[2]).all()
+    assert np.allclose(L[0] @ L[0].T, np.abs(P)) and np.allclose(L[1], np.eye(3))
 
 
 class RangeBearing:
@@ -154,9 +167,9 @@ def test_svd_ukf_equals_filterpy_ukf(resample):
     P0 = np.diag([4.0, 1.0, 4.0, 1.0])
     alpha, beta, kappa = 0.7, 2.0, 1.0
 
-    def svd_rows(A):
-        L, _ = svd_sqrt(A)
-        return L.T  # FilterPy takes x + row k of sqrt_method((n+λ)P)
+    def svd_rows(A):  # §1.3 a–b by numpy's SVD: FilterPy takes x + row k of sqrt_method((n+λ)P)
+        U, s, _ = np.linalg.svd(0.5 * (A + A.T))
+        return (U * np.sqrt(s)).T
 
     pts = MerweScaledSigmaPoints(4, alpha, beta, kappa, sqrt_method=svd_rows)
     ukf = UnscentedKalmanFilter(
@@ -180,6 +193,107 @@ def test_svd_ukf_equals_filterpy_ukf(resample):
         st, out = f.update(model, st, k, zs[k - 1][None], side)
         assert np.allclose(out.x[0], ukf.x, rtol=1e-9, atol=1e-9)
         assert np.allclose(out.P[0], ukf.P, rtol=1e-8, atol=1e-10)
+
+
+class DragPositions(RangeBearing):
+    """The drag dynamics observed through the positions (h selects states 0 and 2)."""
+
+    R0 = np.diag([0.5**2, 0.5**2])
+    H_ = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+
+    def __init__(self):
+        super().__init__()
+        self.R0 = DragPositions.R0
+
+    def H(self, x, k):
+        return self.H_
+
+    def h(self, x, k):
+        return x @ self.H_.T
+
+
+def test_mfukf_equals_filterpy_ukf_faded_by_hand():
+    """§5 on FilterPy's own numbers: where Vᵀ S⁻¹ V > χ²_0.95(2) (V, S from FilterPy's unscented
+    transform), σ_i = clip((V_i² − R_ii)/(S − R)_ii, 1, σ_max) inflates FilterPy's P⁻ to D P⁻ D
+    (D = diag(√s), s_j = σ of the channel observing state j) before its update. With h selecting
+    states the MFUKF's symmetric scaling of A and Pxy is exactly that update."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
+    from scipy.stats import chi2
+
+    model = DragPositions()
+    rng = np.random.default_rng(8)
+    K = 50
+    x = np.array([50.0, 1.0, 20.0, 2.0])
+    zs = []
+    for k in range(1, K + 1):
+        x = model.f(x[None], k)[0] + rng.multivariate_normal(np.zeros(4), model.Q_)
+        zs.append(model.h(x[None], k)[0] + 0.5 * rng.standard_normal(2))
+    zs = np.array(zs)
+    zs[10::9, 0] += 6.0  # gross errors on the first channel
+    zs[25:30, 1] += np.linspace(2.0, 8.0, 5)
+    x0, P0 = np.array([48.0, 0.5, 22.0, 1.5]), np.diag([4.0, 1.0, 4.0, 1.0])
+
+    def svd_rows(A):
+        U, s, _ = np.linalg.svd(0.5 * (A + A.T))
+        return (U * np.sqrt(s)).T
+
+    pts = MerweScaledSigmaPoints(4, 1.0, 2.0, 0.0, sqrt_method=svd_rows)
+    hx = lambda s: model.h(s[None], 0)[0]  # noqa: E731
+    ukf_ = UnscentedKalmanFilter(4, 2, 1.0, hx=hx, fx=lambda s, dt: model.f(s[None], 0)[0], points=pts)
+    ukf_.x, ukf_.P, ukf_.Q, ukf_.R = x0.copy(), P0.copy(), model.Q_, model.R0
+    f = make_filter("mfukf")
+    st = f.init(model, x0[None], P0)
+    side = SideInfo(np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2), bool))
+    faded = 0
+    for k in range(1, K + 1):
+        z = zs[k - 1]
+        ukf_.predict()
+        zp, S = unscented_transform(
+            np.array([hx(c) for c in pts.sigma_points(ukf_.x, ukf_.P)]), pts.Wm, pts.Wc, model.R0
+        )
+        V = z - zp
+        if V @ np.linalg.solve(S, V) > chi2.ppf(0.95, 2):
+            sig = np.clip((V**2 - np.diag(model.R0)) / np.diag(S - model.R0), 1.0, 1e6)
+            D = np.diag(np.sqrt([sig[0], 1.0, sig[1], 1.0]))
+            ukf_.P = D @ ukf_.P @ D
+            faded += bool(np.any(sig > 1.0))
+        ukf_.sigmas_f = pts.sigma_points(ukf_.x, ukf_.P)
+        ukf_.update(z)
+        st = f.predict(model, st, k)
+        st, out = f.update(model, st, k, z[None], side)
+        assert np.allclose(out.x[0], ukf_.x, rtol=1e-9, atol=1e-9), k
+        assert np.allclose(out.P[0], ukf_.P, rtol=1e-8, atol=1e-10), k
+    assert faded >= 5  # the test did reject and fade
+
+
+CLOSED_FORM_CASES = [
+    ("svd-ukf", {}),
+    ("svd-ukf", {"sqrt_method": "cholesky"}),
+    ("mfukf", {}),
+    ("mfukf", {"form": "literal", "per_channel_gate": 1.5}),
+    ("mfukf", {"recompute_sigma": True}),
+    ("nnmfukf", {"train_start": 5, "train_end": 40, "min_pairs": 10, "j_min": 3, "j_max": 20}),
+]
+
+
+@pytest.mark.parametrize(("key", "params"), CLOSED_FORM_CASES)
+def test_closed_form_of_a_linear_model_equals_the_steps(key, params, monkeypatch):
+    """The one batched path (a linear model's moments in closed form) against the one-run sigma-point
+    steps, with outliers that fade and missing channels."""
+    data = _cv2d_data(outliers="isolated", mean=8.0)
+    data.z[:, 10, 1] = np.nan
+    data.z[2, 30, :] = np.nan
+    closed = run_filters(data, [make_filter(key, params)])[key]
+    monkeypatch.setattr(ukf._UKFBase, "_closed_form", lambda self, model: False)
+    steps = run_filters(data, [make_filter(key, params)])[key]
+    np.testing.assert_array_equal(closed.flags, steps.flags)
+    for name in ("x", "P_diag", "innov", "S_diag"):
+        a, b = getattr(closed, name), getattr(steps, name)
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.nanmax(np.abs(b)), err_msg=name)
+    for name, v in steps.stats.items():  # σ = (V² − R)/A amplifies A's round-off
+        np.testing.assert_allclose(closed.stats[name], v, rtol=1e-7, err_msg=name)
+    if key != "svd-ukf":
+        assert np.nanmax(steps.stats["fading"]) > 10.0  # the fading ran
 
 
 def test_mfukf_without_triggering_equals_svd_ukf():

@@ -9,8 +9,9 @@ registered as filters: ``tests/contract/test_reference.py`` runs every filter th
 reference beside it on every compatible scenario and requires the same numbers.
 
 :data:`REFERENCES` maps a filter key to its :class:`Reference`; a filter without one (``wls``,
-which is plain already; ``nnmfukf``, whose network training is tested on its own) is simply
-absent.
+which is plain already; ``nnmfukf``, whose network training is tested on its own; the filters
+written as one-run steps — the VB, Sage–Husa and UKF families — whose steps are the textbook
+form, checked compiled against uncompiled) is simply absent.
 """
 
 from __future__ import annotations
