@@ -273,11 +273,9 @@ def legend_overlaps(charts: list[dict]) -> list[str]:
     return out
 
 
-def open_charts(browser: Browser, base_url: str, width: int, path: str, button_label, n: int):
-    """A page at ``width`` px with its charts drawn (``button_label`` pressed first, if any)."""
-    ctx = browser.new_context(base_url=base_url, viewport={"width": width, "height": 1000})
-    ctx.set_default_timeout(T)  # every wait, clicks and reads included, gets the suite's long timeout
-    page = ctx.new_page()
+def open_charts(page: Page, width: int, path: str, button_label, n: int) -> None:
+    """``page`` at ``width`` px with its charts drawn (``button_label`` pressed first, if any)."""
+    page.set_viewport_size({"width": width, "height": 1000})
     page.goto(f"/{path}")
     settle(page)
     if button_label:
@@ -291,7 +289,6 @@ def open_charts(browser: Browser, base_url: str, width: int, path: str, button_l
     page.wait_for_timeout(1000)  # a last batch's rerun may start just after the first settle
     settle(page)
     assert_no_exception(page)
-    return ctx, page
 
 
 def screenshot_charts(page: Page, path_of) -> None:
@@ -337,7 +334,7 @@ def _rhat_axis(page: Page, title_part: str) -> str:
     ("name", "path", "button_label", "n", "rhat"), CHART_PAGES, ids=[p[0] for p in CHART_PAGES]
 )
 def test_no_legend_covers_a_title_or_the_data_and_rhat_is_log(
-    browser: Browser, base_url: str, artifacts_dir: Path, name, path, button_label, n, rhat
+    page: Page, artifacts_dir: Path, name, path, button_label, n, rhat
 ):
     """One drawn page per chart page, at each of WIDTHS in turn (resized, not drawn again): no
     legend covers anything; the R̂ chart is on a log axis by default and follows its page's toggle."""
@@ -347,36 +344,33 @@ def test_no_legend_covers_a_title_or_the_data_and_rhat_is_log(
 
         if not (data_root() / RTKX_DIR).is_dir():
             pytest.skip(f"real data not found under {data_root()} (set NAVLAB_DATA)")
-    ctx, page = open_charts(browser, base_url, WIDTHS[0], path, button_label, n)
-    try:
-        page.screenshot(path=str(artifacts_dir / f"page-{name}.png"), full_page=True)
-        for width in WIDTHS:
-            if width != WIDTHS[0]:
-                resize(page, width)
-            charts = [c for c in page.evaluate(GEOMETRY_JS) if c["visible"]]
-            assert charts
-            screenshot_charts(page, lambda i, w=width: artifacts_dir / f"charts-{name}-{w}-{i}.png")
-            assert legend_overlaps(charts) == [], f"at {width} px"
-        if rhat is None:
-            return
-        title_part, toggle = rhat
-        assert _rhat_axis(page, title_part) == "log"
-        if toggle is None:
-            return
-        switch = page.get_by_label(toggle, exact=True)
-        expect(switch).to_be_checked(timeout=T)  # log by default
-        page.get_by_text(toggle, exact=True).click()
-        expect(switch).to_be_checked(checked=False, timeout=T)
-        settle(page)
-        page.wait_for_function(
-            "part => Array.from(document.querySelectorAll('.js-plotly-plot')).some(gd => gd._fullLayout"
-            " && gd._fullLayout.title && gd._fullLayout.title.text.includes(part)"
-            " && gd._fullLayout.yaxis.type === 'linear')",
-            arg=title_part,
-            timeout=T,
-        )
-    finally:
-        ctx.close()
+    open_charts(page, WIDTHS[0], path, button_label, n)
+    page.screenshot(path=str(artifacts_dir / f"page-{name}.png"), full_page=True)
+    for width in WIDTHS:
+        if width != WIDTHS[0]:
+            resize(page, width)
+        charts = [c for c in page.evaluate(GEOMETRY_JS) if c["visible"]]
+        assert charts
+        screenshot_charts(page, lambda i, w=width: artifacts_dir / f"charts-{name}-{w}-{i}.png")
+        assert legend_overlaps(charts) == [], f"at {width} px"
+    if rhat is None:
+        return
+    title_part, toggle = rhat
+    assert _rhat_axis(page, title_part) == "log"
+    if toggle is None:
+        return
+    switch = page.get_by_label(toggle, exact=True)
+    expect(switch).to_be_checked(timeout=T)  # log by default
+    page.get_by_text(toggle, exact=True).click()
+    expect(switch).to_be_checked(checked=False, timeout=T)
+    settle(page)
+    page.wait_for_function(
+        "part => Array.from(document.querySelectorAll('.js-plotly-plot')).some(gd => gd._fullLayout"
+        " && gd._fullLayout.title && gd._fullLayout.title.text.includes(part)"
+        " && gd._fullLayout.yaxis.type === 'linear')",
+        arg=title_part,
+        timeout=T,
+    )
 
 
 def test_lockout_is_explained_with_a_link_to_learn(page: Page, base_url: str):

@@ -72,9 +72,9 @@ def _idle_within(url: str, seconds: float) -> bool:
     return False
 
 
-def _open(browser: Browser, url: str, query: str = "") -> Page:
-    page = browser.new_page(viewport=VIEWPORT)
-    page.set_default_timeout(T)
+def _open(page: Page, url: str, query: str = "") -> Page:
+    """``page`` (the reused tab, tests/e2e/conftest.py) on this server's Reproduce page."""
+    page.set_viewport_size(VIEWPORT)
     page.goto(f"{url}/Reproduce" + (f"?{query}" if query else ""))
     expect(page.locator("h1").first).to_be_visible(timeout=T)
     expect(page.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T)
@@ -89,9 +89,9 @@ def _verdicts(page: Page):
     return page.locator('[data-testid="stTable"] td').filter(has_text=VERDICT)
 
 
-def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server, artifacts_dir: Path):
+def test_default_answers_in_seconds_and_fits_the_screen(page: Page, server, artifacts_dir: Path):
     url, _ = server
-    page = _open(browser, url)
+    _open(page, url)
     expect(page.get_by_text("--seeds 20")).to_be_visible()  # the CLI line of the full judgement
     expect(page.get_by_text("not judged yet").first).to_be_visible()
     _button(page, "Run").click()
@@ -115,18 +115,16 @@ def test_default_answers_in_seconds_and_fits_the_screen(browser: Browser, server
     page.screenshot(path=str(artifacts_dir / "reproduce-default-1440.png"))
     page.set_viewport_size({"width": 1440, "height": 4200})  # the whole page for a human to read
     page.screenshot(path=str(artifacts_dir / "reproduce-default-1440-full.png"))
-    page.close()
     # presentation mode: the judged reproduction is shown (from the server), without downloads
-    page = _open(browser, url, "present=1")
+    _open(page, url, "present=1")
     expect(_verdicts(page).first).to_be_visible()
     expect(page.locator('[data-testid="stPlotlyChart"]')).to_have_count(charts, timeout=T)
     expect(page.locator('[data-testid="stDownloadButton"]')).to_have_count(0)
-    page.close()
 
 
-def test_stop_keeps_the_seed_blocks_and_run_resumes(browser: Browser, server):
+def test_stop_keeps_the_seed_blocks_and_run_resumes(page: Page, server):
     url, _ = server
-    page = _open(browser, url, f"rep=irakf&rep_seeds={STOPPED}&rep_seed=3")
+    _open(page, url, f"rep=irakf&rep_seeds={STOPPED}&rep_seed=3")
     _button(page, "Run").click()
     provisional = re.compile(rf"^Provisional: judged on \d+ seeds? of {STOPPED}")
     expect(page.get_by_text(provisional)).to_be_visible(timeout=T)
@@ -141,25 +139,23 @@ def test_stop_keeps_the_seed_blocks_and_run_resumes(browser: Browser, server):
     _button(page, "Run").click()  # resumes: the kept seeds' verdicts come at once
     expect(page.get_by_text(re.compile(rf"^Judged on {STOPPED} seeds"))).to_be_visible(timeout=3 * T)
     expect(page.locator('[data-testid="stException"]')).to_have_count(0)
-    page.close()
 
 
-def test_closing_the_browser_stops_the_work_and_it_resumes(browser: Browser, server):
+def test_closing_the_browser_stops_the_work_and_it_resumes(browser: Browser, page: Page, server):
     url, store = server
-    context = browser.new_context(viewport=VIEWPORT)
-    page = context.new_page()
-    page.goto(f"{url}/Reproduce?{LONG}")
-    expect(page.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T)
+    context = browser.new_context(viewport=VIEWPORT)  # its own, to close mid-run
+    closing = context.new_page()
+    closing.goto(f"{url}/Reproduce?{LONG}")
+    expect(closing.locator('[data-testid="stStatusWidget"]')).to_have_count(0, timeout=T)
     before = len(list(store.glob("??/*.npz")))  # the other tests' blocks
-    _button(page, "Run").click()
-    expect(_verdicts(page).first).to_be_visible(timeout=T)
+    _button(closing, "Run").click()
+    expect(_verdicts(closing).first).to_be_visible(timeout=T)
     assert _workers(url)  # seeds 1–15 compute in worker processes
     context.close()  # the browser goes away mid-run
     assert _idle_within(url, 30), [p.cmdline() for p in _workers(url)]
     kept = len(list(store.glob("??/*.npz"))) - before
-    page = _open(browser, url, LONG)  # the abandoned reproduction: its finished seeds are shown
+    _open(page, url, LONG)  # the abandoned reproduction: its finished seeds are shown
     expect(page.get_by_text(re.compile(r"^\d+ of 16 seeds judged and kept"))).to_be_visible(timeout=T)
     expect(_verdicts(page).first).to_be_visible()
     n = len(REPRODUCTIONS["irakf"].experiments)  # one stored block per experiment and seed range
     assert n <= kept < n * 5  # seed 0 of every experiment at least; not all 5 seed ranges
-    page.close()
