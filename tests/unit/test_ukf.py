@@ -150,19 +150,24 @@ class RangeBearing:
         return np.stack([np.hypot(x[:, 0], x[:, 2]), np.arctan2(x[:, 2], x[:, 0])], axis=1)
 
 
-@pytest.mark.parametrize("resample", ["reuse", "redraw"])
-def test_svd_ukf_equals_filterpy_ukf(resample):
-    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
-
-    model = RangeBearing()
-    rng = np.random.default_rng(5)
-    K = 40
+def simulate(model, K: int, seed: int) -> np.ndarray:
+    """K measurements z_1 … z_K of the drag dynamics from x = (50, 1, 20, 2), noise σ = √diag R0."""
+    rng = np.random.default_rng(seed)
     x = np.array([50.0, 1.0, 20.0, 2.0])
     zs = []
     for k in range(1, K + 1):
         x = model.f(x[None], k)[0] + rng.multivariate_normal(np.zeros(4), model.Q_)
         zs.append(model.h(x[None], k)[0] + rng.standard_normal(2) * np.sqrt(np.diag(model.R0)))
-    zs = np.array(zs)
+    return np.array(zs)
+
+
+@pytest.mark.parametrize("resample", ["reuse", "redraw"])
+def test_svd_ukf_equals_filterpy_ukf(resample):
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    model = RangeBearing()
+    K = 40
+    zs = simulate(model, K, 5)
     x0 = np.array([48.0, 0.5, 22.0, 1.5])
     P0 = np.diag([4.0, 1.0, 4.0, 1.0])
     alpha, beta, kappa = 0.7, 2.0, 1.0
@@ -221,14 +226,8 @@ def test_mfukf_equals_filterpy_ukf_faded_by_hand():
     from scipy.stats import chi2
 
     model = DragPositions()
-    rng = np.random.default_rng(8)
     K = 50
-    x = np.array([50.0, 1.0, 20.0, 2.0])
-    zs = []
-    for k in range(1, K + 1):
-        x = model.f(x[None], k)[0] + rng.multivariate_normal(np.zeros(4), model.Q_)
-        zs.append(model.h(x[None], k)[0] + 0.5 * rng.standard_normal(2))
-    zs = np.array(zs)
+    zs = simulate(model, K, 8)
     zs[10::9, 0] += 6.0  # gross errors on the first channel
     zs[25:30, 1] += np.linspace(2.0, 8.0, 5)
     x0, P0 = np.array([48.0, 0.5, 22.0, 1.5]), np.diag([4.0, 1.0, 4.0, 1.0])
