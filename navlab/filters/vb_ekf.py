@@ -171,85 +171,104 @@ class VBEKF(Filter):
         m = z.shape[-1]
         P_pr = np.broadcast_to(state.P, (B, n, n))
         H = np.broadcast_to(model.H(x_pr, k), (B, m, n))  # Jacobian at x⁻, fixed in the loop
-        Ht = mT(H)
         ok = np.isfinite(z)
-        all_ok = bool(ok.all())
         nu = np.where(ok, z - model.h(x_pr, k), 0.0)  # prior innovation z − h(x⁻)
-        z0 = np.where(ok, z, 0.0)
-
-        # (S3 eq. 14) forgetting of the R-distribution; P-prior re-set from the nominal P̃⁻
-        u_pr = p.rho * (state.u - m - 1) + m + 1
-        U_pr = p.rho * state.U
-        R_exp = U_pr / (u_pr - m - 1)  # current E[R], stands in for missing channels
-        u = u_pr + 1.0
-        T_pr = p.tau_P * P_pr  # t⁻ = n + τ_P + 1  ⇒  t − n − 1 = τ_P + 1
-
-        x_it, P_it, U = x_pr, P_pr, U_pr
+        u_pr = p.rho * (state.u - m - 1) + m + 1  # u⁻ = ρ (û − m − 1) + m + 1
+        U_pr = p.rho * state.U  # U⁻ = ρ Û
+        R_exp = U_pr / (u_pr - m - 1)  # the current E[R], for missing channels
+        prior = _Prior(x_pr, P_pr, p.tau_P * P_pr, H, nu, ok, U_pr, u_pr + 1.0, R_exp)  # T⁻ = τ_P P̃⁻
+        it_ = _Iterate(x_pr, P_pr, U_pr, None, None, None, np.zeros(B, dtype=bool))  # x⁽⁰⁾, P⁽⁰⁾
         active = np.ones(B, dtype=bool)  # with tol > 0 a converged run stops iterating
         iters = np.zeros(B)
         fixed_any = np.zeros(B, dtype=bool)
-        for it in range(p.iterations):
-            # P-part: A_P = P⁽ⁱᵗ⁾ + δx δxᵀ ; T = T⁻ + A_P ; P̂ = T/(t − n − 1)
-            if p.adapt_P:
-                dx = x_it - x_pr
-                P_hat = (T_pr + P_it + dx[:, :, None] * dx[:, None, :]) / (p.tau_P + 1.0)
-            else:
-                P_hat = P_pr
-            # R-part: r = z − h(x⁽ⁱᵗ⁾) ; B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ ; U = U⁻ + B_R ; R̂ = U/(u − m − 1)
-            r = z0 - model.h(x_it, k)
-            if all_ok:
-                U_new = U_pr + (r[:, :, None] * r[:, None, :] + H @ P_it @ Ht)
-                R_hat = sym(U_new / (u - m - 1))
-                nu_m, H_m, R_m = nu, H, R_hat
-            else:
-                r = np.where(ok, r, 0.0)
-                B_R = r[:, :, None] * r[:, None, :] + H @ P_it @ Ht
-                U_new = U_pr + _fill_missing(B_R, R_exp, ok)
-                R_hat = sym(U_new / (u - m - 1))
-                # missing channels get a zero gain column
-                mk = mask_missing(z, nu, R_hat, H=H)
-                nu_m, R_m, H_m = mk.nu, mk.R, mk.H
-            # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹ via a solve with S
-            PHt = P_hat @ mT(H_m)
-            S = sym(H_m @ PHt + R_m)
-            Kt, fixed = solve_sym(S, mT(PHt))
-            K = mT(Kt)
-            x_new = x_pr + mv(K, nu_m)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
-            P_new = joseph_from_gain(P_hat, K, PHt, S)  # Joseph; = P̂ − K H P̂ for this gain
-            fixed_any |= np.broadcast_to(fixed, (B,)) & active
+        for _ in range(p.iterations):
+            new = _iteration(model, k, z, prior, it_, p)
+            fixed_any |= new.fixed & active
             iters += active
-            if it == 0 or p.tol == 0:  # every run active
-                done = None
-                if p.tol > 0:
-                    done = _converged(x_new, x_it, x_pr, p.tol)
-                x_it, P_it, U, S_out, R_out, P_hat_out = x_new, P_new, U_new, S, R_m, P_hat
-            else:
-                a1, a3 = active[:, None], active[:, None, None]
-                done = _converged(x_new, x_it, x_pr, p.tol)
-                x_it = np.where(a1, x_new, x_it)
-                P_it = np.where(a3, P_new, P_it)
-                U = np.where(a3, U_new, U)
-                S_out = np.where(a3, S, S_out)
-                R_out = np.where(a3, R_m, R_out)
-                P_hat_out = np.where(a3, P_hat, P_hat_out)
-            if done is not None:
-                active = active & ~done
-                if not active.any():
-                    break
+            done = _converged(new.x, it_.x, x_pr, p.tol) if p.tol > 0 else ~active
+            it_ = _keep(active, new, it_)
+            active &= ~done
+            if not active.any():
+                break
         flags = flag_fix(np.zeros(z.shape, dtype=np.int8), fixed_any)
-        R_hat = sym(U / (u - m - 1))  # = the R̂ of each run's last iteration
-        trP = np.trace(P_hat_out, axis1=-2, axis2=-1) / np.trace(P_pr, axis1=-2, axis2=-1)
+        R_hat = sym(it_.U / (prior.u - m - 1))  # = the R̂ of each run's last iteration
+        trP = np.trace(it_.P_hat, axis1=-2, axis2=-1) / np.trace(P_pr, axis1=-2, axis2=-1)
         out = StepOut(
-            x=x_it,
-            P=P_it,
+            x=it_.x,
+            P=it_.P,
             innov=nu,
-            S=S_out,
-            R_used=R_out,
+            S=it_.S,
+            R_used=it_.R,
             R_hat=R_hat,
             flags=flags,
             stats={"vb_iters": iters, "P_scale": trP},
         )
-        return VBState(x_it, P_it, u, U), out
+        return VBState(it_.x, it_.P, prior.u, it_.U), out
+
+
+class _Prior(NamedTuple):
+    """What every iteration of an epoch starts from: x⁻, P̃⁻, T⁻ = τ_P P̃⁻, H at x⁻, the prior
+    innovation z − h(x⁻) (0 where missing), the channels present, U⁻, u = u⁻ + 1 and E[R] before
+    the epoch (U⁻/(u⁻ − m − 1)).
+    """
+
+    x: Array
+    P: Array
+    T: Array
+    H: Array
+    nu: Array
+    ok: Array
+    U: Array
+    u: float
+    R_exp: Array
+
+
+class _Iterate(NamedTuple):
+    """One iteration's x⁽ⁱᵗ⁺¹⁾, P⁽ⁱᵗ⁺¹⁾, U, the S and (masked) R̂ of its gain, its P̂ and fix flag."""
+
+    x: Array
+    P: Array
+    U: Array
+    S: Array | None
+    R: Array | None
+    P_hat: Array | None
+    fixed: Array
+
+
+def _iteration(model: Model, k: int, z: Array, pr: _Prior, it: _Iterate, p: VBEKFParams) -> _Iterate:
+    """One fixed-point iteration of every run (the module docstring's loop body)."""
+    m = z.shape[-1]
+    if p.adapt_P:  # T = T⁻ + P⁽ⁱᵗ⁾ + (x⁽ⁱᵗ⁾ − x⁻)(·)ᵀ ;  P̂ = T/(t − n − 1) = T/(τ_P + 1)
+        dx = it.x - pr.x
+        P_hat = (pr.T + it.P + dx[:, :, None] * dx[:, None, :]) / (p.tau_P + 1.0)
+    else:
+        P_hat = pr.P
+    r = np.where(pr.ok, z - model.h(it.x, k), 0.0)  # r = z − h(x⁽ⁱᵗ⁾) (0 where missing)
+    B_R = r[:, :, None] * r[:, None, :] + pr.H @ it.P @ mT(pr.H)  # B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ
+    if pr.ok.all():
+        U = pr.U + B_R  # U = U⁻ + B_R
+        R_hat = sym(U / (pr.u - m - 1))  # R̂ = U/(u − m − 1)
+        nu, H, R = pr.nu, pr.H, R_hat
+    else:  # the missing noise's statistic: its expectation given the observed channels
+        U = pr.U + _fill_missing(B_R, pr.R_exp, pr.ok)
+        R_hat = sym(U / (pr.u - m - 1))
+        mk = mask_missing(z, pr.nu, R_hat, H=pr.H)
+        nu, H, R = mk.nu, mk.H, mk.R
+    PHt = P_hat @ mT(H)
+    S = sym(H @ PHt + R)  # H P̂ Hᵀ + R̂
+    Kt, fixed = solve_sym(S, mT(PHt))
+    K = mT(Kt)  # K = P̂ Hᵀ (H P̂ Hᵀ + R̂)⁻¹
+    x = pr.x + mv(K, nu)  # x⁽ⁱᵗ⁺¹⁾ = x⁻ + K (z − h(x⁻))
+    P = joseph_from_gain(P_hat, K, PHt, S)  # Joseph; = P̂ − K H P̂ for this gain
+    return _Iterate(x, P, U, S, R, P_hat, np.broadcast_to(fixed, (z.shape[0],)))
+
+
+def _keep(active: Array, new: _Iterate, old: _Iterate) -> _Iterate:
+    """``new`` for the active runs, ``old`` for the runs that stopped iterating."""
+    if active.all():
+        return new
+    pick = lambda a, b: np.where(active.reshape((-1,) + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+    return _Iterate(*(pick(a, b) for a, b in zip(new, old, strict=True)))
 
 
 def _converged(x_new: Array, x_old: Array, x_pr: Array, tol: float) -> Array:
