@@ -524,40 +524,55 @@ def _pos_rms(e: Array) -> float:
     return float(np.sqrt(np.mean(sq))) if sq.size else float("nan")
 
 
+def _filter_rms(res: Results, idx: list[int], ref: Array) -> dict[str, float]:
+    """Each filter's 3-D position RMS over the judged window against ``ref`` (the truth or the
+    fixes, (B, K+1, 3)), over its runs that did not diverge (inf if every run diverged); not the
+    per-epoch fix ``wls``, which is a raw baseline here, not a filter.
+    """
+    W = res.data.window
+    errs = {}
+    for key, fr in res.runs.items():
+        ok = ~fr.diverged
+        if key != "wls":
+            errs[key] = _pos_rms((fr.x[..., idx] - ref)[ok][:, W]) if ok.any() else np.inf
+    return errs
+
+
+def _raw_fixes(d: Any, fixes: Array) -> tuple[float, str, str, Array | None]:
+    """The raw GNSS fixes' 3-D RMS, its basis, its label and the truth it is judged against
+    (None: no truth, the fixes' stated σ stands in).
+    """
+    W = d.window
+    p_ant = d.extras.get("p_true_antenna")
+    if not (d.has_truth and p_ant is not None):
+        sig = np.asarray(d.extras.get("fix_sigma_m"), float)
+        raw = float(np.sqrt(np.nanmean(np.sum(sig[W] ** 2, axis=-1))))
+        basis = "against the GNSS fixes themselves (no truth): the raw figure is the GNSS's stated σ"
+        return raw, basis, "the raw GNSS fixes", None
+    e_raw = fixes - p_ant[None]
+    # outlying fixes (flagged before the run, or injected) are left out of the raw figure: with
+    # them in it, a filter worse than the clean fixes could still look better than "raw"
+    bad = np.zeros(e_raw.shape[:2], bool) | np.asarray(d.extras.get("raw_outliers", False))
+    if getattr(d, "outlier_mask", None) is not None:
+        bad |= np.asarray(d.outlier_mask)[..., :3].any(axis=-1)
+    raw = _pos_rms(np.where(bad[..., None], np.nan, e_raw)[:, W])
+    n_bad = int(bad[:, W].sum())
+    label = "the raw GNSS fixes"
+    if n_bad:
+        label += f" without their {n_bad} outlying ones (all: {_pos_rms(e_raw[:, W]):.3g} m)"
+    return raw, "against the truth", label, d.x_true
+
+
 def trust_check(res: Results) -> list[Finding]:
     """After a run: is the best filter much worse than the raw GNSS it is fed? (module doc)."""
     d = res.data
-    idx = list(d.groups["pos"].idx) if "pos" in d.groups else None
-    if idx is None:
-        return []
-    W = d.window
-    if not all(hasattr(fr, "x") for fr in res.runs.values()):
-        return []  # a summary run keeps no per-epoch estimates
+    if "pos" not in d.groups or not all(hasattr(fr, "x") for fr in res.runs.values()):
+        return []  # no position, or a summary run (no per-epoch estimates)
+    idx = list(d.groups["pos"].idx)
     fixes = d.model.fixes(d.z) if hasattr(d.model, "fixes") else None  # the aiding as fed
-    errs: dict[str, float] = {}
     if fixes is not None:
-        p_ant = d.extras.get("p_true_antenna")
-        if d.has_truth and p_ant is not None:
-            e_raw = fixes - p_ant[None]
-            raw_all = _pos_rms(e_raw[:, W])
-            # outlying fixes (flagged before the run, or injected) are left out of the raw figure:
-            # with them in it, a filter worse than the clean fixes could still look better than "raw"
-            bad = np.zeros(e_raw.shape[:2], bool) | np.asarray(d.extras.get("raw_outliers", False))
-            if getattr(d, "outlier_mask", None) is not None:
-                bad |= np.asarray(d.outlier_mask)[..., :3].any(axis=-1)
-            raw = _pos_rms(np.where(bad[..., None], np.nan, e_raw)[:, W])
-            n_bad = int(bad[:, W].sum())
-            basis = "against the truth"
-            for key, fr in res.runs.items():
-                ok = ~fr.diverged
-                errs[key] = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[ok][:, W]) if ok.any() else np.inf
-        else:
-            sig = np.asarray(d.extras.get("fix_sigma_m"), float)
-            raw = float(np.sqrt(np.nanmean(np.sum(sig[W] ** 2, axis=-1))))
-            basis = "against the GNSS fixes themselves (no truth): the raw figure is the GNSS's stated σ"
-            for key, fr in res.runs.items():
-                ok = ~fr.diverged
-                errs[key] = _pos_rms((fr.x[..., idx] - fixes)[ok][:, W]) if ok.any() else np.inf
+        raw, basis, raw_label, truth = _raw_fixes(d, fixes)
+        errs = _filter_rms(res, idx, fixes if truth is None else truth[..., idx])
         causes = _DRIVE_CAUSES
         if d.extras.get("start") == "moving":
             causes = (
@@ -565,22 +580,13 @@ def trust_check(res: Results) -> list[Finding]:
                 "convergence with eval_from_s",
                 *causes,
             )
-        raw_label = "the raw GNSS fixes"
-        if d.has_truth and p_ant is not None and n_bad:
-            raw_label = f"the raw GNSS fixes without their {n_bad} outlying ones (all: {raw_all:.3g} m)"
     elif "wls" in res.runs and d.has_truth:
-        fr = res.runs["wls"]
-        raw = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[:, W])
-        basis = "against the truth"
-        for key, fr in res.runs.items():
-            if key != "wls":
-                ok = ~fr.diverged
-                errs[key] = _pos_rms((fr.x[..., idx] - d.x_true[..., idx])[ok][:, W]) if ok.any() else np.inf
-        causes = _PR_CAUSES
-        raw_label = "the per-epoch least-squares fix (wls)"
+        truth = d.x_true[..., idx]
+        raw = _pos_rms((res.runs["wls"].x[..., idx] - truth)[:, d.window])
+        basis, raw_label, causes = "against the truth", "the per-epoch least-squares fix (wls)", _PR_CAUSES
+        errs = _filter_rms(res, idx, truth)
     else:
         return []
-    errs = {k: v for k, v in errs.items() if k != "wls" or fixes is None}
     if not errs or not np.isfinite(raw):
         return []
     best = min(errs, key=lambda k: errs[k] if np.isfinite(errs[k]) else np.inf)
