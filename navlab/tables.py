@@ -161,20 +161,30 @@ class Table:
         return body + "\n" + "\n".join(f"  {n}" for n in self.notes) + "\n"
 
 
-def headline_metrics(res: Results) -> list[str]:
-    """The columns of the headline table (those that exist in this experiment)."""
-    data = res.data
+def _headline_groups(res: Results, groups: list[str]) -> list[str]:
+    """The scenario's headline error groups among ``groups`` (all of ``groups`` if it names none)."""
     try:
         head = scenario_registry()[res.spec.scenario].headline
     except KeyError:
         head = ()
-    groups = [g for g in head if g in data.groups] or list(data.groups)
-    cols = [f"rmse_{g}" for g in groups] if data.has_truth else []
-    cols += list(data.extras.get("metrics", {}))
-    cols += list(M.QUALITY_METRICS)
-    sm = M.summary(res)
-    present = {m for k in res.runs for m in sm.metrics_of(k)} | set(data.extras.get("metrics", {}))
-    return [c for c in cols if c in present]
+    return [g for g in head if g in groups] or list(groups)
+
+
+def _present(res: Results, wanted: list[str], scenario_metrics: bool) -> list[str]:
+    """The metrics of ``wanted`` some filter of the experiment has (or, with ``scenario_metrics``,
+    the scenario reports).
+    """
+    present = {m for k in res.runs for m in M.summary(res).metrics_of(k)}
+    if scenario_metrics:
+        present |= set(res.data.extras.get("metrics", {}))
+    return [m for m in wanted if m in present]
+
+
+def headline_metrics(res: Results) -> list[str]:
+    """The columns of the headline table (those that exist in this experiment)."""
+    data = res.data
+    cols = [f"rmse_{g}" for g in _headline_groups(res, list(data.groups))] if data.has_truth else []
+    return _present(res, cols + list(data.extras.get("metrics", {})) + list(M.QUALITY_METRICS), True)
 
 
 # --------------------------------------------------------------------------- display choices
@@ -187,18 +197,9 @@ def comparison_metrics(res: Results) -> list[str]:
     consistency, R̂ error and detection rates (those that exist in this experiment).
     """
     data = res.data
-    groups = list(data.groups) if data.has_truth else []
-    try:
-        head = [g for g in scenario_registry()[res.spec.scenario].headline if g in groups]
-    except KeyError:
-        head = []
-    head = head or groups
+    head = _headline_groups(res, list(data.groups) if data.has_truth else [])
     wanted = [f"rmse_{g}" for g in head] + [f"mean_rmse_{g}" for g in head]
-    wanted += list(data.extras.get("metrics", {}))
-    wanted += list(M.QUALITY_METRICS)
-    sm = M.summary(res)
-    present = {m for k in res.runs for m in sm.metrics_of(k)}
-    return [m for m in wanted if m in present]
+    return _present(res, wanted + list(data.extras.get("metrics", {})) + list(M.QUALITY_METRICS), False)
 
 
 FLAG_METRICS = ("detected_pct", "false_alarm_pct")  # rates of the filters' outlier decisions
@@ -290,63 +291,81 @@ def headline(
     data = res.data
     metrics = metrics or headline_metrics(res)
     df = sm.rows(metrics)
-    by = {(r["filter"], r["metric"]): r for r in df.to_dict("records")}
-    rows, notes = [], []
-    empty: dict[str, str] = {}
-    for key, fr in res.runs.items():
-        row = {"filter": fr.label}
-        for m in metrics:
-            r = by.get((key, m))
-            name = metric_name(m, data)
-            if r is None:
-                row[name] = "—"
-                if m.startswith("rhat_err"):
-                    empty[name] = "R̂ error: — for filters that do not estimate R"
-                continue
-            row[name] = cell(r["value"], r["ci_lo"], r["ci_hi"])
-        lost = by[(key, "diverged")]
-        row["diverged runs"] = f"{int(lost['value'])} of {data.B}" if lost["value"] else "0"
-        row["µs per run·step"] = S.sig3(by[(key, "us_per_run_step")]["value"])
-        rows.append(row)
-    cells = pd.DataFrame(rows).set_index("filter")
+    cells = _headline_cells(res, metrics, df)
+    helps = {metric_name(m, data): metric_help(m, data) for m in metrics} | COLUMN_HELP
+    notes = []
     if compare_to is not None and compare_to in res.runs and metrics:
-        first = metrics[0]
-        c = M.compare(res, compare_to, [first])
-        ref_label = res.runs[compare_to].label
-        col = f"vs {ref_label}"
-        verdicts = {r["filter"]: verdict_cell(r, ref_label, short=True) for r in c.to_dict("records")}
-        # beside the metric it judges, so the verdict is on screen with it
-        cells.insert(1, col, ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs])
-        notes.append(
-            f"{col}: {metric_name(first, data)} paired over the same runs, Δ = filter − {ref_label} "
-            f"with its 95 % interval; better/worse when Holm-corrected p < 0.05 across the "
-            f"{len(res.runs) - 1} other filters, else indistinguishable at this run count; "
-            f"p < …: below the bootstrap's resolution (no resample on the other side of 0)"
-        )
-        notes.append(f"Lost runs: {M.LOSS_RULE}.")
-    winners: dict[str, str] = {}
-    if best and len(res.runs) > 1:
-        for m in metrics:
-            if M.direction(m) == 0:
-                continue
-            key, _ = best_filter(res, m)
-            if key is not None:
-                winners[metric_name(m, data)] = res.runs[key].label
+        col, help_, notes = _verdict_column(res, cells, compare_to, metrics[0])
+        helps[col] = help_
     notes += footnotes(res, sm, explanations, df)
-    notes += sorted(set(empty.values()))
+    have = set(zip(df["filter"], df["metric"], strict=True))
+    if any(m.startswith("rhat_err") and (k, m) not in have for k in res.runs for m in metrics):
+        notes.append("R̂ error: — for filters that do not estimate R")
     if floor and metrics and metrics[0].startswith("rmse_"):  # the PCRB of the first error column
         from navlab.pcrb import floor_text
 
         line = floor_text(res, metrics[0][len("rmse_") :], markdown=False)
         notes += [line] if line else []
-    helps = {metric_name(m, data): metric_help(m, data) for m in metrics}
-    helps.update(COLUMN_HELP)
-    if compare_to is not None and compare_to in res.runs and metrics:
-        helps[f"vs {res.runs[compare_to].label}"] = (
-            f"{metric_name(metrics[0], data)}: paired difference from the reference over the same "
-            "runs, with its 95 % interval and the Holm-corrected verdict"
-        )
+    winners = _winners(res, metrics) if best and len(res.runs) > 1 else {}
     return Table(cells, notes, {c: h for c, h in helps.items() if h and c in cells.columns}, winners)
+
+
+def _headline_cells(res: Results, metrics: list[str], df: pd.DataFrame) -> pd.DataFrame:
+    """One row per filter: each metric as "value [lo, hi]" ("—" where the filter has none), its
+    diverged runs and its run time.
+    """
+    data = res.data
+    by = {(r["filter"], r["metric"]): r for r in df.to_dict("records")}
+    rows = []
+    for key, fr in res.runs.items():
+        row = {"filter": fr.label}
+        for m in metrics:
+            r = by.get((key, m))
+            row[metric_name(m, data)] = "—" if r is None else cell(r["value"], r["ci_lo"], r["ci_hi"])
+        lost = by[(key, "diverged")]
+        row["diverged runs"] = f"{int(lost['value'])} of {data.B}" if lost["value"] else "0"
+        row["µs per run·step"] = S.sig3(by[(key, "us_per_run_step")]["value"])
+        rows.append(row)
+    return pd.DataFrame(rows).set_index("filter")
+
+
+def _verdict_column(
+    res: Results, cells: pd.DataFrame, compare_to: str, first: str
+) -> tuple[str, str, list[str]]:
+    """Inserts the paired verdict of every filter against ``compare_to`` on the metric ``first``
+    beside that metric's column; returns the column's name, its help and its notes.
+    """
+    data = res.data
+    ref_label = res.runs[compare_to].label
+    col = f"vs {ref_label}"
+    c = M.compare(res, compare_to, [first])
+    verdicts = {r["filter"]: verdict_cell(r, ref_label, short=True) for r in c.to_dict("records")}
+    # beside the metric it judges, so the verdict is on screen with it
+    cells.insert(1, col, ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs])
+    notes = [
+        f"{col}: {metric_name(first, data)} paired over the same runs, Δ = filter − {ref_label} "
+        f"with its 95 % interval; better/worse when Holm-corrected p < 0.05 across the "
+        f"{len(res.runs) - 1} other filters, else indistinguishable at this run count; "
+        f"p < …: below the bootstrap's resolution (no resample on the other side of 0)",
+        f"Lost runs: {M.LOSS_RULE}.",
+    ]
+    help_ = (
+        f"{metric_name(first, data)}: paired difference from the reference over the same "
+        "runs, with its 95 % interval and the Holm-corrected verdict"
+    )
+    return col, help_, notes
+
+
+def _winners(res: Results, metrics: list[str]) -> dict[str, str]:
+    """Column -> the filter the paired test says is better than every other candidate
+    (:func:`best_filter`), for the metrics with a direction; no entry where there is none.
+    """
+    winners = {}
+    for m in metrics:
+        key = best_filter(res, m)[0] if M.direction(m) != 0 else None
+        if key is not None:
+            winners[metric_name(m, res.data)] = res.runs[key].label
+    return winners
 
 
 def interval_note(runs: int) -> str:
