@@ -176,7 +176,8 @@ class VBEKF(Filter):
         u_pr = p.rho * (state.u - m - 1) + m + 1  # u⁻ = ρ (û − m − 1) + m + 1
         U_pr = p.rho * state.U  # U⁻ = ρ Û
         R_exp = U_pr / (u_pr - m - 1)  # the current E[R], for missing channels
-        prior = _Prior(x_pr, P_pr, p.tau_P * P_pr, H, nu, ok, U_pr, u_pr + 1.0, R_exp)  # T⁻ = τ_P P̃⁻
+        z0 = np.where(ok, z, 0.0)
+        prior = _Prior(x_pr, P_pr, p.tau_P * P_pr, H, z0, nu, ok, bool(ok.all()), U_pr, u_pr + 1.0, R_exp)
         it_ = _Iterate(x_pr, P_pr, U_pr, None, None, None, np.zeros(B, dtype=bool))  # x⁽⁰⁾, P⁽⁰⁾
         active = np.ones(B, dtype=bool)  # with tol > 0 a converged run stops iterating
         iters = np.zeros(B)
@@ -185,7 +186,10 @@ class VBEKF(Filter):
             new = _iteration(model, k, z, prior, it_, p)
             fixed_any |= new.fixed & active
             iters += active
-            done = _converged(new.x, it_.x, x_pr, p.tol) if p.tol > 0 else ~active
+            if p.tol == 0:  # every run iterates N times (the paper)
+                it_ = new
+                continue
+            done = _converged(new.x, it_.x, x_pr, p.tol)
             it_ = _keep(active, new, it_)
             active &= ~done
             if not active.any():
@@ -207,17 +211,19 @@ class VBEKF(Filter):
 
 
 class _Prior(NamedTuple):
-    """What every iteration of an epoch starts from: x⁻, P̃⁻, T⁻ = τ_P P̃⁻, H at x⁻, the prior
-    innovation z − h(x⁻) (0 where missing), the channels present, U⁻, u = u⁻ + 1 and E[R] before
-    the epoch (U⁻/(u⁻ − m − 1)).
+    """What every iteration of an epoch starts from: x⁻, P̃⁻, T⁻ = τ_P P̃⁻, H at x⁻, z and the prior
+    innovation z − h(x⁻) (0 where missing), the channels present (all of them?), U⁻, u = u⁻ + 1 and
+    E[R] before the epoch (U⁻/(u⁻ − m − 1)).
     """
 
     x: Array
     P: Array
     T: Array
     H: Array
+    z: Array
     nu: Array
     ok: Array
+    all_ok: bool
     U: Array
     u: float
     R_exp: Array
@@ -243,9 +249,11 @@ def _iteration(model: Model, k: int, z: Array, pr: _Prior, it: _Iterate, p: VBEK
         P_hat = (pr.T + it.P + dx[:, :, None] * dx[:, None, :]) / (p.tau_P + 1.0)
     else:
         P_hat = pr.P
-    r = np.where(pr.ok, z - model.h(it.x, k), 0.0)  # r = z − h(x⁽ⁱᵗ⁾) (0 where missing)
+    r = pr.z - model.h(it.x, k)  # r = z − h(x⁽ⁱᵗ⁾)
+    if not pr.all_ok:
+        r = np.where(pr.ok, r, 0.0)  # (0 where missing)
     B_R = r[:, :, None] * r[:, None, :] + pr.H @ it.P @ mT(pr.H)  # B_R = r rᵀ + H P⁽ⁱᵗ⁾ Hᵀ
-    if pr.ok.all():
+    if pr.all_ok:
         U = pr.U + B_R  # U = U⁻ + B_R
         R_hat = sym(U / (pr.u - m - 1))  # R̂ = U/(u − m − 1)
         nu, H, R = pr.nu, pr.H, R_hat
