@@ -307,9 +307,8 @@ class FadingMemory(KalmanUpdate):
         d = forgetting_weight(state.k + 1, self.params.b)
         if not self.params.adapt:
             return state.R, np.zeros(ok.shape, dtype=bool), d
-        R, clamped = SAGE_HUSA_RHAT(
-            (state.R, pr.mk.nu, pr.mk.M, ok), (*band(model, self.params), d, diagonal)
-        )
+        step = (state.R, pr.mk.nu, pr.mk.M, ok)
+        R, clamped = SAGE_HUSA_RHAT(step, (*band(model, self.params), d, diagonal))
         return R, clamped, d
 
     def next_state(self, model: Model, state: RState, k: int, z: Array, x: Array, P: Array, nz: Noise):

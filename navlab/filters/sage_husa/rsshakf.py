@@ -95,10 +95,7 @@ class RSSHAKF(FadingMemory):
         infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)  # 3  R_ii · |ν̃_i|/c_r (4: the KF update)
         upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok  # 5  on every channel (option: not O)
         R_hat, clamped, _ = self.sage_husa(model, state, pr, upd, diagonal=True)  # 5  diagonal R̂_k
+        flags = np.where(out_ch, DOWNWEIGHTED, np.where(clamped, R_HAT_AT_BAND, 0)).astype(np.int8)
         return Noise(
-            scale_diag(R, infl),
-            R_hat=R_hat,
-            weights=1.0 / infl,
-            flags=np.where(out_ch, DOWNWEIGHTED, np.where(clamped, R_HAT_AT_BAND, 0)).astype(np.int8),
-            stats={"nu_tilde": nt},
+            scale_diag(R, infl), R_hat=R_hat, weights=1.0 / infl, flags=flags, stats={"nu_tilde": nt}
         )
