@@ -118,8 +118,8 @@ class IRAKF(RAE):
     )
 
     def init(self, model: Model, x0: Array, P0: Array) -> RAEState:
-        st = super().init(model, x0, P0)  # the ungated SKF keeps a shared P if P0 is shared
-        return st._replace(skf=(st.x.copy(), np.array(P0, dtype=float)))
+        st = super().init(model, x0, P0)
+        return st._replace(skf=(st.x.copy(), np.array(P0, dtype=float)))  # the SKF's P: shared if P0 is
 
     def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
         st = super().predict(model, state, k)  # 2  x⁻ = F x⁺ ;  P⁻ = F P⁺ Fᵀ + Q
