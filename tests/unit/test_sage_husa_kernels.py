@@ -67,12 +67,12 @@ def test_rae_with_missing_channels_stays_psd_and_falls_back_to_r0():
     ok = np.array([[True, True], [True, False]])
     r0 = np.array([4.0, 9.0])
     band = (np.diag(r0), np.diag(np.sqrt(r0)), 1e-6, 1e6)
-    R = rae_rhat(eta, ok, np.zeros((2, 2)), r0, *band)[0]
+    R = rae_rhat(eta, ok, np.zeros((2, 2)), *band)[0]
     assert R[0, 0] == pytest.approx((1 + 9) / 2)
     assert R[1, 1] == pytest.approx(4.0)  # only one epoch with channel 1
     assert R[0, 1] == pytest.approx(2.0 / np.sqrt(2.0))  # D Σηηᵀ D, D = diag(1/√c_i): PSD
     assert np.linalg.eigvalsh(R).min() >= 0
-    R = rae_rhat(eta, np.zeros_like(ok), np.zeros((2, 2)), r0, *band)[0]
+    R = rae_rhat(eta, np.zeros_like(ok), np.zeros((2, 2)), *band)[0]
     np.testing.assert_allclose(R, np.diag(r0))  # a channel never present: R0_ii
 
 

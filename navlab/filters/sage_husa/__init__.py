@@ -14,10 +14,13 @@ per filter, each with its spec section's steps at the top and their numbers at t
 * :mod:`.rsshakf` ``rsshakf`` — simplified (R-only, diagonal) Sage–Husa + outlier variance
   inflation (§4.9, RECONSTRUCTION);
 
-and what they share in :mod:`.kernels` (the weight functions, the fading weight, the residual
-window, and the two R̂ steps written for one run: Sage–Husa's and RAE's, behind one eigenvalue
-guard). Each filter is a :class:`navlab.filters.kalman.KalmanUpdate` that overrides only its own
-steps: its noise/weight step (the R̂ and weights of its paper), and for RRAE the gain and the
+and what they share in :mod:`.kernels`: the weight functions, the fading weight, the residual
+window, the two R̂ steps written for one run (Sage–Husa's and RAE's, behind one eigenvalue
+guard), and two templates, each a :class:`navlab.filters.kalman.KalmanUpdate` in named steps:
+:class:`~.kernels.FadingMemory` (SHAKF, RAKF, RSSHAKF: the state carries R̂ and the update count
+of d_k; its Sage–Husa step) and :class:`~.kernels.RAE` (RRAE, IRAKF: the residual window, a
+second detector, the window R̂, then the filter's weights). Each filter overrides only its own
+steps: its noise/weight step (the weights of its paper), IRAKF its detector, RRAE the gain and the
 short-form posterior; the KF's innovation, gain and Joseph posterior are the rest.
 
 References
@@ -36,46 +39,20 @@ robust Kalman filter", IEEE Sensors J. 16(10), 2016 (not retrieved).
 
 # the registration order is the order the app lists the filters in (§4.1 … §4.9)
 # isort: off
-from navlab.filters.sage_husa.shakf import SageHusa, SageHusaParams, SHState
-from navlab.filters.sage_husa.irakf import IRAKF, IRAKFParams, IRAKFState
-from navlab.filters.sage_husa.rrae import RRAE, RAEState, RRAEParams
-from navlab.filters.sage_husa.rakf import RAKF, RAKFParams
-from navlab.filters.sage_husa.rsshakf import RSSHAKF, RSSHAKFParams
+from navlab.filters.sage_husa.shakf import SageHusa
+from navlab.filters.sage_husa.irakf import IRAKF
+from navlab.filters.sage_husa.rrae import RRAE
+from navlab.filters.sage_husa.rakf import RAKF
+from navlab.filters.sage_husa.rsshakf import RSSHAKF
 from navlab.filters.sage_husa.kernels import (
-    RState,
-    Window,
-    band,
     clamp_to_band,
     forgetting_weight,
     igg3_weights,
     irakf_weights,
     rae_rhat,
-    sage_husa_rhat,
 )
 
 # isort: on
 
-__all__ = [
-    "IRAKF",
-    "RAKF",
-    "RRAE",
-    "RSSHAKF",
-    "IRAKFParams",
-    "IRAKFState",
-    "RAEState",
-    "RAKFParams",
-    "RRAEParams",
-    "RSSHAKFParams",
-    "RState",
-    "SHState",
-    "SageHusa",
-    "SageHusaParams",
-    "Window",
-    "band",
-    "clamp_to_band",
-    "forgetting_weight",
-    "igg3_weights",
-    "irakf_weights",
-    "rae_rhat",
-    "sage_husa_rhat",
-]
+__all__ = ["IRAKF", "RAKF", "RRAE", "RSSHAKF", "SageHusa"]
+__all__ += ["clamp_to_band", "forgetting_weight", "igg3_weights", "irakf_weights", "rae_rhat"]

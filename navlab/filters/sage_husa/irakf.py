@@ -16,14 +16,12 @@ Per epoch, in §4.6's numbering::
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 from navlab.filters.base import REJECTED, REJECTED_AUX, KFLimit, Model, Teaching, band_param, register
-from navlab.filters.kalman import KalmanUpdate, Noise, measurement_prediction
-from navlab.filters.sage_husa.kernels import Window, irakf_weights, scale_diag
-from navlab.filters.sage_husa.rrae import RRAE
+from navlab.filters.kalman import Noise, measurement_prediction
+from navlab.filters.sage_husa.kernels import RAE, Detection, RAEState, equivalent_variance, irakf_weights
 from navlab.linalg import Array, Masked, diag, joseph_from_gain, kf_gain, mv, predict_cov, sym, zero_columns
 from navlab.params import param
 
@@ -74,17 +72,8 @@ class IRAKFParams:
     r_max: float = band_param("r_max")
 
 
-class IRAKFState(NamedTuple):
-    x: Array
-    P: Array
-    P_post: Array  # P⁺_{k−1}
-    win: Window
-    xs: Array  # parallel SKF
-    Ps: Array
-
-
 @register
-class IRAKF(RRAE):
+class IRAKF(RAE):
     """Improved robust adaptive KF (Ge, Zhang, Tang 2020; ALGORITHMS.md §4.6).
 
     Per epoch: (1) a parallel, ungated standard KF with the fixed R0 flags channels whose
@@ -96,15 +85,12 @@ class IRAKF(RRAE):
 
     key = "irakf"
     label = "IRAKF"
-    family = "robust-adaptive"
     paper = "Ge, Zhang, Tang 2020 (doi:10.19306/j.cnki.2095-8110.2020.01.007)"
     spec_section = "§4.2–4.6"
     summary = (
         "Windowed residual-based R̂, three-segment IGG/Huber weights that zero the gain of "
         "rejected channels, and a parallel standard KF as a second outlier detector."
     )
-    reconstruction = False  # unlike RRAE, whose update steps it shares: S1 itself is implemented
-    estimates_R = True
     Params = IRAKFParams
     kf_limit = KFLimit(
         {"window": 5000, "k0": 1e6, "k1": 1e6, "C": 1e6},
@@ -131,37 +117,35 @@ class IRAKF(RRAE):
         ),
     )
 
-    def init(self, model: Model, x0: Array, P0: Array) -> IRAKFState:
+    def init(self, model: Model, x0: Array, P0: Array) -> RAEState:
         st = super().init(model, x0, P0)
-        Ps = np.array(P0, dtype=float)  # the ungated SKF keeps a shared P if P0 is shared
-        return IRAKFState(*st, st.x.copy(), Ps)
+        return st._replace(skf=(st.x.copy(), np.array(P0, dtype=float)))  # the SKF's P: shared if P0 is
 
-    def predict(self, model: Model, state: IRAKFState, k: int) -> IRAKFState:
+    def predict(self, model: Model, state: RAEState, k: int) -> RAEState:
         st = super().predict(model, state, k)  # 2  x⁻ = F x⁺ ;  P⁻ = F P⁺ Fᵀ + Q
         if not self.params.dual_detection:
             return st
-        return st._replace(xs=model.f(state.xs, k), Ps=predict_cov(model.F(k), state.Ps, model.Q(k)))
+        xs, Ps = state.skf  # the parallel SKF's own prediction
+        return st._replace(skf=(model.f(xs, k), predict_cov(model.F(k), Ps, model.Q(k))))
 
-    def detect(self, model: Model, state: IRAKFState, k: int, z: Array) -> Detection:
-        """1  Parallel SKF (§4.5): detection flags from its own innovation, then its own update."""
-        p = self.params
-        B, m = z.shape
-        if not p.dual_detection:
-            return Detection(np.zeros((B, m), dtype=bool), np.zeros((B, m)), state.xs, state.Ps)
-        mk = measurement_prediction(model, state.xs, state.Ps, k, z, model.R0)
-        Ss = sym(mk.M + mk.R)  # S_S = H P_S⁻ Hᵀ + R0
-        nt_s = mk.nu / np.sqrt(diag(Ss))
-        flag_s = (np.abs(nt_s) > p.C) & mk.ok  # flag_S,i = |ν_S,i| > C √(S_S,ii)
-        K, _ = kf_gain(mk.U, Ss)  # the standard KF update; gated option: detections' columns zeroed
-        if p.skf_gated and flag_s.any():
-            K = zero_columns(K, flag_s)
-        return Detection(flag_s, nt_s, state.xs + mv(K, mk.nu), joseph_from_gain(state.Ps, K, mk.U, Ss))
-
-    def use_prior(self, det: Detection, B: int) -> Array:
-        """3  P⁻ in R̂ (eq. 4, "improved RAE") on the epochs the parallel SKF flags (or always/never)."""
-        if self.params.improved_rae == "conditional":
-            return det.flag.any(axis=1)
-        return np.full(B, self.params.improved_rae == "always")
+    def detect(self, model: Model, state: RAEState, k: int, z: Array) -> Detection:
+        """1  Parallel SKF (§4.5): detection flags from its own innovation, then its own update;
+        3  the runs whose R̂ takes P⁻ (eq. 4, "improved RAE"): those it flags (or always / never).
+        """
+        p, (xs, Ps) = self.params, state.skf
+        flag, nt = np.zeros(z.shape, dtype=bool), np.zeros(z.shape)
+        if p.dual_detection:
+            mk = measurement_prediction(model, xs, Ps, k, z, model.R0)
+            Ss = sym(mk.M + mk.R)  # S_S = H P_S⁻ Hᵀ + R0
+            nt = mk.nu / np.sqrt(diag(Ss))
+            flag = (np.abs(nt) > p.C) & mk.ok  # flag_S,i = |ν_S,i| > C √(S_S,ii)
+            K, _ = kf_gain(mk.U, Ss)  # the standard KF update; gated option: detections' columns zeroed
+            if p.skf_gated and flag.any():
+                K = zero_columns(K, flag)
+            xs, Ps = xs + mv(K, mk.nu), joseph_from_gain(Ps, K, mk.U, Ss)
+        rae = p.improved_rae
+        use_prior = flag.any(axis=1) if rae == "conditional" else np.full(z.shape[0], rae == "always")
+        return Detection(flag, use_prior, nt, (xs, Ps))
 
     def weigh(self, mk: Masked, R: Array, S: Array, nt: Array, sig: Array, det: Detection) -> Noise:
         """4–5  Three-segment weights (eq. 7) + the SKF's detections; K from the unmodified R̂."""
@@ -176,35 +160,9 @@ class IRAKF(RRAE):
             # option (not S1): the Huber weight as an equivalent variance, so that K and P agree
             # with the down-weighting (S1 shrinks ν only: P then shrinks as if ν were unweighted,
             # which locks out when P⁻ ≫ R̂, e.g. the first epochs of an INS)
-            R_used, nu = scale_diag(R, np.where(down, 1.0 / np.where(down, w, 1.0), 1.0)), mk.nu
+            R_used, nu = equivalent_variance(R, w, down), mk.nu
         flags = np.where(own_reject, REJECTED, np.where(aux, REJECTED_AUX, down)).astype(np.int8)
-        return Noise(
-            R_used,
-            weights=np.where(reject, 0.0, np.where(down, w, 1.0)),
-            flags=flags,
-            nu=nu,
-            S=S,
-            stats=self.stats(nt, det),
-            state={"xs": det.xs, "Ps": det.Ps},
-        )
-
-    # 4  K = P⁻ Hᵀ S⁻¹ with zeroed columns and 6  the Joseph-form P⁺: the KF's steps, not RRAE's
-    gain = KalmanUpdate.gain
-    posterior = KalmanUpdate.posterior
-
-    def stats(self, nt: Array, det: Detection) -> dict[str, Array]:
-        return {
-            "nu_tilde": nt,
-            "skf_nu_tilde": det.nu_tilde,
-            "skf_flag": det.flag.astype(float),
-            "improved_rae": self.use_prior(det, nt.shape[0]).astype(float),
-        }
-
-
-class Detection(NamedTuple):
-    """The parallel SKF's verdict (flag, ν̃ per channel) and its own updated mean and covariance."""
-
-    flag: Array
-    nu_tilde: Array
-    xs: Array
-    Ps: Array
+        weights = np.where(reject, 0.0, np.where(down, w, 1.0))
+        stats = {"nu_tilde": nt, "skf_nu_tilde": det.nu_tilde, "skf_flag": det.flag.astype(float)}
+        stats["improved_rae"] = det.use_prior.astype(float)
+        return Noise(R_used, weights=weights, flags=flags, nu=nu, S=S, stats=stats, state={"skf": det.skf})

@@ -16,17 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navlab.filters.base import KFLimit, Model, Teaching, band_param, register
-from navlab.filters.kalman import KalmanUpdate, Noise, Prior
-from navlab.filters.sage_husa.kernels import (
-    CLAMP_TO_BAND,
-    RState,
-    band,
-    forgetting_weight,
-    sage_husa_rhat,
-)
+from navlab.filters.base import R_HAT_AT_BAND, KFLimit, Model, Teaching, band_param, register
+from navlab.filters.kalman import Noise, Prior
+from navlab.filters.sage_husa.kernels import FadingMemory, RState
 from navlab.jit import Kernel, RunStep
-from navlab.linalg import CHOLESKY_LOWER, Array, batched, cholesky_lower
+from navlab.linalg import CHOLESKY_LOWER, Array, cholesky_lower, mask_missing
 from navlab.params import param
 
 
@@ -55,7 +49,7 @@ class RAKFParams:
 
 
 @register
-class RAKF(KalmanUpdate):
+class RAKF(FadingMemory):
     """Improved Sage–Husa KF of Bai et al. 2012 (RECONSTRUCTION, ALGORITHMS.md §4.8).
 
     Sage–Husa R̂; if νᵀν > γ_s·tr(H P⁻ Hᵀ + R̂) the prior covariance is inflated by
@@ -74,7 +68,6 @@ class RAKF(KalmanUpdate):
         "innovation is abnormally large, Huber clipping of the whitened innovation."
     )
     reconstruction = True
-    estimates_R = True
     Params = RAKFParams
     kf_limit = KFLimit(
         {"adapt": False, "gamma_s": 1e12, "c": 1e12},
@@ -98,48 +91,29 @@ class RAKF(KalmanUpdate):
         ),
     )
 
-    def init(self, model: Model, x0: Array, P0: Array) -> RState:
-        x0 = np.array(x0, dtype=float)
-        B = x0.shape[0]
-        P = batched(np.asarray(P0, dtype=float), B).copy()
-        return RState(x0, P, batched(np.asarray(model.R0, dtype=float), B).copy(), 0)
-
     def noise(self, model: Model, state: RState, pr: Prior, z: Array) -> Noise:
         """2–4  Sage–Husa R̂, P⁻ inflated on an abnormal epoch, the clipped innovation (5: KF update)."""
-        p, mk, kk = self.params, pr.mk, state.k + 1
-        step = (pr.P, mk.nu, mk.M, mk.ok, state.R)
-        R, Rm, lam, nu_c, w, flags = RAKF_STEP(
-            step, (*band(model, p), forgetting_weight(kk, p.b), p.adapt, p.gamma_s, p.c)
-        )
+        mk = pr.mk
+        R, clamped, _ = self.sage_husa(model, state, pr, mk.ok)  # 2  Sage–Husa R̂_k with its guard
+        Rm = mask_missing(z, mk.nu, R).R
+        lam, nu_c, w, flags = RAKF_STEP((pr.P, mk.nu, mk.M, mk.ok, Rm), (self.params.gamma_s, self.params.c))
+        flags[clamped & (flags == 0)] = R_HAT_AT_BAND  # R̂ held at its band where no other code stands
         if not np.all(lam == 1.0):  # 3  P⁻ ← λ_k P⁻ (and with it U = P⁻Hᵀ, M = H P⁻ Hᵀ)
             s = lam[:, None, None]
             pr = pr._replace(P=pr.P * s, mk=mk._replace(U=mk.U * s, M=mk.M * s))
-        stats = {"lambda": lam}
-        return Noise(
-            Rm, R_hat=R, weights=w, flags=flags, stats=stats, state={"R": R, "k": kk}, nu=nu_c, prior=pr
-        )
+        return Noise(Rm, R_hat=R, weights=w, flags=flags, stats={"lambda": lam}, nu=nu_c, prior=pr)
 
 
-def rakf_step(
-    P, nu, M, ok, R_prev, R0, L0, lo, hi, d, adapt, gamma_s, c
-):  # pragma: no cover - compiled by numba
-    """§4.8 steps 2–4 for ONE run: R̂_k, the inflation λ_k of P⁻ and the clipped innovation ν'.
+def rakf_step(P, nu, M, ok, R, gamma_s, c):  # pragma: no cover - compiled by numba
+    """§4.8 steps 3–4 for ONE run: the inflation λ_k of P⁻ and the clipped innovation ν'.
 
-    P = P⁻, nu = ν and M = H P⁻ Hᵀ with missing channels masked (ok False). Returns R̂_k, R̂_k
-    masked (unit variance on a missing channel), λ_k (NaN: a diverged run, every flag 9), ν', the
-    clip weights c/|e_i| and the flags (9 S repaired, 6 R̂ held at its band, 5 abnormal epoch,
-    1 clipped).
+    P = P⁻, nu = ν, M = H P⁻ Hᵀ and R = R̂_k with missing channels masked (ok False). Returns λ_k
+    (NaN: a diverged run, every flag 9), ν', the clip weights c/|e_i| and the flags (9 S repaired,
+    5 abnormal epoch, 1 clipped).
     """
     m = nu.shape[0]
-    R, clamped = R_prev.copy(), np.zeros(m, dtype=np.bool_)
-    if adapt:  # 2  Sage–Husa R̂_k with its guard
-        R, clamped = sage_husa_rhat(R_prev, nu, M, ok, R0, L0, lo, hi, d, False)
-    Rm = R.copy()  # R̂_k with a unit, uncorrelated variance on a missing channel
     nn, trM, trR = 0.0, 0.0, 0.0
     for i in range(m):
-        for j in range(m):
-            if not (ok[i] and ok[j]):
-                Rm[i, j] = 1.0 if i == j else 0.0
         nn += nu[i] * nu[i]  # νᵀν
         trM += M[i, i]  # tr H P⁻ Hᵀ
         trR += R[i, i] if ok[i] else 0.0  # tr R̂_k over the present channels
@@ -150,7 +124,7 @@ def rakf_step(
         lam = q if not q <= 1.0 else 1.0  # λ_k = max(1, (νᵀν − tr R̂_k)/tr(H P⁻ Hᵀ)), NaN kept
         if not lam < 1e300 / max(np.abs(P).max(), 1.0):  # λ P⁻ beyond the float range: diverged
             lam = np.nan
-    S = lam * M + Rm  # 4  S = H P⁻ Hᵀ + R̂_k = L_S L_Sᵀ
+    S = lam * M + R  # 4  S = H P⁻ Hᵀ + R̂_k = L_S L_Sᵀ
     S = 0.5 * (S + S.T)
     L, sfix = sqrt_factor(S)
     e = np.full(m, np.nan)  # a diverged run's e stays NaN
@@ -162,15 +136,13 @@ def rakf_step(
             flags[i] = 9
         elif abnormal and ok[i]:
             flags[i] = 5
-        elif clamped[i]:
-            flags[i] = 6  # R̂ held at its band: only where no other code stands
         if ok[i] and abs(e[i]) > c:  # ψ_c(e) = clip(e, −c, c)
             w[i] = c / abs(e[i])
             e[i] = c if e[i] > 0 else -c
             flags[i] = 1
     if lam != lam:
         flags[:] = 9
-    return R, Rm, lam, L @ e, w, flags  # ν' = L_S ψ_c(L_S⁻¹ ν)
+    return lam, L @ e, w, flags  # ν' = L_S ψ_c(L_S⁻¹ ν)
 
 
 def sqrt_factor(S):  # pragma: no cover - compiled by numba
@@ -187,9 +159,7 @@ def sqrt_factor(S):  # pragma: no cover - compiled by numba
     return V * np.sqrt(np.maximum(w, eps)), True
 
 
+SQRT_FACTOR = Kernel(sqrt_factor, uses=(CHOLESKY_LOWER,))
 RAKF_STEP = RunStep(
-    rakf_step,
-    n_runs=5,
-    outs=((4, float), (4, float), (None, float), (1, float), (1, float), (1, np.int8)),
-    uses=(Kernel(sage_husa_rhat, uses=(CLAMP_TO_BAND,)), Kernel(sqrt_factor, uses=(CHOLESKY_LOWER,))),
+    rakf_step, n_runs=5, outs=((None, float), (1, float), (1, float), (1, np.int8)), uses=(SQRT_FACTOR,)
 )

@@ -18,15 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from navlab.filters.base import DOWNWEIGHTED, R_HAT_AT_BAND, KFLimit, Model, Teaching, band_param, register
-from navlab.filters.kalman import KalmanUpdate, Noise, Prior
-from navlab.filters.sage_husa.kernels import (
-    SAGE_HUSA_RHAT,
-    RState,
-    band,
-    forgetting_weight,
-    scale_diag,
-)
-from navlab.linalg import Array, batched, diag, mask_missing
+from navlab.filters.kalman import Noise, Prior
+from navlab.filters.sage_husa.kernels import FadingMemory, RState, scale_diag
+from navlab.linalg import Array, diag, diag_embed, mask_missing
 from navlab.params import param
 
 
@@ -52,7 +46,7 @@ class RSSHAKFParams:
 
 
 @register
-class RSSHAKF(KalmanUpdate):
+class RSSHAKF(FadingMemory):
     """Robust simplified Sage–Husa KF (RECONSTRUCTION, ALGORITHMS.md §4.9).
 
     R-only, diagonal Sage–Husa; channels with |ν̃_i| > c_r (ν̃ from R̂_{k−1}) get their variance
@@ -69,7 +63,6 @@ class RSSHAKF(KalmanUpdate):
         "of channels whose normalised innovation exceeds c_r."
     )
     reconstruction = True
-    estimates_R = True
     Params = RSSHAKFParams
     kf_limit = KFLimit(
         {"adapt": False, "c_r": 1e12},
@@ -91,28 +84,18 @@ class RSSHAKF(KalmanUpdate):
     )
 
     def init(self, model: Model, x0: Array, P0: Array) -> RState:
-        x0 = np.array(x0, dtype=float)
-        B = x0.shape[0]
-        P = batched(np.asarray(P0, dtype=float), B).copy()
-        R = np.diag(np.diag(np.asarray(model.R0, dtype=float)))  # diagonal R̂ (§4.9)
-        return RState(x0, P, batched(R, B).copy(), 0)
+        st = super().init(model, x0, P0)
+        return st._replace(R=diag_embed(diag(st.R)))  # diagonal R̂ (§4.9)
 
     def noise(self, model: Model, state: RState, pr: Prior, z: Array) -> Noise:
-        p, mk, kk = self.params, pr.mk, state.k + 1
+        p, mk = self.params, pr.mk
         R = mask_missing(z, mk.nu, state.R).R
         nt = mk.nu / np.sqrt(diag(mk.M) + diag(R))  # 1  ν̃ with R̂_{k−1} (diag of H P⁻ Hᵀ + R̂)
         out_ch = (np.abs(nt) > p.c_r) & mk.ok  # 2  outlier channels
         infl = np.where(out_ch, np.abs(nt) / p.c_r, 1.0)  # 3  R_ii · |ν̃_i|/c_r (4: the KF update)
-        R_hat, clamped = state.R, np.zeros(z.shape, dtype=bool)
-        if p.adapt:  # 5  simplified Sage–Husa on the diagonal (every channel unless exclude_outliers)
-            upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok
-            step = (state.R, mk.nu, mk.M, upd)
-            R_hat, clamped = SAGE_HUSA_RHAT(step, (*band(model, p), forgetting_weight(kk, p.b), True))
+        upd = mk.ok & ~out_ch if p.exclude_outliers else mk.ok  # 5  on every channel (option: not O)
+        R_hat, clamped, _ = self.sage_husa(model, state, pr, upd, diagonal=True)  # 5  diagonal R̂_k
+        flags = np.where(out_ch, DOWNWEIGHTED, np.where(clamped, R_HAT_AT_BAND, 0)).astype(np.int8)
         return Noise(
-            scale_diag(R, infl),
-            R_hat=R_hat,
-            weights=1.0 / infl,
-            flags=np.where(out_ch, DOWNWEIGHTED, np.where(clamped, R_HAT_AT_BAND, 0)).astype(np.int8),
-            stats={"nu_tilde": nt},
-            state={"R": R_hat, "k": kk},
+            scale_diag(R, infl), R_hat=R_hat, weights=1.0 / infl, flags=flags, stats={"nu_tilde": nt}
         )

@@ -18,8 +18,8 @@ from typing import NamedTuple
 import numpy as np
 
 from navlab.filters.base import R_HAT_AT_BAND, KFLimit, Model, SideInfo, Teaching, band_param, register
-from navlab.filters.kalman import KalmanUpdate, Noise, Prior
-from navlab.filters.sage_husa.kernels import SAGE_HUSA_RHAT, band, forgetting_weight
+from navlab.filters.kalman import Noise, Prior
+from navlab.filters.sage_husa.kernels import FadingMemory, forgetting_weight
 from navlab.linalg import Array, batched, eigh_clamp, mask_missing, mT, predict_cov
 from navlab.params import param
 
@@ -54,7 +54,7 @@ class SHState(NamedTuple):
 
 
 @register
-class SageHusa(KalmanUpdate):
+class SageHusa(FadingMemory):
     """Classic Sage–Husa adaptive KF: fading-memory innovation-based R̂ (ALGORITHMS.md §4.1)."""
 
     key = "sage-husa"
@@ -66,7 +66,6 @@ class SageHusa(KalmanUpdate):
         "Estimates R recursively from the innovations with a forgetting factor b; no outlier "
         "protection (outliers inflate R̂)."
     )
-    estimates_R = True
     Params = SageHusaParams
     kf_limit = KFLimit({"adapt": False}, why="without adaptation R̂ stays R0")
     teaching = Teaching(
@@ -87,12 +86,10 @@ class SageHusa(KalmanUpdate):
     )
 
     def init(self, model: Model, x0: Array, P0: Array) -> SHState:
-        x0 = np.array(x0, dtype=float)
-        B, n = x0.shape
-        P = batched(np.asarray(P0, dtype=float), B).copy()
-        R = batched(np.asarray(model.R0, dtype=float), B).copy()
+        st = super().init(model, x0, P0)
+        B, n = st.x.shape
         Q = batched(np.asarray(model.Q(1), dtype=float), B).copy() if self.params.full else None
-        return SHState(x0, P, R, 0, np.zeros((B, model.m)), Q, np.zeros((B, n)), x0, P)
+        return SHState(*st, np.zeros((B, model.m)), Q, np.zeros((B, n)), st.x, st.P)
 
     def predict(self, model: Model, state: SHState, k: int) -> SHState:
         x = model.f(state.x, k)  # 1  x⁻ = F x⁺ (+ q̂)
@@ -107,17 +104,10 @@ class SageHusa(KalmanUpdate):
 
     def noise(self, model: Model, state: SHState, pr: Prior, z: Array) -> Noise:
         """3–4  R̂_k, its eigenvalues clamped (flag 6 where a variance moved); 5 is the KF update."""
-        mk, kk = pr.mk, state.k + 1
-        d = forgetting_weight(kk, self.params.b)  # d_k, k counted from 1 at the first update
-        R, clamped = state.R, np.zeros(z.shape, dtype=bool)
-        if self.params.adapt:
-            R, clamped = SAGE_HUSA_RHAT((state.R, mk.nu, mk.M, mk.ok), (*band(model, self.params), d, False))
+        R, clamped, d = self.sage_husa(model, state, pr, pr.mk.ok)  # 3  R̂_k, 4  its band
+        flags = np.where(clamped, R_HAT_AT_BAND, 0).astype(np.int8)
         return Noise(
-            mask_missing(z, mk.nu, R).R,
-            R_hat=R,
-            flags=np.where(clamped, R_HAT_AT_BAND, 0).astype(np.int8),
-            stats={"d_k": np.full(z.shape[0], d)},
-            state={"R": R, "k": kk},
+            mask_missing(z, pr.mk.nu, R).R, R_hat=R, flags=flags, stats={"d_k": np.full(z.shape[0], d)}
         )
 
     def next_state(
