@@ -1,16 +1,17 @@
 """Gaussian radial-basis-function network (ALGORITHMS.md §6.2; S2 eqs. 14–15).
 
 One network is trained on one run's admissible samples, in chronological order, one step of
-§6.2 a line (:func:`train_one`):
+§6.2 a line (:func:`train_one`): inputs and targets z-scored, then
 
-1. z-score inputs and targets;
-2. nearest-neighbour clustering for the centres (S2: 最近邻聚类), radius adjusted ×/÷ 1.25 until
-   J_min ≤ J ≤ J_max (:func:`cluster_adaptive`);
-3. one shared width s_w chosen on a grid s_w ∈ r·{0.25 … 4} by the RMSE on the last 20 %
+1. nearest-neighbour clustering for the centres (S2: 最近邻聚类), radius adjusted ×/÷ 1.25 until
+   J_min ≤ J ≤ J_max (:func:`cluster`, :func:`cluster_adaptive`);
+2. one shared width s_w chosen on a grid s_w ∈ r·{0.25 … 4} by the RMSE on the last 20 %
    (chronological) of the samples, with centres and weights from the first 80 % (navlab's
-   stand-in for S2's per-node widths tuned by a genetic algorithm, §10 item 24);
-4. output weights by ridge least squares with a bias column, on all samples (centres redone on all
-   samples); the hold-out RMSE of step 3 in physical units is kept as σ_NN.
+   stand-in for S2's per-node widths tuned by a genetic algorithm, §10 item 24;
+   :func:`width_search`);
+3. output weights by ridge least squares with a bias column, on all samples (centres redone on all
+   samples; :func:`fit_weights`);
+4. the hold-out RMSE of step 2 in physical units kept as σ_NN.
 
 :func:`train` trains the B networks of a Monte Carlo batch (one per run) one run at a time, so a
 run's network is the same bit for bit in any batch, and pads them into one :class:`RBFNet`
@@ -20,8 +21,8 @@ compiled (:mod:`navlab.jit`); the same Python is the fallback.
 
 from __future__ import annotations
 
+from collections import namedtuple
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
@@ -67,16 +68,11 @@ class RBFNet:
         if self.u_lo is not None:
             Us = np.clip(Us, self.u_lo[:, None, :], self.u_hi[:, None, :])
         d2 = sq_dist(Us, self.C)  # shared by the outputs' designs
-        if np.all(self.s_w == self.s_w[:, :1]):
-            Ys = mm(design(Us, self.C, self.s_w[:, 0], self.linear, d2), self.W)
-        else:
-            Ys = np.concatenate(
-                [
-                    mm(design(Us, self.C, self.s_w[:, j], self.linear, d2), self.W[..., j : j + 1])
-                    for j in range(self.W.shape[2])
-                ],
-                axis=-1,
-            )
+        p = self.W.shape[2]  # one design for all outputs if their widths are equal, else one each
+        outs = [slice(None)] if np.all(self.s_w == self.s_w[:, :1]) else [slice(j, j + 1) for j in range(p)]
+        Ys = np.concatenate(
+            [mm(design(Us, self.C, self.s_w[:, o][:, 0], self.linear, d2), self.W[..., o]) for o in outs], -1
+        )
         Y = Ys * self.sd_y[:, None, :] + self.mu_y[:, None, :]
         Y = np.where(self.trained[:, None, None], Y, np.nan)
         return Y[:, 0] if single else Y
@@ -178,21 +174,8 @@ def cluster_adaptive(U: Array, r: float, j_min: int, j_max: int, max_iter: int =
     return C[:J], r
 
 
-class Network(NamedTuple):
-    """One run's network (see :class:`RBFNet`; W (J+1[+d], p))."""
-
-    C: Array
-    s_w: Array
-    lin_on: Array
-    W: Array
-    mu_u: Array
-    sd_u: Array
-    mu_y: Array
-    sd_y: Array
-    sigma_nn: Array
-    train_rmse: Array
-    u_lo: Array
-    u_hi: Array
+# one run's network (the fields of RBFNet without the batch axis; W (J+1[+d], p))
+Network = namedtuple("Network", "C s_w lin_on W mu_u sd_u mu_y sd_y sigma_nn train_rmse u_lo u_hi")
 
 
 def zscore(X: Array) -> tuple[Array, Array, Array]:
@@ -245,7 +228,6 @@ def train_one(
     """
     Us, mu_u, sd_u = zscore(U)  # standardised units from here on
     Ys, mu_y, sd_y = zscore(Y)
-    r0 = 0.5 * np.sqrt(U.shape[1]) if r0 is None else float(r0)
     sigma_nn = np.full(Y.shape[1], np.nan)
     if s_w is None:
         n_fit = int(np.floor((1.0 - holdout) * len(U)))  # the first 80 % fit, the last 20 % score
@@ -297,33 +279,21 @@ def train(
     B, _, d = U.shape
     p = Y.shape[2]
     tail = bool(linear)
-    if s_w is not None:
+    r0 = 0.5 * np.sqrt(d) if r0 is None else float(r0)
+    search = s_w is None
+    if search:  # what a run without two admissible samples keeps
+        s_w, lin_on = np.full((B, p), r0), np.full((B, p), linear is True)
+    else:
         s_w = np.broadcast_to(np.asarray(s_w, dtype=float).reshape(B, -1), (B, p))
         lin_on = np.full((B, p), tail) if lin_on is None else np.asarray(lin_on, dtype=bool)
     opts = dict(j_min=j_min, j_max=j_max, r0=r0, lam=lam, holdout=holdout, width_grid=width_grid)
-    nets = []
-    for b in range(B):
-        sw_b = None if s_w is None else s_w[b]
-        lin_b = None if lin_on is None else lin_on[b]
-        if mask[b].sum() < 2:  # nothing to fit: no centres, zero weights
-            r = 0.5 * np.sqrt(d) if r0 is None else r0
-            nets.append(
-                _no_network(
-                    d, p, tail, r if sw_b is None else sw_b, linear is True if lin_b is None else lin_b
-                )
-            )
-        else:
-            nets.append(
-                train_one(
-                    U[b, mask[b]],
-                    Y[b, mask[b]],
-                    **opts,
-                    s_w=sw_b,
-                    lin_on=lin_b,
-                    linear=linear,
-                    per_output=per_output,
-                )
-            )
+    opts.update(linear=linear, per_output=per_output)
+    nets = [
+        train_one(U[b, m], Y[b, m], s_w=None if search else s_w[b], lin_on=lin_on[b], **opts)
+        if m.sum() >= 2
+        else _no_network(d, p, tail, s_w[b], lin_on[b])
+        for b, m in enumerate(mask)
+    ]
     J = np.array([len(net.C) for net in nets])
     C = np.zeros((B, j_max, d))
     W = np.zeros((B, j_max + (d if tail else 0) + 1, p))
@@ -335,32 +305,17 @@ def train(
     field.update(C=C, W=W, lin_on=field["lin_on"].astype(bool))
     if not clip:
         field.update(u_lo=None, u_hi=None)
-    n_ok = mask.sum(axis=1)
     return RBFNet(
         **field,
         cmask=np.arange(j_max)[None, :] < J[:, None],
-        trained=n_ok >= max(min_samples, 2),
+        trained=mask.sum(axis=1) >= max(min_samples, 2),
         n_centres=J,
         linear=tail,
     )
 
 
-def _no_network(d: int, p: int, tail: bool, s_w: Array | float, lin_on: Array | bool) -> Network:
-    """The network of a run without two admissible samples (never trained)."""
-    nan = np.full(p, np.nan)
-    s_w, lin_on = np.broadcast_to(s_w, (p,)), np.broadcast_to(lin_on, (p,))
-    W = np.zeros(((d if tail else 0) + 1, p))
-    return Network(
-        np.zeros((0, d)),
-        s_w,
-        lin_on,
-        W,
-        np.zeros(d),
-        np.ones(d),
-        np.zeros(p),
-        np.ones(p),
-        nan,
-        nan,
-        np.zeros(d),
-        np.zeros(d),
-    )
+def _no_network(d: int, p: int, tail: bool, s_w: Array, lin_on: Array) -> Network:
+    """The network of a run without two admissible samples: no centres, zero weights (untrained)."""
+    W, nan = np.zeros(((d if tail else 0) + 1, p)), np.full(p, np.nan)
+    u, y = (np.zeros(d), np.ones(d)), (np.zeros(p), np.ones(p))  # (μ, σ)
+    return Network(np.zeros((0, d)), s_w, lin_on, W, *u, *y, nan, nan, np.zeros(d), np.zeros(d))

@@ -264,7 +264,7 @@ def _plain_ridge(U, Y, C, s, lam, linear=False):
     return Phi, W
 
 
-ONE = dict(j_min=5, j_max=60, r0=None, holdout=0.2, per_output=False, s_w=None, lin_on=None)
+ONE = dict(j_min=5, j_max=60, r0=1.0, holdout=0.2, per_output=False, s_w=None, lin_on=None)
 
 
 @pytest.mark.parametrize("linear", [False, True])
@@ -292,7 +292,7 @@ def test_width_is_the_least_holdout_rmse_on_the_grid(per_output):
     net = train_one(U, Y, **{**ONE, "per_output": per_output}, lam=lam, width_grid=grid, linear=False)
     Us, Ys = zscore(U)[0], zscore(Y)[0]
     n_fit = int(0.8 * len(U))
-    C, r = cluster_adaptive(Us[:n_fit], 0.5 * np.sqrt(U.shape[1]), 5, 60)
+    C, r = cluster_adaptive(Us[:n_fit], 1.0, 5, 60)
     rmse = []
     for g in grid:
         _, W = _plain_ridge(Us[:n_fit], Ys[:n_fit], C, r * g, lam)
