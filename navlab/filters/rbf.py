@@ -193,11 +193,12 @@ def width_search(Us, Ys, C, r, grid, lin_opts, lam, per_output, n_fit) -> tuple[
     first candidate on ties).
     """
     p = Ys.shape[1]
+    d2f, d2v = sq_dist(Us[:n_fit], C), sq_dist(Us[n_fit:], C)  # the same for every candidate
     best, s_w, lin, rmse = np.full(p, np.inf), np.full(p, r), np.full(p, lin_opts[0]), np.full(p, np.nan)
     for lo in lin_opts:
         for g in grid:
-            W = ridge(design(Us[:n_fit], C, r * g, lo), Ys[:n_fit], lam)
-            e = np.sqrt(np.mean((mm(design(Us[n_fit:], C, r * g, lo), W) - Ys[n_fit:]) ** 2, axis=0))
+            W = ridge(design(Us[:n_fit], C, r * g, lo, d2f), Ys[:n_fit], lam)
+            e = np.sqrt(np.mean((mm(design(Us[n_fit:], C, r * g, lo, d2v), W) - Ys[n_fit:]) ** 2, axis=0))
             score = e if per_output else np.full(p, np.mean(e))
             better = np.where(np.isfinite(score), score, np.inf) < best
             best[better], s_w[better], lin[better], rmse[better] = score[better], r * g, lo, e[better]
@@ -210,9 +211,10 @@ def fit_weights(Us, Ys, C, s_w, lin, lam, tail) -> tuple[Array, Array]:
     """
     J, d = C.shape
     W, E = np.zeros((J + (d if tail else 0) + 1, Ys.shape[1])), np.empty_like(Ys)
+    d2 = sq_dist(Us, C)
     for s, lo in dict.fromkeys(zip(s_w, lin, strict=True)):
         out = (s_w == s) & (lin == lo)
-        Phi = design(Us, C, s, lo)
+        Phi = design(Us, C, s, lo, d2)
         Wo = ridge(Phi, Ys[:, out], lam)
         rows = np.r_[: J + (d if lo else 0), -1]  # kernels, [tail,] bias
         W[np.ix_(rows, out)] = Wo
