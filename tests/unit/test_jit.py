@@ -168,12 +168,12 @@ def test_warm_compiles_every_kernel():
         "strapdown.propagate_block",
         "scenarios.base.propagate",
         "earth rotation conversions",
-        "filter kernels (solve, quadratic form, Joseph, VB, Sage–Husa)",
+        "filter kernels (solve, quadratic form, Joseph, VB, Sage–Husa, RBF clustering)",
         "ins.lc model f, h, H",
     }
     # every kernel of the filters and the INS model is compiled (one signature each)
     from navlab import linalg
-    from navlab.filters import huber_vb
+    from navlab.filters import huber_vb, rbf
     from navlab.filters.sage_husa import kernels, rakf
     from navlab.ins import lc
 
@@ -188,6 +188,7 @@ def test_warm_compiles_every_kernel():
         rakf.RAKF_STEP,
         lc._F_RUNS,
         lc._HH_RUNS,
+        rbf.CLUSTER,
     ):
         assert len(k.get().signatures) == 1, k.fn.__name__  # a RunStep: its compiled loop
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from navlab.experiment import run_filters
 from navlab.filters.base import make_filter
-from navlab.filters.rbf import cluster, train
+from navlab.filters.rbf import CLUSTER, cluster, cluster_adaptive, train, train_one, zscore
 from navlab.noise import make_outliers, make_schedule
 from navlab.scenarios.base import make_scenario
 
@@ -53,12 +55,49 @@ def test_rbf_is_batched_per_run_independently():
 
 
 def test_clustering_respects_radius_and_capacity():
-    U = np.array([[[0.0, 0], [0.1, 0], [5.0, 0], [5.1, 0], [10.0, 0]]])
-    C, cm, over = cluster(U, np.ones((1, 5), bool), np.array([1.0]), 10)
-    assert cm.sum() == 3 and not over[0]
-    assert np.allclose(C[0, :3], [[0.05, 0], [5.05, 0], [10.0, 0]])
-    C, cm, over = cluster(U, np.ones((1, 5), bool), np.array([1.0]), 2)
-    assert cm.sum() == 2 and over[0]
+    U = np.array([[0.0, 0], [0.1, 0], [5.0, 0], [5.1, 0], [10.0, 0]])
+    C, J, over = cluster(U, 1.0, 10)
+    assert J == 3 and not over
+    assert np.allclose(C[:3], [[0.05, 0], [5.05, 0], [10.0, 0]])
+    C, J, over = cluster(U, 1.0, 2)
+    assert J == 2 and over
+
+
+def _literal_clustering(U, r, j_max):
+    """§6.2 step 1 as printed, in plain Python: lists of running sums and counts."""
+    sums, counts, overflow = [], [], False
+    for u in U.tolist():
+        dist = [math.dist(u, [s / n for s in S]) for S, n in zip(sums, counts, strict=True)]
+        j = dist.index(min(dist)) if dist else None
+        if j is None or dist[j] > r:
+            if len(sums) < j_max:
+                sums.append([0.0] * len(u))
+                counts.append(0)
+                j = len(sums) - 1
+            else:
+                overflow = True
+        sums[j] = [s + x for s, x in zip(sums[j], u, strict=True)]
+        counts[j] += 1
+    return np.array([[s / n for s in S] for S, n in zip(sums, counts, strict=True)]), overflow
+
+
+@pytest.mark.parametrize("r", [0.4, 0.9, 1.6])
+def test_clustering_equals_a_literal_loop(r):
+    """The clustering kernel (compiled where numba is, else the same Python) against a literal loop."""
+    U = np.random.default_rng(3).normal(size=(300, 4))
+    for run in {CLUSTER.get() or cluster, cluster}:
+        C, J, over = run(U, r, 60)
+        C_ref, over_ref = _literal_clustering(U, r, 60)
+        assert len(C_ref) == J and over == over_ref
+        np.testing.assert_allclose(C[:J], C_ref, rtol=1e-12, atol=1e-12)
+
+
+def test_adaptive_radius_brings_the_centre_count_into_range():
+    U = np.random.default_rng(4).normal(size=(400, 3))
+    for r0, lo, hi in ((0.05, 10, 40), (5.0, 10, 40), (2.0, 25, 50)):
+        C, r = cluster_adaptive(U, r0, lo, hi)
+        assert lo <= len(C) <= hi
+        assert np.array_equal(C, cluster(U, r, hi)[0][: len(C)])  # the clustering at the radius found
 
 
 def _cv_data(runs=3):
@@ -216,29 +255,51 @@ def test_a_runs_network_does_not_depend_on_the_other_runs_of_its_batch(linear):
             np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[lo:hi], err_msg=name)
 
 
-def test_width_search_equals_design_and_ridge_per_run_and_candidate():
-    """The width search (grouped by centre count, Gram matrices shared between the tail options)
-    gives the hold-out RMSE of the plain computation: for each run and candidate, the design on
-    the run's own fit rows, its ridge weights, their residuals on its hold-out rows.
-    """
-    from navlab.filters import rbf
+def _plain_ridge(U, Y, C, s, lam, linear=False):
+    """Independent ridge fit: Gaussian kernels from the definition, lstsq on [Φ; √λ I] W = [Y; 0]."""
+    K = np.exp(-np.sum((U[:, None, :] - C[None]) ** 2, axis=-1) / (2 * s**2))
+    Phi = np.hstack([K, *([U] if linear else []), np.ones((len(U), 1))])
+    A = np.vstack([Phi, np.sqrt(lam) * np.eye(Phi.shape[1])])
+    W = np.linalg.lstsq(A, np.vstack([Y, np.zeros((Phi.shape[1], Y.shape[1]))]), rcond=None)[0]
+    return Phi, W
 
-    U, Y, mask = _training_batch(B=4)
-    rank = np.cumsum(mask, axis=1) - 1
-    n = mask.sum(axis=1)
-    fit = mask & (rank < np.floor(0.8 * n)[:, None])
-    val = mask & ~fit
-    C, cm, r = rbf.cluster_adaptive(U, fit, np.full(4, 1.0), 5, 60)
-    grid, opts, lam = (0.5, 1.0, 2.0), (False, True), 1e-6
-    sizes = rbf.split_sizes(U.shape[1], 0.2)
-    scores, _ = rbf.width_search(U, Y, fit, val, C, cm, r, grid, opts, True, lam, sizes)
-    keys = [(lo, g) for lo in opts for g in grid]
-    for b in range(4):
-        Cb = C[b : b + 1, cm[b]]
-        for c, (lo, g) in enumerate(keys):
-            s = np.array([r[b] * g])
-            one = np.ones(Cb.shape[:2], bool)
-            Phi = rbf.design(U[b : b + 1, fit[b]], Cb, one, s, linear=lo)
-            W = np.linalg.solve(Phi[0].T @ Phi[0] + lam * np.eye(Phi.shape[2]), Phi[0].T @ Y[b, fit[b]])
-            E = rbf.design(U[b : b + 1, val[b]], Cb, one, s, linear=lo)[0] @ W - Y[b, val[b]]
-            np.testing.assert_allclose(scores[c][b], np.sqrt(np.mean(E**2, axis=0)), rtol=1e-7)
+
+ONE = dict(j_min=5, j_max=60, r0=1.0, holdout=0.2, per_output=False, s_w=None, lin_on=None)
+
+
+@pytest.mark.parametrize("linear", [False, True])
+def test_one_network_weights_are_the_ridge_solution(linear):
+    """train_one's output weights (on all samples, with its centres and width) equal an
+    independent least-squares solution of the ridge problem."""
+    U, Y, mask = _training_batch(B=1)
+    U, Y = U[0, mask[0]], Y[0, mask[0]]
+    lam = 1e-3  # well conditioned: normal equations and lstsq agree to many digits
+    net = train_one(U, Y, **ONE, lam=lam, width_grid=(0.5, 1.0, 2.0), linear=linear)
+    Us, Ys = zscore(U)[0], zscore(Y)[0]
+    Phi, W = _plain_ridge(Us, Ys, net.C, net.s_w[0], lam, linear)
+    np.testing.assert_allclose(net.W, W, rtol=1e-7, atol=1e-9 * np.abs(W).max())
+    np.testing.assert_allclose(net.train_rmse, np.sqrt(np.mean((Phi @ W - Ys) ** 2, 0)) * np.std(Y, 0))
+
+
+@pytest.mark.parametrize("per_output", [False, True])
+def test_width_is_the_least_holdout_rmse_on_the_grid(per_output):
+    """The width chosen is the grid point whose ridge fit on the first 80 % (centres from those
+    samples) has the least RMSE on the last 20 % (mean over outputs unless per output); σ_NN is
+    that RMSE in physical units."""
+    U, Y, mask = _training_batch(B=1, seed=8)
+    U, Y = U[0, mask[0]], Y[0, mask[0]]
+    grid, lam = (0.35, 0.7, 1.4, 2.8), 1e-3
+    net = train_one(U, Y, **{**ONE, "per_output": per_output}, lam=lam, width_grid=grid, linear=False)
+    Us, Ys = zscore(U)[0], zscore(Y)[0]
+    n_fit = int(0.8 * len(U))
+    C, r = cluster_adaptive(Us[:n_fit], 1.0, 5, 60)
+    rmse = []
+    for g in grid:
+        _, W = _plain_ridge(Us[:n_fit], Ys[:n_fit], C, r * g, lam)
+        Phi_v, _ = _plain_ridge(Us[n_fit:], Ys[n_fit:], C, r * g, lam)
+        rmse.append(np.sqrt(np.mean((Phi_v @ W - Ys[n_fit:]) ** 2, axis=0)))
+    rmse = np.array(rmse)  # (grid, p)
+    best = np.argmin(rmse if per_output else np.repeat(rmse.mean(1, keepdims=True), Y.shape[1], 1), 0)
+    assert len(set(best)) > 1 or not per_output  # the case does choose different widths per output
+    np.testing.assert_array_equal(net.s_w, r * np.array(grid)[best])
+    np.testing.assert_allclose(net.sigma_nn, rmse[best, np.arange(Y.shape[1])] * np.std(Y, 0), rtol=1e-7)
