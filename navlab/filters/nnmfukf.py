@@ -379,22 +379,7 @@ class NNMFUKFGuarded(NNMFUKF):
 
 
 def _merge(a: RBFNet, b: RBFNet, take_b: Array) -> RBFNet:
-    """Per-run choice between two networks of possibly different centre counts."""
-    J = max(a.C.shape[1], b.C.shape[1])
-
-    def pad(net: RBFNet) -> RBFNet:
-        extra = J - net.C.shape[1]
-        if extra == 0:
-            return net
-        B, _, d = net.C.shape
-        p = net.W.shape[2]
-        C = np.concatenate([net.C, np.zeros((B, extra, d))], axis=1)
-        cm = np.concatenate([net.cmask, np.zeros((B, extra), bool)], axis=1)
-        J0 = net.C.shape[1]
-        W = np.concatenate([net.W[:, :J0], np.zeros((B, extra, p)), net.W[:, J0:]], axis=1)
-        return RBFNet(**{**net.__dict__, "C": C, "cmask": cm, "W": W})
-
-    a, b = pad(a), pad(b)
+    """Per-run choice between two networks (both padded to the same J_max by :func:`train`)."""
     out = {}
     for name, va in a.__dict__.items():
         vb = b.__dict__[name]
