@@ -43,7 +43,7 @@ from navlab.filters.base import (
     register,
 )
 from navlab.filters.rbf import RBFNet, train
-from navlab.filters.ukf import CHI2_TEST, MFUKFParams, UKFState, _FadingBase
+from navlab.filters.ukf import CHI2_TEST, Measured, MFUKFParams, UKFState, _FadingBase
 from navlab.linalg import Array
 from navlab.params import param
 
@@ -63,6 +63,20 @@ class NNState(NamedTuple):
     buf_ok: tuple[Array, ...] | None  # admissible (B,)
     net: RBFNet | None
     run_len: Array  # (B,) consecutive replaced epochs
+
+
+class Replaced(NamedTuple):
+    """What §6's network step hands to the fading update: the state (buffers, network), the
+    residual V and noise R (replaced channels: V', R'), the test's verdict, the replaced channels
+    (B, m) and the GPS value g_k kept for the next epoch (raw or predicted; None: no network).
+    """
+
+    state: Any
+    V: Array
+    R: Array
+    reject: Array
+    mask: Array
+    g: Array | None
 
 
 @dataclass(frozen=True)
@@ -253,82 +267,95 @@ class NNMFUKF(_FadingBase):
     def update(self, model: Model, state: NNState, k: int, z: Array, side: SideInfo):
         p = self.params
         ms = self._measure(model, state, k, z)  # 1  ẑ⁻, V, A, Pxy, γ against ξε
-        V, R, reject = ms.V, ms.R, ms.reject
-        B, m = z.shape
-        replaced = np.zeros(B, dtype=bool)
-        rep_mask = np.zeros((B, m), dtype=bool)
-        st = state
-        g_raw = None
+        rp = Replaced(state, ms.V, ms.R, ms.reject, np.zeros(z.shape, dtype=bool), None)  # no network
         if p.use_network:
             ref = self._reference(model, k, z)
-            g_raw = ref - z  # raw GPS values (NaN where missing)
-            # training pair (u_k, g_k − g_{k−1}), admissible if k−1 and k both passed (§6.1)
-            collecting = k >= p.train_start and (k <= p.train_end or p.mode == "online")
-            # the network's input is needed only to collect a pair or to replace an observation
-            u = None
-            if collecting or (state.net is not None and reject.any()):
-                u = self._features(model, state.x_prev, k)
-            if collecting:
-                y = g_raw - state.g_prev
-                adm = ~reject & state.pass_prev & np.all(np.isfinite(y), -1) & np.all(np.isfinite(u), -1)
-                st = self._store(st, u, y, adm)
-                if k == p.train_end:
-                    st = self._train(st, refit=False)
-                elif p.mode == "online" and k > p.train_end and (k - p.train_end) % p.retrain_every == 0:
-                    st = self._train(st, refit=True)
-            use = reject & st.net.trained if st.net is not None else reject & False
-            if p.max_run > 0:
-                use &= state.run_len < p.max_run
-            if use.any():
-                # 3  replacement of the observation (§6.3); the prediction is only used where `use`
-                if u is None:
-                    u = self._features(model, state.x_prev, k)
-                g_hat = state.g_prev + st.net.predict(u)
-                z_rep = ref - g_hat
-                rep = use[:, None] & ms.ok & np.isfinite(z_rep)
-                if p.replace == "flagged":
-                    Pyy_d = np.diagonal(ms.A, axis1=-2, axis2=-1) + np.diagonal(R, axis1=-2, axis2=-1)
-                    rep &= np.abs(V) > p.c_replace * np.sqrt(Pyy_d)
-                if rep.any():
-                    r_d = np.diagonal(R, axis1=-2, axis2=-1)
-                    r_new = np.where(rep, np.maximum(r_d, st.net.sigma_nn**2), r_d)
-                    R = R + (r_new - r_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
-                    V = np.where(ms.ok, np.where(rep, z_rep, z) - ms.z_hat, 0.0)  # V' = z' − ẑ⁻
-                    replaced = rep.any(axis=1)
-                    if p.retest_after_replace:  # option: no fading where the replaced V' passes
-                        i = np.flatnonzero(replaced)
-                        _, _, rej2 = CHI2_TEST((V[i], ms.A[i], R[i], ms.ok[i]), self._test(m))
-                        reject = reject.copy()
-                        reject[i] &= rej2
-                    g_raw = np.where(rep, g_hat, g_raw)
-                rep_mask = rep
-        x, P, Pyy, fixed, sig = self._fade(model, state, k, ms, V, R, reject)  # 2–3  σ_i, the update
+            st, u = self._learn(model, state, k, ref - z, ms.reject)  # §6.1 pairs, training
+            rp = self._replace(model, st, u, k, z, ref, ms)  # 3  (§6.3) z' from the network
+        x, P, Pyy, fixed, sig = self._fade(model, state, k, ms, rp.V, rp.R, rp.reject)  # 2–3  σ_i, update
         flags = np.zeros(z.shape, dtype=np.int8)
-        flags[reject[:, None] & ms.ok] = EPOCH_ANOMALY
-        flags[rep_mask & ms.ok] = REPLACED
+        flags[rp.reject[:, None] & ms.ok] = EPOCH_ANOMALY
+        flags[rp.mask & ms.ok] = REPLACED
         flag_fix(flags, fixed | ms.neg)
-        trained = st.net.trained if st.net is not None else np.zeros(B, dtype=bool)
+        net = rp.state.net
+        trained = net.trained if net is not None else np.zeros(z.shape[0], dtype=bool)
+        replaced = rp.mask.any(axis=1)
         run_len = np.where(replaced, state.run_len + 1, 0)
         stats = {
             "gamma": ms.gamma,
             "gamma_threshold": ms.threshold,
             "fading": sig,
-            "rejected": reject.astype(float),
+            "rejected": rp.reject.astype(float),
             "replaced": replaced.astype(float),
             "run_len": run_len.astype(float),
             "nn_trained": trained.astype(float),
         }
-        out = StepOut(x=x, P=P, innov=V, S=Pyy, R_used=R, flags=flags, stats=stats)
-        new = st._replace(
-            x=x,
-            P=P,
-            chi=None,
-            neg=None,
-            g_prev=g_raw if g_raw is not None else state.g_prev,
-            pass_prev=~reject,
-            run_len=run_len,
+        out = StepOut(x=x, P=P, innov=rp.V, S=Pyy, R_used=rp.R, flags=flags, stats=stats)
+        g_prev = rp.g if rp.g is not None else state.g_prev
+        new = rp.state._replace(
+            x=x, P=P, chi=None, neg=None, g_prev=g_prev, pass_prev=~rp.reject, run_len=run_len
         )
         return new, out
+
+    def _learn(
+        self, model: Model, state: NNState, k: int, g: Array, reject: Array
+    ) -> tuple[NNState, Array | None]:
+        """§6.1: the training pair (u_k, g_k − g_{k−1}) of every run, admissible if epochs k−1 and k
+        both passed the test, into the buffers; the network trained at ``train_end`` (and, online,
+        refitted every ``retrain_every`` epochs). Returns the state and the input u_k (None where
+        no step needs it).
+        """
+        p = self.params
+        collecting = k >= p.train_start and (k <= p.train_end or p.mode == "online")
+        if not (collecting or (state.net is not None and reject.any())):
+            return state, None  # the network's input is needed only to collect or to replace
+        u = self._features(model, state.x_prev, k)
+        if not collecting:
+            return state, u
+        y = g - state.g_prev
+        adm = ~reject & state.pass_prev & np.all(np.isfinite(y), -1) & np.all(np.isfinite(u), -1)
+        st = self._store(state, u, y, adm)
+        if k == p.train_end:
+            st = self._train(st, refit=False)
+        elif p.mode == "online" and k > p.train_end and (k - p.train_end) % p.retrain_every == 0:
+            st = self._train(st, refit=True)
+        return st, u
+
+    def _replace(
+        self, model: Model, st: NNState, u: Array | None, k: int, z: Array, ref: Array, ms: Measured
+    ) -> Replaced:
+        """3  (§6.3) On a rejected epoch of a run with a trained network, the observation replaced by
+        the network's: ĝ_k = g_{k−1} + NN(u_k), z' = ref − ĝ_k, R'_ii = max(R_ii, σ²_NN,i),
+        V' = z' − ẑ⁻ (``replace="flagged"``: only the channels with |V_i|/√Pyy_ii > c_replace).
+        """
+        p, (B, m) = self.params, z.shape
+        g = ref - z  # raw GPS values (NaN where missing)
+        none = Replaced(st, ms.V, ms.R, ms.reject, np.zeros((B, m), dtype=bool), g)
+        use = ms.reject & st.net.trained if st.net is not None else ms.reject & False
+        if p.max_run > 0:
+            use &= st.run_len < p.max_run
+        if not use.any():
+            return none
+        if u is None:
+            u = self._features(model, st.x_prev, k)
+        g_hat = st.g_prev + st.net.predict(u)
+        z_rep = ref - g_hat
+        rep = use[:, None] & ms.ok & np.isfinite(z_rep)
+        R_d = np.diagonal(ms.R, axis1=-2, axis2=-1)
+        if p.replace == "flagged":
+            rep &= np.abs(ms.V) > p.c_replace * np.sqrt(np.diagonal(ms.A, axis1=-2, axis2=-1) + R_d)
+        if not rep.any():
+            return none._replace(mask=rep)
+        r_new = np.where(rep, np.maximum(R_d, st.net.sigma_nn**2), R_d)
+        R = ms.R + (r_new - R_d)[:, :, None] * np.eye(m)  # R'_ii = max(R_ii, σ²_NN,i)
+        V = np.where(ms.ok, np.where(rep, z_rep, z) - ms.z_hat, 0.0)  # V' = z' − ẑ⁻
+        reject = ms.reject
+        if p.retest_after_replace:  # option: no fading where the replaced V' passes
+            i = np.flatnonzero(rep.any(axis=1))
+            _, _, rej2 = CHI2_TEST((V[i], ms.A[i], R[i], ms.ok[i]), self._test(m))
+            reject = reject.copy()
+            reject[i] &= rej2
+        return Replaced(st, V, R, reject, rep, np.where(rep, g_hat, g))
 
 
 @dataclass(frozen=True)
