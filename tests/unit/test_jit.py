@@ -168,7 +168,7 @@ def test_warm_compiles_every_kernel():
         "strapdown.propagate_block",
         "scenarios.base.propagate",
         "earth rotation conversions",
-        "filter kernels (solve, quadratic form, Joseph, VB, Sage–Husa, RBF clustering)",
+        "filter kernels (solve, quadratic form, Joseph, VB, Sage–Husa, UKF steps, RBF clustering)",
         "ins.lc model f, h, H",
     }
     # every kernel of the filters and the INS model is compiled (one signature each)
