@@ -1,14 +1,35 @@
-"""Shared by every test directory: each test process has a results store of its own.
+"""Shared by every test directory: each test process has a results store of its own, and the
+longest test modules come first.
 
 ``NAVLAB_STORE`` points at a fresh folder under the process's pytest temp dir for the whole
 session, so no test reads a result another run (or the developer's own store) left, and under
 pytest-xdist each worker (and the streamlit servers and CLI subprocesses it starts, which inherit
 the environment) writes to its own folder. Tests that need their own store still set one.
+
+The test command's ``-n 2 --dist loadscope --no-loadscope-reorder`` hands whole modules to the two
+workers in collection order, so the modules are collected longest first: the browser modules
+(tests/e2e), then the modules with a test marked ``slow``, then the rest, each group by number of
+tests (xdist's own order, which alone handed out the browser modules, a few tests of a minute
+each, last: a long module handed out last keeps one worker busy while the other has nothing left).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+
+
+@pytest.hookimpl(trylast=True)  # after tests/e2e and tests/contract have marked their tests
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank: dict[Path, int] = {}
+    count: dict[Path, int] = {}
+    for item in items:
+        r = 0 if item.get_closest_marker("e2e") else 1 if item.get_closest_marker("slow") else 2
+        rank[item.path] = min(r, rank.get(item.path, r))
+        count[item.path] = count.get(item.path, 0) + 1
+    # stable: pytest's order within a module
+    items.sort(key=lambda item: (rank[item.path], -count[item.path]))
 
 
 @pytest.fixture(scope="session", autouse=True)
