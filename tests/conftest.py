@@ -1,5 +1,5 @@
-"""Shared by every test directory: each test process has a results store of its own, and the
-longest test modules come first.
+"""Shared by every test directory: each test process has a results store of its own, and the test
+modules are collected in the order that keeps both xdist workers busy to the end.
 
 ``NAVLAB_STORE`` points at a fresh folder under the process's pytest temp dir for the whole
 session, so no test reads a result another run (or the developer's own store) left, and under
