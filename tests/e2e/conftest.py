@@ -22,6 +22,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import socket
 import subprocess
@@ -124,11 +125,23 @@ def artifacts_dir() -> Path:
     return ARTIFACTS_DIR
 
 
+@functools.cache
+def _warm_kernels() -> None:
+    """Compile (or load from numba's disk cache) navlab's kernels once per test process, before a
+    server starts: on a fresh checkout a server compiling them in front of the browser took a Learn
+    page past its 90 s wait (the Docker image compiles them at build time, as this does).
+    """
+    from navlab.warmup import warm
+
+    warm()
+
+
 @contextlib.contextmanager
 def serve(log: Path) -> Iterator[str]:
     """Start ``streamlit run app.py`` on a free loopback port; yield its URL; stop it."""
     if not (ROOT / "app.py").exists():
         pytest.fail(f"{ROOT / 'app.py'} not found: nothing to serve")
+    _warm_kernels()
     port = _free_port()
     url = f"http://127.0.0.1:{port}"
     cmd = [
