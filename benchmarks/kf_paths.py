@@ -1,0 +1,252 @@
+"""The KF family's batched numpy update against the compiled one-run KF step (issue 23).
+
+Issue 23: a batched numpy path stays only where a benchmark a user waits for shows it ≥ 1.5×
+faster than the one-run textbook step compiled and looped over the runs. The KF family's predict
+(``Filter.predict``: F P Fᵀ + Q on a P kept unbatched while it is shared by the runs) and
+measurement update (``KalmanUpdate.update``: U = P Hᵀ by indexing, the closed-form S⁻¹ for m ≤ 3,
+the Joseph form from U and S) are such a batched path. This script writes the KF's predict and
+update for ONE run (:func:`kf_predict_one`, :func:`kf_update_one`, one equation a line), loops
+them over the runs with :class:`navlab.jit.RunStep`, swaps them into the filters
+(:func:`compiled_kf`: the predict, and steps 3–6 of the update; a robust or adaptive filter keeps
+its own ``innovation`` and ``noise`` steps) and times both paths on the same simulated batch,
+round after round in alternating order, in one process (CPU time, BLAS on one thread).
+
+    python benchmarks/kf_paths.py [--rounds 5] [--case NAME,...]
+
+Prints, per case and filter, the CPU µs per run-step of the batched path and of the compiled
+one-run step (best round), and the speed-up compiled/batched (best-round ratio and median of the
+paired per-round ratios): ≥ 1.5 means the batched path earns its place. Not a test: read the
+figures. tests/unit/test_kf_paths.py checks that the compiled step computes what the batched path
+does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import os
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy
+    os.environ.setdefault(_var, "1")
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, no install
+
+import numpy as np  # noqa: E402
+
+from navlab.filters.base import Filter, StepOut, flag_fix  # noqa: E402
+from navlab.filters.kalman import KalmanUpdate  # noqa: E402
+from navlab.jit import Kernel, RunStep  # noqa: E402
+from navlab.linalg import CHOLESKY_LOWER, CHOLESKY_SOLVE, batched, bcast, cholesky_lower, cholesky_solve  # noqa: E402
+
+# name: (scenario, runs, epochs, filters, P0 per run)
+CASES = {
+    "cv2d-100": ("cv2d", 100, 100, ("kf", "huber-kf", "vb-akf", "hakf"), False),
+    "cv2d-10000": ("cv2d", 10_000, 20, ("kf",), False),
+    "sins-gps-50": ("sins-gps", 50, 150, ("kf", "huber-kf", "vb-akf", "hakf"), False),
+    "sins-gps-250": ("sins-gps", 250, 150, ("kf", "huber-kf", "vb-akf", "hakf"), False),
+    "sins-gps-50-P0": ("sins-gps", 50, 150, ("kf",), True),
+    "sins-gps-250-P0": ("sins-gps", 250, 150, ("kf",), True),
+}
+
+
+# ------------------------------------------------------------------------------ the one-run steps
+def mm(A, B):  # pragma: no cover - compiled by numba
+    """The product A B of two small matrices by plain loops (numba's ``@`` calls BLAS: for the
+    KF's 2×2 … 15×15 matrices its call costs more than the arithmetic).
+    """
+    C = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for c in range(A.shape[1]):
+            a = A[i, c]
+            for j in range(B.shape[1]):
+                C[i, j] += a * B[c, j]
+    return C
+
+
+def mv(A, x):  # pragma: no cover - compiled by numba
+    """The product A x of a small matrix and a vector by plain loops."""
+    y = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        for c in range(A.shape[1]):
+            y[i] += A[i, c] * x[c]
+    return y
+
+
+MM, MV = Kernel(mm), Kernel(mv)
+
+
+def kf_predict_one(x, P, F, Q):  # pragma: no cover - compiled by numba
+    """§1.1 steps 1–2 for ONE run: x⁻ = F x⁺, P⁻ = F P⁺ Fᵀ + Q (symmetrised)."""
+    x = mv(F, x)  # 1  x⁻ = F x⁺
+    P = mm(mm(F, P), F.T) + Q  # 2  P⁻ = F P⁺ Fᵀ + Q
+    return x, 0.5 * (P + P.T)  # symmetrised (§0.2 rule 1)
+
+
+def kf_update_one(x, P, nu, w, R, H):  # pragma: no cover - compiled by numba
+    """§1.1 steps 3–6 for ONE run, from ν = z − h(x⁻) (NaN: channel missing) and weights w.
+
+    A missing channel gets a zero row of H, ν_i = 0 and a unit, uncorrelated R_ii (as
+    :func:`navlab.linalg.mask_missing`): its gain column is zero. A weight 0 rejects a channel
+    (zero gain column). Returns x⁺, P⁺, the masked ν, S, the masked R and whether S needed jitter.
+    """
+    n, m = P.shape[0], nu.shape[0]
+    ok = np.isfinite(nu)
+    o = np.where(ok, 1.0, 0.0)
+    Hm = H * o.reshape((m, 1))  # a missing channel: a zero row of H,
+    v = np.where(ok, nu, 0.0)  # ν_i = 0
+    Rm = R * np.outer(o, o) + np.diag(1.0 - o)  # and a unit, uncorrelated R_ii
+    S = mm(mm(Hm, P), Hm.T) + Rm  # 3  S = H P⁻ Hᵀ + R
+    S = 0.5 * (S + S.T)
+    L = np.empty((m, m))
+    fixed = not cholesky_lower(S, L)  # S = L Lᵀ
+    if fixed:  # §0.2 rule 3: jitter 1e-12·trace(S)/m·I (flag 9)
+        cholesky_lower(S + max(1e-12 * np.trace(S) / m, 1e-300) * np.eye(m), L)
+    Kt = mm(Hm, P)  # 4  K = P⁻ Hᵀ S⁻¹: S Kᵀ = H P⁻, column by column
+    for j in range(n):
+        y = Kt[:, j].copy()
+        cholesky_solve(L, y)
+        Kt[:, j] = y
+    K = Kt.T * np.where(w != 0.0, 1.0, 0.0).reshape((1, m))  # a rejected channel: zero column
+    x = x + mv(K, v)  # 5  x⁺ = x⁻ + K ν
+    A = np.eye(n) - mm(K, Hm)
+    P = mm(mm(A, P), A.T) + mm(mm(K, Rm), K.T)  # 6  P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ
+    return x, 0.5 * (P + P.T), v, S, Rm, fixed
+
+
+KF_PREDICT = RunStep(kf_predict_one, n_runs=2, outs=((0, float), (1, float)), uses=(MM, MV))
+KF_UPDATE = RunStep(
+    kf_update_one,
+    n_runs=5,
+    outs=((0, float), (1, float), (2, float), (4, float), (4, float), (None, bool)),
+    uses=(MM, MV, CHOLESKY_LOWER, CHOLESKY_SOLVE),
+)
+
+
+def _per_run(A: np.ndarray, B: int) -> np.ndarray:
+    return np.ascontiguousarray(batched(np.asarray(A, dtype=float), B))
+
+
+def predict(self, model, state, k):
+    """``Filter.predict`` by the compiled one-run step (a linear model)."""
+    B = state.x.shape[0]
+    x, P = KF_PREDICT((state.x, _per_run(state.P, B)), (model.F(k), model.Q(k)))
+    return state._replace(x=x, P=P)
+
+
+def update(self, model, state, k, z, side):
+    """``KalmanUpdate.update`` with steps 3–6 by the compiled one-run step.
+
+    The KF (nominal R, no noise step) runs the one-run step from ν = z − h(x⁻) alone; a robust or
+    adaptive filter keeps its batched ``innovation`` and ``noise`` steps (its weights, R̃ …).
+    """
+    B, m = z.shape
+    if type(self).noise is KalmanUpdate.noise and type(self).innovation is KalmanUpdate.innovation:
+        H, nu = model.H(state.x, k), z - model.h(state.x, k)
+        x, P, nu, S, R, fixed = KF_UPDATE(
+            (state.x, _per_run(state.P, B), nu, np.ones((B, m)), _per_run(model.R0, B)), (H,)
+        )
+        flags = flag_fix(np.zeros(z.shape, dtype=np.int8), fixed)
+        out = StepOut(x=x, P=P, innov=nu, S=S, R_used=R, R_hat=None, weights=None, flags=flags, stats={})
+        return state._replace(x=x, P=P), out
+    pr = self.innovation(model, state, k, z, side)
+    nz = self.noise(model, state, pr, z)
+    pr = pr if nz.prior is None else nz.prior
+    nu = np.where(pr.mk.ok, pr.mk.nu if nz.nu is None else nz.nu, np.nan)
+    w = np.ones((B, m)) if nz.weights is None else nz.weights
+    x, P, _, S, _, fixed = KF_UPDATE((pr.x, _per_run(pr.P, B), nu, w, _per_run(nz.R, B)), (pr.H,))
+    flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
+    flag_fix(flags, nz.fixed | fixed)
+    out = StepOut(
+        x=x,
+        P=P,
+        innov=pr.mk.nu,
+        S=S if nz.S is None else nz.S,
+        R_used=nz.R,
+        R_hat=nz.R_hat,
+        weights=nz.weights,
+        flags=flags,
+        stats=nz.stats,
+    )
+    return self.next_state(model, state, k, z, x, P, nz), out
+
+
+@contextlib.contextmanager
+def compiled_kf() -> Iterator[None]:
+    """Within the block the KF family predicts and updates by the compiled one-run steps."""
+    saved = Filter.__dict__["predict"], KalmanUpdate.__dict__["update"]
+    Filter.predict, KalmanUpdate.update = predict, update
+    try:
+        yield
+    finally:
+        Filter.predict, KalmanUpdate.update = saved
+
+
+# ------------------------------------------------------------------------------ timing
+@functools.cache
+def case_data(case: str):
+    from navlab.experiment import ExperimentSpec, plan
+
+    scenario, runs, epochs, _, _ = CASES[case]
+    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
+    return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
+
+
+def time_filter(case: str, key: str) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
+    from navlab.filters import make_filter
+
+    p, data = case_data(case)
+    f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
+    P0 = np.array(bcast(data.P0, (data.B, *data.P0.shape[-2:]))) if CASES[case][4] else data.P0
+    st = f.init(data.model, data.x0, P0)
+    t0 = time.process_time()
+    with np.errstate(all="ignore"):
+        for k in range(1, data.K + 1):
+            st = f.predict(data.model, st, k)
+            st, _ = f.update(data.model, st, k, data.z[:, k], data.side(k))
+    return (time.process_time() - t0) / (data.B * data.K)
+
+
+def measure(case: str, key: str, rounds: int) -> tuple[float, float, float, float]:
+    """Best batched and compiled times and the best-round and median paired speed-ups."""
+    time_filter(case, key)  # warm up (first-call costs, caches, compiles)
+    with compiled_kf():
+        time_filter(case, key)
+    bat, com = [], []
+    for r in range(rounds):
+        for compiled in (r % 2 == 1, r % 2 == 0):
+            if compiled:
+                with compiled_kf():
+                    com.append(time_filter(case, key))
+            else:
+                bat.append(time_filter(case, key))
+    ratio = np.array(com) / np.array(bat)
+    return min(bat), min(com), min(com) / min(bat), float(np.median(ratio))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--case", help=f"comma-separated cases (default: all of {', '.join(CASES)})")
+    a = ap.parse_args()
+    cases = a.case.split(",") if a.case else list(CASES)
+    print(f"load average {os.getloadavg()[0]:.2f}; CPU µs per run-step (best of {a.rounds} rounds)")
+    print("speed-up = compiled/batched time: ≥ 1.5 keeps the batched path (issue 23)")
+    head = f"{'case':>16} {'filter':>9} {'P':>7} {'batched':>9} {'compiled':>9} {'best':>6} {'median':>7}"
+    print(head)
+    for case in cases:
+        for key in CASES[case][3]:
+            bat, com, best, med = measure(case, key, a.rounds)
+            P = "per run" if CASES[case][4] else "as is"
+            line = f"{case:>16} {key:>9} {P:>7} {1e6 * bat:9.2f} {1e6 * com:9.2f} {best:5.2f}x {med:6.2f}x"
+            print(f"{line}  {'batched keeps' if med >= 1.5 else 'below 1.5x'}", flush=True)
+    print(f"load average {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
