@@ -55,8 +55,10 @@ class _Model:
         return x @ self.H_.T
 
 
+@pytest.mark.parametrize("step", ["textbook", "expanded"])
 @pytest.mark.parametrize(("n", "m"), [(4, 2), (15, 3), (6, 4)])
-def test_one_run_step_equals_the_batched_update(n, m):
+def test_one_run_step_equals_the_batched_update(n, m, step):
+    step = kp.PATHS[step]
     x, P, z, H, R, F, Q = _problem(4, n, m)
     x1, P1 = kp.KF_PREDICT((x, P), (F, Q))
     np.testing.assert_allclose(x1, x @ F.T, rtol=1e-12, atol=1e-12)
@@ -65,7 +67,7 @@ def test_one_run_step_equals_the_batched_update(n, m):
     xb, Pb, Sb, _, fixed_b = kf_update(x1, P1, mk.U, mk.M, mk.nu, mk.R)
     nu = z - x1 @ H.T
     B = x.shape[0]
-    xc, Pc, nuc, Sc, Rc, fixed_c = kp.KF_UPDATE((x1, P1, nu, np.ones((B, m)), np.tile(R, (B, 1, 1))), (H,))
+    xc, Pc, nuc, Sc, Rc, fixed_c = step((x1, P1, nu, np.ones((B, m)), np.tile(R, (B, 1, 1))), (H,))
     np.testing.assert_allclose(xc, xb, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(Pc, Pb, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(Sc, Sb, rtol=1e-12, atol=1e-12)
@@ -74,12 +76,13 @@ def test_one_run_step_equals_the_batched_update(n, m):
     assert not fixed_c.any() and not np.any(fixed_b)
     np.testing.assert_array_equal(xc[2], x1[2])  # no channel: x⁺ = x⁻
     with numpy_paths():  # the same Python uncompiled (the fallback) gives the same numbers
-        xu, Pu, *_ = kp.KF_UPDATE((x1, P1, nu, np.ones((B, m)), np.tile(R, (B, 1, 1))), (H,))
+        xu, Pu, *_ = step((x1, P1, nu, np.ones((B, m)), np.tile(R, (B, 1, 1))), (H,))
     np.testing.assert_allclose(xu, xc, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(Pu, Pc, rtol=1e-12, atol=1e-12)
 
 
-def test_rejected_channel_gets_a_zero_gain_column_as_in_the_batched_gain():
+@pytest.mark.parametrize("step", ["textbook", "expanded"])
+def test_rejected_channel_gets_a_zero_gain_column_as_in_the_batched_gain(step):
     x, P, z, H, R, _, _ = _problem(2, 4, 2)
     w = np.array([[1.0, 0.0], [1.0, 1.0]])
     mk = measurement_prediction(_Model(H, R), x, P, 0, z, R, H)
@@ -87,7 +90,7 @@ def test_rejected_channel_gets_a_zero_gain_column_as_in_the_batched_gain():
     K, _ = kf_gain(mk.U, S)
     K = zero_columns(K, w == 0)  # KalmanUpdate.gain
     xb, Pb = x + mv(K, mk.nu), joseph_from_gain(P, K, mk.U, S)
-    xc, Pc, *_ = kp.KF_UPDATE((x, P, z - x @ H.T, w, np.tile(R, (2, 1, 1))), (H,))
+    xc, Pc, *_ = kp.PATHS[step]((x, P, z - x @ H.T, w, np.tile(R, (2, 1, 1))), (H,))
     np.testing.assert_allclose(xc, xb, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(Pc, Pb, rtol=1e-10, atol=1e-10)
 
@@ -95,7 +98,8 @@ def test_rejected_channel_gets_a_zero_gain_column_as_in_the_batched_gain():
 @pytest.mark.parametrize(
     ("scenario", "key"), [("cv2d", "kf"), ("cv2d", "hakf"), ("sins-gps", "kf"), ("sins-gps", "huber-kf")]
 )
-def test_filters_with_the_compiled_step_give_the_same_numbers(scenario, key):
+@pytest.mark.parametrize("step", ["textbook", "expanded"])
+def test_filters_with_the_compiled_step_give_the_same_numbers(scenario, key, step):
     p = plan(ExperimentSpec(scenario=scenario, filters=(key,), runs=3, epochs=12))
     data = p.scenario.simulate(p.schedule, p.outliers, range(3), 1)
     z = data.z.copy()
@@ -113,7 +117,7 @@ def test_filters_with_the_compiled_step_give_the_same_numbers(scenario, key):
         return np.array(xs), np.array(Ps)
 
     xb, Pb = run()
-    with kp.compiled_kf():
+    with kp.compiled_kf(kp.PATHS[step]):
         xc, Pc = run()
     scale = np.sqrt(np.diagonal(Pb, axis1=-2, axis2=-1))  # compare in units of each state's σ
     assert np.max(np.abs(xc - xb) / scale[..., :]) < 1e-8
