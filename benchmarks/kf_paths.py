@@ -61,6 +61,7 @@ def mm(A, B):  # pragma: no cover - compiled by numba
     """The product A B of two small matrices by plain loops (numba's ``@`` calls BLAS: for the
     KF's 2×2 … 15×15 matrices its call costs more than the arithmetic).
     """
+    B = np.ascontiguousarray(B)  # rows of B contiguous (Fᵀ, Hᵀ …): the inner loop vectorises
     C = np.zeros((A.shape[0], B.shape[1]))
     for i in range(A.shape[0]):
         for c in range(A.shape[1]):

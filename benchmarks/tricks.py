@@ -181,6 +181,13 @@ def _plain_linear_sqrt():
     return swap("navlab.filters.ukf", "linear_sqrt", linear_sqrt)
 
 
+def _plain_kf_batched():
+    """The KF family's predict and update steps 3–6 by the compiled one-run textbook step."""
+    from kf_paths import compiled_kf  # beside this script
+
+    return compiled_kf()
+
+
 TRICKS: list[Trick] = [
     Trick(
         "PHt-indexing",
@@ -244,6 +251,14 @@ TRICKS: list[Trick] = [
         "ukf.linear_sqrt (Cholesky instead of the SVD factor for a linear model)",
         {"cv2d": ("svd-ukf",), "gps-ins-rtk": ("svd-ukf", "mfukf")},
         _plain_linear_sqrt,
+    ),
+    Trick(
+        "kf-batched",
+        "filters.kalman (the KF family's batched predict/update; without: the compiled one-run KF "
+        "step of benchmarks/kf_paths.py, which also times the sizes of issue 23)",
+        {"cv2d": ("kf", "huber-kf", "vb-akf", "hakf"), "sins-gps": ("kf", "huber-kf", "vb-akf", "hakf")},
+        _plain_kf_batched,
+        need=1.5,
     ),
 ]
 
