@@ -149,6 +149,93 @@ def kf_update_one_expanded(x, P, nu, w, R, H):  # pragma: no cover - compiled by
     return x, 0.5 * (P + P.T), v, S, Rm, fixed
 
 
+def kf_predict_lean(x, P, F, Q):  # pragma: no cover - compiled by numba
+    """:func:`kf_predict_one` in plain loops, no temporary arrays but the result's and one work
+    matrix: what a compiled step costs once numba's per-array allocations are gone.
+    """
+    n = x.shape[0]
+    xo, T, A, Po = np.zeros(n), np.zeros((n, n)), np.empty((n, n)), np.empty((n, n))
+    for i in range(n):
+        for c in range(n):
+            a = F[i, c]
+            xo[i] += a * x[c]  # 1  x⁻ = F x⁺
+            for j in range(n):
+                T[i, j] += a * P[c, j]  # T = F P⁺
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for c in range(n):
+                s += T[i, c] * F[j, c]
+            A[i, j] = s + Q[i, j]  # 2  P⁻ = F P⁺ Fᵀ + Q
+    for i in range(n):  # symmetrised
+        for j in range(n):
+            Po[i, j] = 0.5 * (A[i, j] + A[j, i])
+    return xo, Po
+
+
+def kf_update_lean(x, P, nu, w, R, H):  # pragma: no cover - compiled by numba
+    """:func:`kf_update_one_expanded` in plain loops (the Joseph form from U and S in one pass
+    over P, as ``linalg._joseph_runs``), few temporary arrays.
+    """
+    n, m = P.shape[0], nu.shape[0]
+    v, o, y = np.empty(m), np.empty(m), np.empty(m)
+    Rm, S, L = np.empty((m, m)), np.empty((m, m)), np.empty((m, m))
+    U, K, W = np.empty((n, m)), np.empty((n, m)), np.empty((n, m))
+    for k in range(m):  # a missing channel: ν_k = 0, a zero row of H, a unit uncorrelated R_kk
+        o[k] = 1.0 if np.isfinite(nu[k]) else 0.0
+        v[k] = nu[k] if o[k] == 1.0 else 0.0
+    for k in range(m):
+        for q in range(m):
+            Rm[k, q] = R[k, q] * (o[k] * o[q]) + ((1.0 - o[k]) if k == q else 0.0)
+    for i in range(n):  # U = P⁻ Hᵀ
+        for k in range(m):
+            s = 0.0
+            for c in range(n):
+                s += P[i, c] * (H[k, c] * o[k])
+            U[i, k] = s
+    for k in range(m):  # 3  S = H P⁻ Hᵀ + R, symmetrised
+        for q in range(m):
+            s = 0.0
+            for c in range(n):
+                s += (H[k, c] * o[k]) * U[c, q]
+            L[k, q] = s + Rm[k, q]
+    for k in range(m):
+        for q in range(m):
+            S[k, q] = 0.5 * (L[k, q] + L[q, k])
+    fixed = not cholesky_lower(S, L)
+    if fixed:  # §0.2 rule 3: jitter 1e-12·trace(S)/m·I (flag 9)
+        cholesky_lower(S + max(1e-12 * np.trace(S) / m, 1e-300) * np.eye(m), L)
+    for i in range(n):  # 4  K = U S⁻¹, row by row; a rejected channel: zero column
+        for k in range(m):
+            y[k] = U[i, k]
+        cholesky_solve(L, y)
+        for k in range(m):
+            K[i, k] = y[k] if w[k] != 0.0 else 0.0
+    xo = np.empty(n)
+    for i in range(n):  # 5  x⁺ = x⁻ + K ν
+        s = 0.0
+        for k in range(m):
+            s += K[i, k] * v[k]
+        xo[i] = x[i] + s
+    for i in range(n):  # W = K S − U
+        for k in range(m):
+            s = -U[i, k]
+            for q in range(m):
+                s += K[i, q] * S[q, k]
+            W[i, k] = s
+    A, Po = np.empty((n, n)), np.empty((n, n))
+    for i in range(n):  # 6  P⁺ = P⁻ − U Kᵀ + K Wᵀ (the Joseph form, expanded)
+        for j in range(n):
+            s = P[i, j]
+            for k in range(m):
+                s += K[i, k] * W[j, k] - U[i, k] * K[j, k]
+            A[i, j] = s
+    for i in range(n):
+        for j in range(n):
+            Po[i, j] = 0.5 * (A[i, j] + A[j, i])
+    return xo, Po, v, S, Rm, fixed
+
+
 KF_PREDICT = RunStep(kf_predict_one, n_runs=2, outs=((0, float), (1, float)), uses=(MM, MV))
 KF_UPDATE = RunStep(
     kf_update_one,
@@ -162,7 +249,14 @@ KF_UPDATE_EXPANDED = RunStep(
     outs=((0, float), (1, float), (2, float), (4, float), (4, float), (None, bool)),
     uses=(MM, MV, CHOLESKY_LOWER, CHOLESKY_SOLVE),
 )
-_STEP = [KF_UPDATE]  # the update step compiled_kf swaps in
+KF_PREDICT_LEAN = RunStep(kf_predict_lean, n_runs=2, outs=((0, float), (1, float)))
+KF_UPDATE_LEAN = RunStep(
+    kf_update_lean,
+    n_runs=5,
+    outs=((0, float), (1, float), (2, float), (4, float), (4, float), (None, bool)),
+    uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE),
+)
+_STEP = [KF_PREDICT, KF_UPDATE]  # the steps compiled_kf swaps in
 
 
 def _per_run(A: np.ndarray, B: int) -> np.ndarray:
@@ -172,7 +266,7 @@ def _per_run(A: np.ndarray, B: int) -> np.ndarray:
 def predict(self, model, state, k):
     """``Filter.predict`` by the compiled one-run step (a linear model)."""
     B = state.x.shape[0]
-    x, P = KF_PREDICT((state.x, _per_run(state.P, B)), (model.F(k), model.Q(k)))
+    x, P = _STEP[0]((state.x, _per_run(state.P, B)), (model.F(k), model.Q(k)))
     return state._replace(x=x, P=P)
 
 
@@ -185,7 +279,7 @@ def update(self, model, state, k, z, side):
     B, m = z.shape
     if type(self).noise is KalmanUpdate.noise and type(self).innovation is KalmanUpdate.innovation:
         H, nu = model.H(state.x, k), z - model.h(state.x, k)
-        x, P, nu, S, R, fixed = _STEP[0](
+        x, P, nu, S, R, fixed = _STEP[1](
             (state.x, _per_run(state.P, B), nu, np.ones((B, m)), _per_run(model.R0, B)), (H,)
         )
         flags = flag_fix(np.zeros(z.shape, dtype=np.int8), fixed)
@@ -196,7 +290,7 @@ def update(self, model, state, k, z, side):
     pr = pr if nz.prior is None else nz.prior
     nu = np.where(pr.mk.ok, pr.mk.nu if nz.nu is None else nz.nu, np.nan)
     w = np.ones((B, m)) if nz.weights is None else nz.weights
-    x, P, _, S, _, fixed = _STEP[0]((pr.x, _per_run(pr.P, B), nu, w, _per_run(nz.R, B)), (pr.H,))
+    x, P, _, S, _, fixed = _STEP[1]((pr.x, _per_run(pr.P, B), nu, w, _per_run(nz.R, B)), (pr.H,))
     flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
     flag_fix(flags, nz.fixed | fixed)
     out = StepOut(
@@ -214,14 +308,14 @@ def update(self, model, state, k, z, side):
 
 
 @contextlib.contextmanager
-def compiled_kf(step: RunStep = KF_UPDATE) -> Iterator[None]:
+def compiled_kf(step: RunStep = KF_UPDATE, predict_step: RunStep = KF_PREDICT) -> Iterator[None]:
     """Within the block the KF family predicts and updates by the compiled one-run steps."""
-    saved = Filter.__dict__["predict"], KalmanUpdate.__dict__["update"], _STEP[0]
-    Filter.predict, KalmanUpdate.update, _STEP[0] = predict, update, step
+    saved = Filter.__dict__["predict"], KalmanUpdate.__dict__["update"], list(_STEP)
+    Filter.predict, KalmanUpdate.update, _STEP[:] = predict, update, [predict_step, step]
     try:
         yield
     finally:
-        Filter.predict, KalmanUpdate.update, _STEP[0] = saved
+        Filter.predict, KalmanUpdate.update, _STEP[:] = saved
 
 
 # ------------------------------------------------------------------------------ timing
@@ -250,7 +344,12 @@ def time_filter(case: str, key: str) -> float:
     return (time.process_time() - t0) / (data.B * data.K)
 
 
-PATHS = {"textbook": KF_UPDATE, "expanded": KF_UPDATE_EXPANDED}  # the compiled update steps
+# the compiled (update, predict) steps
+PATHS = {
+    "textbook": (KF_UPDATE, KF_PREDICT),
+    "expanded": (KF_UPDATE_EXPANDED, KF_PREDICT),
+    "loops": (KF_UPDATE_LEAN, KF_PREDICT_LEAN),
+}
 
 
 def measure(case: str, key: str, rounds: int) -> dict[str, list[float]]:
@@ -263,14 +362,14 @@ def measure(case: str, key: str, rounds: int) -> dict[str, list[float]]:
     def run(path: str) -> float:
         if path == "batched":
             return time_filter(case, key)
-        with compiled_kf(PATHS[path]):
+        with compiled_kf(*PATHS[path]):
             return time_filter(case, key)
 
     for path in paths:  # warm up (first-call costs, caches, compiles)
         run(path)
     times: dict[str, list[float]] = {path: [] for path in paths}
     for r in range(rounds):
-        for path in paths[r % 3 :] + paths[: r % 3]:
+        for path in paths[r % len(paths) :] + paths[: r % len(paths)]:
             times[path].append(run(path))
     return times
 
