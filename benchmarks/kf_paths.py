@@ -13,13 +13,14 @@ round after round in alternating order, in one process (CPU time, BLAS on one th
 
     python benchmarks/kf_paths.py [--rounds 5] [--case NAME,...]
 
-Prints, per case and filter, the CPU µs per run-step of the batched path and of two compiled
+Prints, per case and filter, the CPU µs per run-step of the batched path and of three compiled
 one-run steps (best round): ``textbook`` (the Joseph form (I − K H) P (I − K H)ᵀ + K R Kᵀ as
-written) and ``expanded`` (the same step with the Joseph form expanded from U = P Hᵀ and S, the
-algebra the batched path uses), and the speed-up compiled/batched (best-round ratio / median of
-the paired per-round ratios): ≥ 1.5 against both means the batched path earns its place. Not a test: read the
-figures. tests/unit/test_kf_paths.py checks that the compiled step computes what the batched path
-does.
+written), ``expanded`` (the Joseph form expanded from U = P Hᵀ and S, the algebra the batched path
+uses) and ``loops`` (predict and the expanded update in plain loops with few temporary arrays:
+numba allocates every array expression, which dominates the first two at n = 4), and the speed-up
+compiled/batched (best-round ratio / median of the paired per-round ratios): a median ≥ 1.5
+against every compiled step means the batched path earns its place. Not a test: read the figures.
+tests/unit/test_kf_paths.py checks that each compiled step computes what the batched path does.
 """
 
 from __future__ import annotations
