@@ -20,6 +20,8 @@ from navlab.filters.kalman import kf_update, measurement_prediction
 from navlab.jit import numpy_paths
 from navlab.linalg import joseph_from_gain, kf_gain, mv, predict_cov, sym, zero_columns
 
+pytestmark = pytest.mark.slow  # compiling the benchmark's three steps takes ~40 s on a cold cache
+
 _spec = importlib.util.spec_from_file_location(
     "kf_paths", Path(__file__).resolve().parents[2] / "benchmarks" / "kf_paths.py"
 )
