@@ -111,10 +111,15 @@ def _mild(c):
 
 
 def _claims():
-    c4 = "case4"
+    return _kf_claims() + _case1_claims() + _case4_claims()
+
+
+C4_CHOSEN = {"chosen": CHOSEN_OUTLIERS.split("; the alternative")[0] + " (no alternative run: case 4)"}
+
+
+def _kf_claims():
+    """§2.2, Figs. 1–3: the KF across the four cases."""
     R = Ref
-    four = ("kf", "huber-kf", "vb-akf", "hakf")
-    c4_chosen = {"chosen": CHOSEN_OUTLIERS.split("; the alternative")[0] + " (no alternative run: case 4)"}
     return (
         Ranking(
             "kf-case1-best",
@@ -159,8 +164,16 @@ def _claims():
             FIG_NOTE,
             where=W_KF,
             quote=Q_KF,
-            **c4_chosen,
+            **C4_CHOSEN,
         ),
+    )
+
+
+def _case1_claims():
+    """§2.2, Figs. 4–5: case 1 (Gaussian)."""
+    R = Ref
+    four = ("kf", "huber-kf", "vb-akf", "hakf")
+    return (
         Close(
             "case1-close",
             "case 1: the four filters are close (Fig. 4)",
@@ -186,6 +199,14 @@ def _claims():
             where=W_C1,
             quote=Q_C1,
         ),
+    )
+
+
+def _case4_claims():
+    """§2.2, Figs. 6–7: case 4 (time-varying R + outliers), and the conclusion's claim."""
+    c4 = "case4"
+    R = Ref
+    return (
         Ranking(
             "case4-hakf-best",
             "case 4: HAKF has the best attitude accuracy (the paper's headline claim)",
@@ -195,7 +216,7 @@ def _claims():
             FIG_NOTE,
             where=W_C4,
             quote=Q_C4,
-            **c4_chosen,
+            **C4_CHOSEN,
         ),
         Close(
             "case4-akf-close-hakf",
@@ -205,7 +226,7 @@ def _claims():
             note=FIG_NOTE,
             where=W_C4,
             quote=Q_C4,
-            **c4_chosen,
+            **C4_CHOSEN,
         ),
         Ranking(
             "case4-akf-vs-hkf-kf",
@@ -216,7 +237,7 @@ def _claims():
             FIG_NOTE,
             where=W_C4,
             quote=Q_C4,
-            **c4_chosen,
+            **C4_CHOSEN,
         ),
         Ranking(
             "case4-kf-worst",
@@ -228,7 +249,7 @@ def _claims():
             worst=True,
             where=W_C4,
             quote=Q_C4,
-            **c4_chosen,
+            **C4_CHOSEN,
         ),
         Untested(
             "case4-hakf-steadiest",
