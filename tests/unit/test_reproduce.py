@@ -401,4 +401,5 @@ def test_closing_the_run_kills_its_worker_processes(monkeypatch, tmp_path):
         assert not _alive(p.pid), p
     assert not [c for c in multiprocessing.active_children() if _alive(c.pid)]
     kept = len(store.files())
-    assert 2 <= kept < 10  # 2 experiments × 5 seed ranges; at least seed 0 of each was kept
+    blocks = len(engine._plan(rep, 100, 16, 1))  # 3 experiments (RSSHAKF's alternative too) × 5 seed ranges
+    assert 2 <= kept < blocks  # at least seed 0 of each was kept; not every block ran
