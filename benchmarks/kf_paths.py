@@ -27,10 +27,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import functools
 import os
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -44,7 +42,7 @@ import numpy as np  # noqa: E402
 from navlab.filters.base import Filter, StepOut, flag_fix  # noqa: E402
 from navlab.filters.kalman import KalmanUpdate  # noqa: E402
 from navlab.jit import Kernel, RunStep  # noqa: E402
-from navlab.linalg import CHOLESKY_LOWER, CHOLESKY_SOLVE, batched, bcast, cholesky_lower, cholesky_solve  # noqa: E402
+from navlab.linalg import CHOLESKY_LOWER, CHOLESKY_SOLVE, batched, cholesky_lower, cholesky_solve  # noqa: E402
 
 # name: (scenario, runs, epochs, filters, P0 per run)
 CASES = {
@@ -91,31 +89,46 @@ def kf_predict_one(x, P, F, Q):  # pragma: no cover - compiled by numba
     return x, 0.5 * (P + P.T)  # symmetrised (§0.2 rule 1)
 
 
-def kf_update_one(x, P, nu, w, R, H):  # pragma: no cover - compiled by numba
-    """§1.1 steps 3–6 for ONE run, from ν = z − h(x⁻) (NaN: channel missing) and weights w.
-
-    A missing channel gets a zero row of H, ν_i = 0 and a unit, uncorrelated R_ii (as
-    :func:`navlab.linalg.mask_missing`): its gain column is zero. A weight 0 rejects a channel
-    (zero gain column). Returns x⁺, P⁺, the masked ν, S, the masked R and whether S needed jitter.
+def masked(nu, H, R):  # pragma: no cover - compiled by numba
+    """A missing channel (ν_i NaN) as :func:`navlab.linalg.mask_missing` has it: a zero row of H,
+    ν_i = 0 and a unit, uncorrelated R_ii (its gain column is zero). Returns H, ν, R masked.
     """
-    n, m = P.shape[0], nu.shape[0]
+    m = nu.shape[0]
     ok = np.isfinite(nu)
     o = np.where(ok, 1.0, 0.0)
-    Hm = H * o.reshape((m, 1))  # a missing channel: a zero row of H,
-    v = np.where(ok, nu, 0.0)  # ν_i = 0
-    Rm = R * np.outer(o, o) + np.diag(1.0 - o)  # and a unit, uncorrelated R_ii
-    S = mm(mm(Hm, P), Hm.T) + Rm  # 3  S = H P⁻ Hᵀ + R
-    S = 0.5 * (S + S.T)
+    return H * o.reshape((m, 1)), np.where(ok, nu, 0.0), R * np.outer(o, o) + np.diag(1.0 - o)
+
+
+def gain(A, S, w):  # pragma: no cover - compiled by numba
+    """4  K = A S⁻¹ (A = P⁻ Hᵀ) by S = L Lᵀ, a zero column where the weight w_i is 0, and whether S
+    needed jitter (§0.2 rule 3: 1e-12·trace(S)/m·I, flag 9).
+    """
+    n, m = A.shape
     L = np.empty((m, m))
     fixed = not cholesky_lower(S, L)  # S = L Lᵀ
-    if fixed:  # §0.2 rule 3: jitter 1e-12·trace(S)/m·I (flag 9)
+    if fixed:
         cholesky_lower(S + max(1e-12 * np.trace(S) / m, 1e-300) * np.eye(m), L)
-    Kt = mm(Hm, P)  # 4  K = P⁻ Hᵀ S⁻¹: S Kᵀ = H P⁻, column by column
-    for j in range(n):
-        y = Kt[:, j].copy()
+    K = np.empty((n, m))
+    for i in range(n):  # row i of K: S Kᵢᵀ = Aᵢᵀ
+        y = A[i].copy()
         cholesky_solve(L, y)
-        Kt[:, j] = y
-    K = Kt.T * np.where(w != 0.0, 1.0, 0.0).reshape((1, m))  # a rejected channel: zero column
+        K[i] = y * np.where(w != 0.0, 1.0, 0.0)  # a rejected channel: zero column
+    return K, fixed
+
+
+MASKED, GAIN = Kernel(masked), Kernel(gain, uses=(CHOLESKY_LOWER, CHOLESKY_SOLVE))
+
+
+def kf_update_one(x, P, nu, w, R, H):  # pragma: no cover - compiled by numba
+    """§1.1 steps 3–6 for ONE run, from ν = z − h(x⁻) (NaN: channel missing, :func:`masked`) and
+    weights w (0 rejects a channel: zero gain column). Returns x⁺, P⁺, the masked ν, S, the masked
+    R and whether S needed jitter.
+    """
+    n = P.shape[0]
+    Hm, v, Rm = masked(nu, H, R)
+    S = mm(mm(Hm, P), Hm.T) + Rm  # 3  S = H P⁻ Hᵀ + R
+    S = 0.5 * (S + S.T)
+    K, fixed = gain(mm(P, Hm.T), S, w)  # 4  K = P⁻ Hᵀ S⁻¹
     x = x + mv(K, v)  # 5  x⁺ = x⁻ + K ν
     A = np.eye(n) - mm(K, Hm)
     P = mm(mm(A, P), A.T) + mm(mm(K, Rm), K.T)  # 6  P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ
@@ -126,25 +139,11 @@ def kf_update_one_expanded(x, P, nu, w, R, H):  # pragma: no cover - compiled by
     """:func:`kf_update_one` with the Joseph form expanded from U = P⁻ Hᵀ and S (the algebra of
     the batched path's ``joseph_from_gain``: n×m products instead of n×n×n ones).
     """
-    n, m = P.shape[0], nu.shape[0]
-    ok = np.isfinite(nu)
-    o = np.where(ok, 1.0, 0.0)
-    Hm = H * o.reshape((m, 1))  # a missing channel: a zero row of H,
-    v = np.where(ok, nu, 0.0)  # ν_i = 0
-    Rm = R * np.outer(o, o) + np.diag(1.0 - o)  # and a unit, uncorrelated R_ii
+    Hm, v, Rm = masked(nu, H, R)
     U = mm(P, Hm.T)  # U = P⁻ Hᵀ
     S = mm(Hm, U) + Rm  # 3  S = H P⁻ Hᵀ + R
     S = 0.5 * (S + S.T)
-    L = np.empty((m, m))
-    fixed = not cholesky_lower(S, L)  # S = L Lᵀ
-    if fixed:  # §0.2 rule 3: jitter 1e-12·trace(S)/m·I (flag 9)
-        cholesky_lower(S + max(1e-12 * np.trace(S) / m, 1e-300) * np.eye(m), L)
-    Kt = U.T.copy()  # 4  K = U S⁻¹: S Kᵀ = Uᵀ, column by column
-    for j in range(n):
-        y = Kt[:, j].copy()
-        cholesky_solve(L, y)
-        Kt[:, j] = y
-    K = Kt.T * np.where(w != 0.0, 1.0, 0.0).reshape((1, m))  # a rejected channel: zero column
+    K, fixed = gain(U, S, w)  # 4  K = U S⁻¹
     x = x + mv(K, v)  # 5  x⁺ = x⁻ + K ν
     P = P - mm(U, K.T) - mm(K, U.T) + mm(mm(K, S), K.T)  # 6  Joseph form = P − U Kᵀ − K Uᵀ + K S Kᵀ
     return x, 0.5 * (P + P.T), v, S, Rm, fixed
@@ -242,13 +241,13 @@ KF_UPDATE = RunStep(
     kf_update_one,
     n_runs=5,
     outs=((0, float), (1, float), (2, float), (4, float), (4, float), (None, bool)),
-    uses=(MM, MV, CHOLESKY_LOWER, CHOLESKY_SOLVE),
+    uses=(MM, MV, MASKED, GAIN),
 )
 KF_UPDATE_EXPANDED = RunStep(
     kf_update_one_expanded,
     n_runs=5,
     outs=((0, float), (1, float), (2, float), (4, float), (4, float), (None, bool)),
-    uses=(MM, MV, CHOLESKY_LOWER, CHOLESKY_SOLVE),
+    uses=(MM, MV, MASKED, GAIN),
 )
 KF_PREDICT_LEAN = RunStep(kf_predict_lean, n_runs=2, outs=((0, float), (1, float)))
 KF_UPDATE_LEAN = RunStep(
@@ -320,29 +319,12 @@ def compiled_kf(step: RunStep = KF_UPDATE, predict_step: RunStep = KF_PREDICT) -
 
 
 # ------------------------------------------------------------------------------ timing
-@functools.cache
-def case_data(case: str):
-    from navlab.experiment import ExperimentSpec, plan
-
-    scenario, runs, epochs, _, _ = CASES[case]
-    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
-    return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
-
-
 def time_filter(case: str, key: str) -> float:
-    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
-    from navlab.filters import make_filter
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case (benchmarks/tricks.py's loop)."""
+    from tricks import simulated, time_steps  # beside this script
 
-    p, data = case_data(case)
-    f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
-    P0 = np.array(bcast(data.P0, (data.B, *data.P0.shape[-2:]))) if CASES[case][4] else data.P0
-    st = f.init(data.model, data.x0, P0)
-    t0 = time.process_time()
-    with np.errstate(all="ignore"):
-        for k in range(1, data.K + 1):
-            st = f.predict(data.model, st, k)
-            st, _ = f.update(data.model, st, k, data.z[:, k], data.side(k))
-    return (time.process_time() - t0) / (data.B * data.K)
+    scenario, runs, epochs, _, P0_per_run = CASES[case]
+    return time_steps(*simulated(scenario, runs, epochs), key, P0_per_run)
 
 
 # the compiled (update, predict) steps

@@ -265,27 +265,38 @@ TRICKS: list[Trick] = [
 
 # ------------------------------------------------------------------------------ timing
 @functools.cache
-def case_data(case: str):
+def simulated(scenario: str, runs: int, epochs: int):
+    """The plan and the simulated batch of a scenario (one per process; benchmarks/kf_paths.py too)."""
     from navlab.experiment import ExperimentSpec, plan
 
-    scenario, runs, epochs = CASES[case]
     p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
     return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
 
 
-def time_filter(case: str, key: str) -> float:
-    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
+def case_data(case: str):
+    return simulated(*CASES[case])
+
+
+def time_steps(p, data, key: str, P0_per_run: bool = False) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on a simulated batch (``P0_per_run``:
+    P0 given to the filter as one copy per run, not shared).
+    """
     from navlab.filters import make_filter
 
-    p, data = case_data(case)
     f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
-    st = f.init(data.model, data.x0, data.P0)
+    P0 = np.array(np.broadcast_to(data.P0, (data.B, *data.P0.shape[-2:]))) if P0_per_run else data.P0
+    st = f.init(data.model, data.x0, P0)
     t0 = time.process_time()
     with np.errstate(all="ignore"):
         for k in range(1, data.K + 1):
             st = f.predict(data.model, st, k)
             st, _ = f.update(data.model, st, k, data.z[:, k], data.side(k))
     return (time.process_time() - t0) / (data.B * data.K)
+
+
+def time_filter(case: str, key: str) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
+    return time_steps(*case_data(case), key)
 
 
 def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, float]]:
