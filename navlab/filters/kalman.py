@@ -96,10 +96,6 @@ def kf_update(
     return x, P, S, K, fixed
 
 
-def _flags(z: Array, fixed: Array) -> Array:
-    return flag_fix(np.zeros(z.shape, dtype=np.int8), fixed)
-
-
 class Prior(NamedTuple):
     """The prior the update starts from (x⁻, P⁻) at epoch k, its masked innovation products and
     the (unmasked) measurement Jacobian H at x⁻.

@@ -388,10 +388,11 @@ def test_closing_the_run_kills_its_worker_processes(monkeypatch, tmp_path):
     monkeypatch.setattr(engine, "_terminate", terminate)
     store = Store(tmp_path / "store")
     gen = iter_evaluate(rep, 100, 16, 1, jobs=2, store=store)
-    # seed 0 of both experiments (with seed 1 when one experiment's seed 1 finished before the
-    # other's seed 0: the two workers race); the later seeds queued or in flight
+    # the first seeds of every experiment (seed 0, or more when the workers finished further
+    # seed ranges before this process read the first: under load it read 4 once); the later
+    # seeds queued or in flight
     first = next(gen)
-    assert 1 <= first.seeds <= 2
+    assert 1 <= first.seeds < 16
     gen.close()
     assert killed and all(p.exitcode != 0 for p in killed)  # killed, not finished
     for p in killed:  # gone (the pool's manager thread may be the one that reaps it: no exit code)
