@@ -91,6 +91,7 @@ class Trick:
     plain: Callable[[], contextlib.AbstractContextManager]
     need: float = 1.0 / 0.9  # speed-up (without/with) to keep it: 10 %; a batched path beside the
     # compiled one-run steps: 1.5× (issue 23)
+    recorded: bool = False  # timed with the shared time loop's recorder (run_filters), not without
 
 
 # ------------------------------------------------------------------------------ plain versions
@@ -181,6 +182,17 @@ def _plain_linear_sqrt():
     return swap("navlab.filters.ukf", "linear_sqrt", linear_sqrt)
 
 
+def _plain_recorder_nees():
+    """The recorder's NEES by one call per block of epochs on a stacked copy of every P."""
+    from navlab.experiment import _Recorder, _stack
+    from navlab.linalg import quad
+
+    def nees(dx, Ps):
+        return quad(dx, _stack(Ps, (*dx.shape[1:], dx.shape[-1])))
+
+    return swap_attr(_Recorder, "_nees", staticmethod(nees))
+
+
 def _plain_kf_batched():
     """The KF family's predict and update steps 3–6 by the compiled one-run textbook step."""
     from kf_paths import compiled_kf  # beside this script
@@ -260,6 +272,13 @@ TRICKS: list[Trick] = [
         _plain_kf_batched,
         need=1.5,
     ),
+    Trick(
+        "recorder-nees",
+        "experiment._Recorder._nees (the NEES per epoch on each P, no stacked copy of the P's)",
+        {"sins-gps-200": ("kf", "hakf", "oracle-kf"), "cv2d": ("kf", "hakf")},
+        _plain_recorder_nees,
+        recorded=True,
+    ),
 ]
 
 
@@ -294,9 +313,21 @@ def time_steps(p, data, key: str, P0_per_run: bool = False) -> float:
     return (time.process_time() - t0) / (data.B * data.K)
 
 
-def time_filter(case: str, key: str) -> float:
-    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
-    return time_steps(*case_data(case), key)
+def time_filter(case: str, key: str, recorded: bool = False) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case (``recorded``: the
+    shared time loop with its recorder, :func:`navlab.experiment.run_filters`).
+    """
+    if not recorded:
+        return time_steps(*case_data(case), key)
+    from navlab.experiment import run_filters
+    from navlab.filters import make_filter
+
+    p, data = case_data(case)
+    f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
+    t0 = time.process_time()
+    with np.errstate(all="ignore"):
+        run_filters(data, [f])
+    return (time.process_time() - t0) / (data.B * data.K)
 
 
 def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, float]]:
@@ -306,15 +337,15 @@ def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, flo
     rows = []
     for case, keys in trick.uses.items():
         for key in keys:
-            time_filter(case, key)  # warm up (first-call costs, caches)
+            time_filter(case, key, trick.recorded)  # warm up (first-call costs, caches)
             ons, offs = [], []
             for r in range(rounds):
                 for plain in (r % 2 == 1, r % 2 == 0):
                     if plain:
                         with trick.plain():
-                            offs.append(time_filter(case, key))
+                            offs.append(time_filter(case, key, trick.recorded))
                     else:
-                        ons.append(time_filter(case, key))
+                        ons.append(time_filter(case, key, trick.recorded))
             ratio = float(np.median(np.array(ons) / np.array(offs)))
             rows.append((case, key, min(ons), min(offs), ratio))
     return rows
