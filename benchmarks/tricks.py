@@ -43,6 +43,7 @@ CASES = {
     "cv2d": ("cv2d", 100, 100),
     "sins-gps": ("sins-gps", 50, 150),
     "sins-gps-200": ("sins-gps", 200, 150),  # the runs of a block of `reproduce hakf --seeds 20`
+    "sins-gps-200-clean": ("sins-gps", 200, 150, (("outliers", "none"),)),  # its case 1
     "gps-ins-rtk": ("gps-ins-rtk", 10, 300),
     "pseudorange": ("gps-ins-pseudorange", 50, 100),
     "smartloc": ("smartloc-berlin", 5, 150),
@@ -193,6 +194,11 @@ def _plain_recorder_nees():
     return swap_attr(_Recorder, "_nees", staticmethod(nees))
 
 
+def _plain_oracle_shared_R():
+    """The oracle KF's true R always per run (its P then per run from the first update)."""
+    return swap("navlab.filters.kalman", "true_R", lambda side, m: side.R_true[..., :, None] * np.eye(m))
+
+
 def _plain_kf_batched():
     """The KF family's predict and update steps 3–6 by the compiled one-run textbook step."""
     from kf_paths import compiled_kf  # beside this script
@@ -279,16 +285,25 @@ TRICKS: list[Trick] = [
         _plain_recorder_nees,
         recorded=True,
     ),
+    Trick(
+        "oracle-shared-R",
+        "kalman.true_R (the oracle's R, and so its P, shared by the runs while their true R are equal)",
+        {"sins-gps-200-clean": ("oracle-kf",), "sins-gps-200": ("oracle-kf",)},
+        _plain_oracle_shared_R,
+        recorded=True,
+    ),
 ]
 
 
 # ------------------------------------------------------------------------------ timing
 @functools.cache
-def simulated(scenario: str, runs: int, epochs: int):
-    """The plan and the simulated batch of a scenario (one per process; benchmarks/kf_paths.py too)."""
+def simulated(scenario: str, runs: int, epochs: int, spec: tuple = ()):
+    """The plan and the simulated batch of a scenario (one per process; benchmarks/kf_paths.py too);
+    ``spec``: (field, value) pairs of the ExperimentSpec beside its defaults.
+    """
     from navlab.experiment import ExperimentSpec, plan
 
-    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
+    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs, **dict(spec)))
     return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
 
 
