@@ -234,6 +234,9 @@ class KF(KalmanUpdate):
 def true_R(side: SideInfo, m: int) -> Array:
     """The oracle's R, the simulator's true variances: (m, m) while every run's are the same (no
     outlier at this epoch: P then stays shared by the runs, as the KF's), else (B, m, m).
+
+    As the χ²-KF's shared P, this makes a run's last bits depend on the runs beside it where
+    outliers make the true R differ (the shared and the batched gain round differently).
     """
     r = side.R_true
     return (r[0] if (r == r[:1]).all() else r)[..., :, None] * np.eye(m)
