@@ -43,6 +43,7 @@ CASES = {
     "cv2d": ("cv2d", 100, 100),
     "sins-gps": ("sins-gps", 50, 150),
     "sins-gps-200": ("sins-gps", 200, 150),  # the runs of a block of `reproduce hakf --seeds 20`
+    "sins-gps-200-clean": ("sins-gps", 200, 150, (("outliers", "none"),)),  # its case 1
     "gps-ins-rtk": ("gps-ins-rtk", 10, 300),
     "pseudorange": ("gps-ins-pseudorange", 50, 100),
     "smartloc": ("smartloc-berlin", 5, 150),
@@ -91,6 +92,7 @@ class Trick:
     plain: Callable[[], contextlib.AbstractContextManager]
     need: float = 1.0 / 0.9  # speed-up (without/with) to keep it: 10 %; a batched path beside the
     # compiled one-run steps: 1.5× (issue 23)
+    recorded: bool = False  # timed with the shared time loop's recorder (run_filters), not without
 
 
 # ------------------------------------------------------------------------------ plain versions
@@ -181,6 +183,22 @@ def _plain_linear_sqrt():
     return swap("navlab.filters.ukf", "linear_sqrt", linear_sqrt)
 
 
+def _plain_recorder_nees():
+    """The recorder's NEES by one call per block of epochs on a stacked copy of every P."""
+    from navlab.experiment import _Recorder, _stack
+    from navlab.linalg import quad
+
+    def nees(dx, Ps):
+        return quad(dx, _stack(Ps, (*dx.shape[1:], dx.shape[-1])))
+
+    return swap_attr(_Recorder, "_nees", staticmethod(nees))
+
+
+def _plain_oracle_shared_R():
+    """The oracle KF's true R always per run (its P then per run from the first update)."""
+    return swap("navlab.filters.kalman", "true_R", lambda side, m: side.R_true[..., :, None] * np.eye(m))
+
+
 def _plain_kf_batched():
     """The KF family's predict and update steps 3–6 by the compiled one-run textbook step."""
     from kf_paths import compiled_kf  # beside this script
@@ -260,16 +278,32 @@ TRICKS: list[Trick] = [
         _plain_kf_batched,
         need=1.5,
     ),
+    Trick(
+        "recorder-nees",
+        "experiment._Recorder._nees (the NEES per epoch on each P, no stacked copy of the P's)",
+        {"sins-gps-200": ("kf", "hakf", "oracle-kf"), "cv2d": ("kf", "hakf")},
+        _plain_recorder_nees,
+        recorded=True,
+    ),
+    Trick(
+        "oracle-shared-R",
+        "kalman.true_R (the oracle's R, and so its P, shared by the runs while their true R are equal)",
+        {"sins-gps-200-clean": ("oracle-kf",), "sins-gps-200": ("oracle-kf",)},
+        _plain_oracle_shared_R,
+        recorded=True,
+    ),
 ]
 
 
 # ------------------------------------------------------------------------------ timing
 @functools.cache
-def simulated(scenario: str, runs: int, epochs: int):
-    """The plan and the simulated batch of a scenario (one per process; benchmarks/kf_paths.py too)."""
+def simulated(scenario: str, runs: int, epochs: int, spec: tuple = ()):
+    """The plan and the simulated batch of a scenario (one per process; benchmarks/kf_paths.py too);
+    ``spec``: (field, value) pairs of the ExperimentSpec beside its defaults.
+    """
     from navlab.experiment import ExperimentSpec, plan
 
-    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs))
+    p = plan(ExperimentSpec(scenario=scenario, filters=("kf",), runs=runs, epochs=epochs, **dict(spec)))
     return p, p.scenario.simulate(p.schedule, p.outliers, range(runs), 1)
 
 
@@ -294,9 +328,21 @@ def time_steps(p, data, key: str, P0_per_run: bool = False) -> float:
     return (time.process_time() - t0) / (data.B * data.K)
 
 
-def time_filter(case: str, key: str) -> float:
-    """CPU seconds per run-step of ``key``'s predict/update loop on the case."""
-    return time_steps(*case_data(case), key)
+def time_filter(case: str, key: str, recorded: bool = False) -> float:
+    """CPU seconds per run-step of ``key``'s predict/update loop on the case (``recorded``: the
+    shared time loop with its recorder, :func:`navlab.experiment.run_filters`).
+    """
+    if not recorded:
+        return time_steps(*case_data(case), key)
+    from navlab.experiment import run_filters
+    from navlab.filters import make_filter
+
+    p, data = case_data(case)
+    f = make_filter(key, p.scenario.filter_defaults.get(key, {}))
+    t0 = time.process_time()
+    with np.errstate(all="ignore"):
+        run_filters(data, [f])
+    return (time.process_time() - t0) / (data.B * data.K)
 
 
 def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, float]]:
@@ -306,15 +352,15 @@ def measure(trick: Trick, rounds: int) -> list[tuple[str, str, float, float, flo
     rows = []
     for case, keys in trick.uses.items():
         for key in keys:
-            time_filter(case, key)  # warm up (first-call costs, caches)
+            time_filter(case, key, trick.recorded)  # warm up (first-call costs, caches)
             ons, offs = [], []
             for r in range(rounds):
                 for plain in (r % 2 == 1, r % 2 == 0):
                     if plain:
                         with trick.plain():
-                            offs.append(time_filter(case, key))
+                            offs.append(time_filter(case, key, trick.recorded))
                     else:
-                        ons.append(time_filter(case, key))
+                        ons.append(time_filter(case, key, trick.recorded))
             ratio = float(np.median(np.array(ons) / np.array(offs)))
             rows.append((case, key, min(ons), min(offs), ratio))
     return rows

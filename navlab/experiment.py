@@ -355,16 +355,18 @@ class _Recorder:
 
     The arrays are EPOCH-MAJOR, (K+1, B, …): epoch k's slab is a contiguous copy of what the
     filter returned at epoch k, (B, …). Step outputs are buffered and written a block of epochs
-    at a time: one np.stack per field (a contiguous copy) and one batched solve (NIS, NEES) per
-    block instead of a dozen small numpy calls per epoch. The block (≤ 32 epochs) is sized so the
-    buffer stays within BLOCK_BYTES. :meth:`result` hands out (B, K+1, …) views of these arrays
-    (``swapaxes``, no copy). This layout is the recorder's one speed trick, and it stayed because
-    it pays: writing each epoch into run-major (B, K+1, …) arrays is a transposing, strided copy
-    of every recorded number; ``benchmarks/throughput.py`` (kf on cv2d, 10 000 runs × 100 epochs,
-    side by side) measured driver + recorder 0.25 s → 0.16 s of a 0.63 s pipeline on a quiet
-    machine, 0.42–0.45 s → 0.21–0.23 s on a loaded one. The consumers index the views as before;
-    the truth of :func:`navlab.scenarios.base.propagate` has the same layout, so the estimation
-    errors need no transposing copy either.
+    at a time: one np.stack per field (a contiguous copy; of P only its diagonal) and one batched
+    NIS per block instead of a dozen small numpy calls per epoch. The block (≤ 32 epochs) is
+    sized so the buffer stays within BLOCK_BYTES. :meth:`result` hands out (B, K+1, …) views of
+    these arrays (``swapaxes``, no copy). This layout is the recorder's main speed trick, and it
+    stayed because it pays: writing each epoch into run-major (B, K+1, …) arrays is a
+    transposing, strided copy of every recorded number; ``benchmarks/throughput.py`` (kf on
+    cv2d, 10 000 runs × 100 epochs, side by side) measured driver + recorder 0.25 s → 0.16 s of a
+    0.63 s pipeline on a quiet machine, 0.42–0.45 s → 0.21–0.23 s on a loaded one. The consumers
+    index the views as before; the truth of :func:`navlab.scenarios.base.propagate` has the same
+    layout, so the estimation errors need no transposing copy either. The other: the NEES of a P
+    per run is one call per epoch on each P, never a stacked copy of them (:meth:`_nees`;
+    ``benchmarks/tricks.py --trick recorder-nees``).
     """
 
     def __init__(self, f: Filter, data: ScenarioData) -> None:
@@ -426,6 +428,16 @@ class _Recorder:
             if v is not None:
                 dest[k] = diag(v) if diagonal else v
 
+    @staticmethod
+    def _nees(dx: Array, Ps: list[Array]) -> Array:
+        """NEES (L, B) of the errors dx (L, B, n) with the epochs' P, (n, n) or (B, n, n): one call
+        on a stacked view while P is shared by the runs, else one call per epoch on each P as the
+        filter returned it (a stacked copy of every run's P cost more than the NEES itself).
+        """
+        if all(P.ndim == 2 for P in Ps):
+            return quad(dx, _stack(Ps, (*dx.shape[1:], dx.shape[-1])))
+        return np.stack([quad(d, P) for d, P in zip(dx, Ps, strict=True)])
+
     def _flush(self) -> None:
         items, self._pending = self._pending, []
         if not items:
@@ -437,9 +449,9 @@ class _Recorder:
         outs = [o for _, o in items]
         n, m = self.x.shape[-1], self.innov.shape[-1]
         x = np.stack([o.x for o in outs])  # (L, B, n)
-        P = _stack([o.P for o in outs], (B, n, n))  # (L, B, n, n)
-        shared = B > 1 and P.strides[1] == 0  # one P for every run (the KF family)
-        Pd = np.diagonal(P, axis1=-2, axis2=-1)  # (L, B, n)
+        Ps = [o.P for o in outs]  # not stacked: a copy of every run's P would cost more than the NEES
+        Pd = _stack([diag(P) for P in Ps], (B, n))  # (L, B, n)
+        shared = B > 1 and Pd.strides[1] == 0  # one P for every run (the KF family)
         self.x[ks] = x
         self.P_diag[ks] = Pd
         innov = np.stack([o.innov for o in outs])  # (L, B, m)
@@ -469,7 +481,7 @@ class _Recorder:
         why = np.where(_all_finite(x) & finite_P, 0, 1)  # (L, B)
         if self.x_true is not None:
             dx = x - self.x_true[:, ks].swapaxes(0, 1)  # (L, B, n)
-            nees = quad(dx, P)
+            nees = self._nees(dx, Ps)
             self.nees[ks] = nees
             win = self.window[ks][:, None]  # the error and NEES bounds apply inside the analysis window
             with np.errstate(over="ignore", invalid="ignore"):  # a run-away's error is inf

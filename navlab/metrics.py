@@ -131,8 +131,11 @@ def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
 
 def sq_error(x_hat: Array, x_true: Array, group: MetricGroup) -> Array:
     """Squared error norm over the group's components, in display units: (B, K+1)."""
+    i = list(group.idx)
+    if i == list(range(i[0], i[-1] + 1)):  # consecutive components: a view, not a gathered copy
+        i = slice(i[0], i[-1] + 1)
     with np.errstate(over="ignore", invalid="ignore"):  # a diverged run's inf stays inf
-        e = (x_hat[..., list(group.idx)] - x_true[..., list(group.idx)]) * group.scale
+        e = (x_hat[..., i] - x_true[..., i]) * group.scale
         return np.sum(e**2, axis=-1)
 
 

@@ -227,6 +227,17 @@ class KF(KalmanUpdate):
     )
 
 
+def true_R(side: SideInfo, m: int) -> Array:
+    """The oracle's R, the simulator's true variances: (m, m) while every run's are the same (no
+    outlier at this epoch: P then stays shared by the runs, as the KF's), else (B, m, m).
+
+    As the χ²-KF's shared P, this makes a run's last bits depend on the runs beside it where
+    outliers make the true R differ (the shared and the batched gain round differently).
+    """
+    r = side.R_true
+    return (r[0] if (r == r[:1]).all() else r)[..., :, None] * np.eye(m)
+
+
 @dataclass(frozen=True)
 class OracleParams:
     """Oracle KF options."""
@@ -278,7 +289,7 @@ class OracleKF(KalmanUpdate):
         P = state.P if side.Q_extra is None else state.P + side.Q_extra  # (§1.4 step 1)
         # (§1.4 step 2) z' = z − b_true, R_used = R_true (or: drop the contaminated channels)
         z = np.where(side.outlier, np.nan, z) if self.params.mode == "skip" else z - side.bias
-        R = side.R_true[..., :, None] * np.eye(z.shape[-1])
+        R = true_R(side, z.shape[-1])
         H = model.H(state.x, k)
         return Prior(state.x, P, measurement_prediction(model, state.x, P, k, z, R, H), k, H)
 

@@ -59,7 +59,7 @@ CASE_ORDER_NOTE = (
 
 def _body(i: int):
     def err(data, fr):
-        return body_attitude_errors(fr.x, data.x_true, data.extras["C_bn"])[..., i] ** 2
+        return body_attitude_errors(fr.x, data.x_true, data.extras["C_bn"], axis=i) ** 2
 
     return err
 

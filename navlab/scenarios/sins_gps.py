@@ -201,15 +201,21 @@ def _scaled_sqrt(Q: Array) -> Array:
     return ds[..., :, None] * Ls * (d > 0)[..., :, None]
 
 
-def body_attitude_errors(x_hat: Array, x_true: Array, C_bn: Array) -> Array:
+def body_attitude_errors(x_hat: Array, x_true: Array, C_bn: Array, axis: int | None = None) -> Array:
     """Pitch, roll and heading errors (arcmin), (B, K+1, 3), by §9: φ^b = C_n^b φ^n.
 
     pitch = φ^b_x (about body right), roll = φ^b_y (about body forward), heading = −φ_U
-    (ψ clockwise from north).
+    (ψ clockwise from north). ``axis`` 0, 1 or 2: that error alone, (B, K+1).
     """
     e = x_hat[..., 0:3] - x_true[..., 0:3]
-    eb = np.einsum("kji,bkj->bki", C_bn, e)  # C_n^b = (C_b^n)ᵀ
-    return np.stack([eb[..., 0], eb[..., 1], -e[..., 2]], axis=-1) * ARCMIN
+
+    def one(i: int) -> Array:
+        if i == 2:
+            return -e[..., 2] * ARCMIN
+        c = C_bn[:, :, i]  # φ^b_i = Σ_j (C_b^n)_ji φ^n_j  (C_n^b = (C_b^n)ᵀ)
+        return (c[:, 0] * e[..., 0] + c[:, 1] * e[..., 1] + c[:, 2] * e[..., 2]) * ARCMIN
+
+    return one(axis) if axis is not None else np.stack([one(i) for i in range(3)], axis=-1)
 
 
 @register_scenario
