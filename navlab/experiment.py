@@ -360,13 +360,12 @@ class _Recorder:
     sized so the buffer stays within BLOCK_BYTES. :meth:`result` hands out (B, K+1, …) views of
     these arrays (``swapaxes``, no copy). This layout is the recorder's main speed trick, and it
     stayed because it pays: writing each epoch into run-major (B, K+1, …) arrays is a
-    transposing, strided copy of every recorded number; ``benchmarks/throughput.py`` (kf on
-    cv2d, 10 000 runs × 100 epochs, side by side) measured driver + recorder 0.25 s → 0.16 s of a
-    0.63 s pipeline on a quiet machine, 0.42–0.45 s → 0.21–0.23 s on a loaded one. The consumers
-    index the views as before; the truth of :func:`navlab.scenarios.base.propagate` has the same
-    layout, so the estimation errors need no transposing copy either. The other: the NEES of a P
-    per run is one call per epoch on each P, never a stacked copy of them (:meth:`_nees`;
-    ``benchmarks/tricks.py --trick recorder-nees``).
+    transposing, strided copy of every recorded number (``benchmarks/throughput.py`` prints the
+    driver + recorder's share of the whole pipeline). The consumers index the views as before;
+    the truth of :func:`navlab.scenarios.base.propagate` has the same layout, so the estimation
+    errors need no transposing copy either. The other trick: the NEES of a P per run is one call
+    per epoch on each P, never a stacked copy of them (:meth:`_nees`; ``benchmarks/tricks.py
+    --trick recorder-nees``).
     """
 
     def __init__(self, f: Filter, data: ScenarioData) -> None:

@@ -23,8 +23,8 @@ How a number is made (the statistics spec, docs/STATISTICS.md):
   experiment records in): each run's sums add its epochs in epoch order, the same bits whatever
   the layout or chunking the arrays came in (tests/unit/test_metrics.py). The one speed trick
   of this module, kept because it pays: mixing layouts made every elementwise step a transposing
-  pass (the metrics of kf on cv2d at 10 000 runs: 0.35–0.38 s → 0.22–0.28 s with the one-pass
-  influence values of :class:`navlab.stats.MeanSqrtRatio`, benchmarks/throughput.py).
+  pass (benchmarks/throughput.py prints the metrics' share of the whole pipeline; the one-pass
+  influence values of :class:`navlab.stats.MeanSqrtRatio` serve the same end).
 * The R̂ error compares R̂ with the variance the noise was actually drawn from: on clean epochs
   (the headline ``rhat_err_pct``; the oracle reads 0) and, separately, on contaminated ones.
   Detection and false-alarm rates count outlier decisions only (flag codes 1–5); an R̂ held at its

@@ -448,7 +448,7 @@ class UKFParams:
     sqrt_method: str = param(
         "svd",
         choices=("svd", "cholesky"),
-        help="matrix square root of the sigma points: SVD (S2) or Cholesky (≈ 2× faster step; the "
+        help="matrix square root of the sigma points: SVD (S2) or Cholesky (a faster step; the "
         "same results for linear models; SVD fallback where P is not positive definite)",
     )
 

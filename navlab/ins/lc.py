@@ -305,7 +305,7 @@ def imu_on_epochs(t: Array, f: Array, w: Array, t_epochs: Array, rate_hz: float)
     sample times. Every block (t_{k−1}, t_k] therefore starts with its own sample at t_{k−1}: each
     GNSS fix is applied at its own time stamp whatever the GNSS rate and jitter, and averaging
     (``rate_hz`` > 0) only merges samples inside one block. A car turns < 1 rad/s, so the
-    coning/sculling lost over 50–100 ms bins is negligible; the mechanisation runs 5–10× faster.
+    coning/sculling lost over 50–100 ms bins is negligible, and the mechanisation has fewer steps.
     Samples before the first epoch are dropped (the alignment reads the raw ones).
     """
     t = np.asarray(t, float)
