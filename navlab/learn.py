@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 from navlab.errors import NavlabError
 from navlab.filters.base import (
@@ -32,7 +31,7 @@ from navlab.filters.base import (
     get_filter_class,
     registry,
 )
-from navlab.linalg import Array, quad
+from navlab.linalg import Array, chi2_ppf, quad
 
 # ------------------------------------------------------------------------------------ teaching
 # Each filter's idea, key equations and caveat live on its class (``Filter.teaching``, written from
@@ -369,7 +368,7 @@ def step_through(key: str, spec: TinySpec | None = None, params: dict[str, Any] 
     states = pd.DataFrame(srows, columns=STATE_COLUMNS)
     if not np.isfinite(states["posterior"].to_numpy(dtype=float)).all():
         return _not_applicable(cls, "diverged on the tiny example (non-finite estimate)", data)
-    thr = float(chi2.ppf(1.0 - spec.alpha, data.model.m))
+    thr = float(chi2_ppf(1.0 - spec.alpha, data.model.m))
     return StepThrough(cls.key, cls.label, True, "", data, steps, states, extra, thr)
 
 
@@ -457,7 +456,7 @@ def _channel_rows(
     weights = _vec(out.weights, m, 1.0)
     flags = _vec(out.flags, m, 0.0).astype(int)
     dof = int(np.isfinite(data.z[k]).sum())
-    thr = float(chi2.ppf(1.0 - spec.alpha, max(dof, 1)))
+    thr = float(chi2_ppf(1.0 - spec.alpha, max(dof, 1)))
     scal, perch = stats
     rows = []
     for i in range(m):

@@ -46,11 +46,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 from navlab import stats as S
 from navlab.errors import NavlabError
-from navlab.linalg import Array
+from navlab.linalg import Array, chi2_ppf
 
 if TYPE_CHECKING:
     from navlab.experiment import FilterRun, Results
@@ -126,7 +125,7 @@ def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
     """
     a = (1.0 - level) / 2.0
     N = max(int(runs), 1)
-    return float(chi2.ppf(a, N * dof) / N), float(chi2.ppf(1 - a, N * dof) / N)
+    return float(chi2_ppf(a, N * dof) / N), float(chi2_ppf(1 - a, N * dof) / N)
 
 
 def sq_error(x_hat: Array, x_true: Array, group: MetricGroup) -> Array:

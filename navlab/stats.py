@@ -46,8 +46,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr, ndtri
-from scipy.stats import t as student_t
+from scipy.special import ndtr, ndtri, stdtr, stdtrit
 
 Array = np.ndarray
 
@@ -404,7 +403,7 @@ def expanded_tail(n: int, level: float = LEVEL) -> float:
     """Tail probability α′/2 of the expanded percentile interval for ``n`` runs (module note)."""
     if n < 2:
         return (1.0 - level) / 2.0
-    z = np.sqrt(n / (n - 1.0)) * student_t.ppf(0.5 + level / 2.0, n - 1)
+    z = np.sqrt(n / (n - 1.0)) * stdtrit(n - 1, 0.5 + level / 2.0)
     return float(ndtr(-z))
 
 
@@ -413,7 +412,7 @@ def expanded_p(p: float, n: int) -> float:
     if n < 2 or p >= 1.0:
         return min(1.0, p)
     z = ndtri(1.0 - p / 2.0)
-    return float(2.0 * student_t.sf(z * np.sqrt((n - 1.0) / n), n - 1))
+    return float(2.0 * stdtr(n - 1, -(z * np.sqrt((n - 1.0) / n))))
 
 
 def resample_counts(n: int, size: int, rng: np.random.Generator) -> Array:
@@ -569,7 +568,7 @@ def _alpha(z: float, n: int) -> float:
     """
     if n < 2:
         return float(2.0 * ndtr(-z))
-    return float(2.0 * student_t.sf(z * np.sqrt((n - 1.0) / n), n - 1))
+    return float(2.0 * stdtr(n - 1, -(z * np.sqrt((n - 1.0) / n))))
 
 
 def floor_p(n: int, n_boot: int = N_BOOT) -> float:
@@ -696,5 +695,5 @@ def mean_ci(values: Array) -> Estimate:
     if v.size < 2:
         return Estimate(m, note="one value: no interval")
     se = float(v.std(ddof=1) / np.sqrt(v.size))
-    h = float(student_t.ppf(0.5 + LEVEL / 2, v.size - 1)) * se
+    h = float(stdtrit(v.size - 1, 0.5 + LEVEL / 2)) * se
     return Estimate(m, m - h, m + h, "t")
