@@ -507,7 +507,7 @@ def eigh_clamp(R: Array, lo: float, hi: float) -> tuple[Array, Array]:
 
 def chi2_ppf(p: Array | float, dof: Array | float) -> Array:
     """The χ²(dof) quantile of probability p: ``scipy.stats.chi2.ppf(p, dof)``, the same bits, from
-    the special function it calls (importing scipy.stats costs every process ≈ 0.4 s).
+    the special function it calls (importing scipy.stats would slow the start of every process).
     """
     return 2.0 * gammaincinv(np.asarray(dof) / 2.0, p)
 

@@ -177,7 +177,7 @@ def candidates(dims: Sequence[Dim], budget: int, seed: int) -> list[dict[str, fl
         return [first]
     salt = zlib.crc32(dims[0].filter.encode("utf-8"))
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), salt]))
-    from scipy.stats import qmc  # here: importing scipy.stats costs every process ≈ 0.4 s
+    from scipy.stats import qmc  # here: scipy.stats slows every process's start
 
     sob = qmc.Sobol(d=len(dims), scramble=True, seed=rng)
     U = sob.random_base2(max(0, math.ceil(math.log2(n))))[:n]

@@ -70,7 +70,7 @@ def mixture(alpha: float, kappa: float) -> float:
         p, s = mixture_density(np.array([u]), alpha, kappa)
         return float(p[0] * s[0] ** 2)
 
-    from scipy import integrate  # here: importing scipy.integrate costs every process ≈ 0.2 s
+    from scipy import integrate  # here: scipy.integrate slows every process's start
 
     top = max(1.0, kappa)
     edges = [0.0, 1.0, 3.0, 8.0, *(c * top for c in (1.0, 3.0, 8.0, 40.0) if c * top > 8.0)]
