@@ -719,8 +719,11 @@ def iter_chunks(
     draws from its own seed whatever the chunk, and no kernel sizes a run's work by the other
     runs of its batch. The last bits may still differ: BLAS picks its kernel by a product's size,
     so a matrix product over the run axis can round a run's row differently in a batch of another
-    size (OpenBLAS 0.3.31 on an AMD EPYC: a few units in the last place), and a filter's discrete
-    decisions can amplify that (NNMFUKF: 2e-5 relative between 6 runs in one chunk and two of 3).
+    size (OpenBLAS 0.3.31 on an AMD EPYC: a few units in the last place); a filter that keeps one
+    P for every run while it can (the χ²-KF until a run's gate rejects, the oracle while the
+    runs' true R are equal) takes a P per run from an epoch that depends on the batch, and the
+    shared and per-run gains round differently; a filter's discrete decisions can amplify that
+    (NNMFUKF: 2e-5 relative between 6 runs in one chunk and two of 3).
     The reproductions compute fixed blocks, whose numbers do not depend on the worker count.
     """
     policy = policy or fixed_chunks(None)

@@ -523,8 +523,10 @@ def _plan(rep: Reproduction, runs: int, seeds: int, seed: int, stream: bool = Tr
     A seed range whose full arrays would take more than :data:`BLOCK_BYTES` or a tenth of the
     memory budget is split into equal blocks (± 1 run; a block takes about twice its estimate
     while it computes, and two workers compute one each). Large blocks pay the per-epoch Python
-    cost of every filter step over more runs (hakf, 250 runs of sins-gps: 20 s in blocks of 25
-    runs, 12 s in blocks of 125). Which block a run is in never changes its numbers.
+    cost of every filter step over more runs. Which block a run is in never changes its draws;
+    its last bits may differ (:func:`navlab.experiment.iter_chunks`: BLAS, and a P shared by the
+    runs while it can be, as the χ²-KF's and the oracle's), and the blocks of a plan depend only
+    on ``stream``, not on the worker count.
     """
     limit = min(BLOCK_BYTES, memory.budget_bytes() / 10)
     sized = []
