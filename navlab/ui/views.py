@@ -182,7 +182,8 @@ class CompareView:
         if self._made:
             return
         self._made = True
-        c1, c2, c3, c4, c5, c6 = self.controls.columns([2, 1, 2, 1, 1, 2])
+        # widths: "σ not R" and its help icon uncut at 1440 px
+        c1, c2, c3, c4, c5, c6 = self.controls.columns([2, 1, 2, 1.3, 1, 2])
         keys = list(res.runs)
         self.ref = c6.selectbox(
             "Compare to",
