@@ -39,6 +39,7 @@ from navlab.metrics import (
     sq_error,
 )
 from navlab.params import describe
+from navlab.stats import TOO_FEW
 from navlab.ui.colors import TRUTH_COLOR, filter_colors, rgba
 
 if TYPE_CHECKING:
@@ -854,6 +855,7 @@ def sweep_lines(
     """
     colors = filter_colors(list(df["filter"].unique()))
     traces: list = []
+    bars = False  # any point with an interval (none below stats.MIN_RUNS runs)
     for key, d in df.groupby("filter", sort=False):
         d = d.sort_values("value")
         y = d["metric_value"].to_numpy(dtype=float)
@@ -861,6 +863,7 @@ def sweep_lines(
         if {"ci_lo", "ci_hi"} <= set(d.columns):
             lo, hi = d["ci_lo"].to_numpy(dtype=float), d["ci_hi"].to_numpy(dtype=float)
             if np.isfinite(lo).any():
+                bars = True
                 err = {
                     "type": "data",
                     "symmetric": False,
@@ -886,7 +889,7 @@ def sweep_lines(
         x_label,
         y_label,
         log_y,
-        subtitle="bars: 95 % intervals over runs",
+        subtitle="bars: 95 % intervals over runs" if bars else f"no interval bars: {TOO_FEW}",
     )
     fig.update_layout(hovermode="closest", xaxis_type="log" if log_x else "linear")
     return clean_log_ticks(fig)
