@@ -567,10 +567,12 @@ def _outlier_strip_bar(data, channel: int, strip_ax: str) -> go.Bar:
     )
 
 
-def _panel_title(label: str, color: str, x0: float, y1: float) -> dict:
-    """A small multiple's title: the filter's label in its colour, above the panel's left corner."""
+def _panel_title(label: str, color: str, x0: float, y1: float, note: str = "") -> dict:
+    """A small multiple's title: the filter's label in its colour (and ``note`` after it), above
+    the panel's left corner.
+    """
     return {
-        "text": f"<b>{label}</b>",
+        "text": f"<b>{label}</b>" + (f" — {note}" if note else ""),
         "x": x0,
         "xref": "paper",
         "xanchor": "left",
@@ -591,9 +593,11 @@ def _rhat_grid(
     yaxis: dict,
     y_title: str,
     strip_top: float | None,
+    sym: str = "R",
 ) -> None:
     """The panels' axes into ``layout``: rows × cols top to bottom over the strip (``strip_top``:
-    its top as a fraction of the plot height, None without the strip), one time axis.
+    its top as a fraction of the plot height, None without the strip), one time axis; ``sym``:
+    R or σ.
     """
     rows, cols = shape
     n_panels = len(shown) if multi else 1
@@ -631,8 +635,10 @@ def _rhat_grid(
         layout[f"xaxis{_axis_suffix(i)}"] = xa
         layout[f"yaxis{_axis_suffix(i)}"] = ya
         if multi:
-            label = res.runs[shown[i]].label
-            layout.setdefault("annotations", []).append(_panel_title(label, colors[shown[i]], x0, y1))
+            fr = res.runs[shown[i]]  # the oracle's estimate is drawn under the truth: say so
+            note = f"{sym}̂ = the true {sym}(t)" if fr.key == "oracle-kf" else ""
+            title = _panel_title(fr.label, colors[shown[i]], x0, y1, note)
+            layout.setdefault("annotations", []).append(title)
 
 
 def _strip_axes(layout: dict, strip_ax: str, strip_top: float) -> None:
@@ -708,9 +714,8 @@ def r_vs_rhat(
     if outlier_strip:
         layout["bargap"] = 0
     strip_top = strip_h / plot_h if outlier_strip else None
-    _rhat_grid(
-        layout, res, shown, multi, (rows, cols), yaxis, f"{sym} ({units})" if units else sym, strip_top
-    )
+    y_title = f"{sym} ({units})" if units else sym
+    _rhat_grid(layout, res, shown, multi, (rows, cols), yaxis, y_title, strip_top, sym)
     if outlier_strip:
         _strip_axes(layout, strip_ax, strip_top)
     return go.Figure(data=traces, layout=layout)
