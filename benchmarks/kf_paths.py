@@ -291,20 +291,7 @@ def update(self, model, state, k, z, side):
     nu = np.where(pr.mk.ok, pr.mk.nu if nz.nu is None else nz.nu, np.nan)
     w = np.ones((B, m)) if nz.weights is None else nz.weights
     x, P, _, S, _, fixed = _STEP[1]((pr.x, _per_run(pr.P, B), nu, w, _per_run(nz.R, B)), (pr.H,))
-    flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
-    flag_fix(flags, nz.fixed | fixed)
-    out = StepOut(
-        x=x,
-        P=P,
-        innov=pr.mk.nu,
-        S=S if nz.S is None else nz.S,
-        R_used=nz.R,
-        R_hat=nz.R_hat,
-        weights=nz.weights,
-        flags=flags,
-        stats=nz.stats,
-    )
-    return self.next_state(model, state, k, z, x, P, nz), out
+    return self.finish(model, state, k, z, pr, nz, (x, P, S, fixed))
 
 
 @contextlib.contextmanager

@@ -153,6 +153,15 @@ class KalmanUpdate(Filter):
         K, fixed = self.gain(pr.mk, S, nz)  # 4  K = P⁻ Hᵀ S⁻¹
         x = pr.x + mv(K, pr.mk.nu if nz.nu is None else nz.nu)  # 5  x⁺ = x⁻ + K ν
         P = self.posterior(pr, K, S)  # 6  P⁺
+        return self.finish(model, state, k, z, pr, nz, (x, P, S, fixed))
+
+    def finish(
+        self, model: Model, state: Any, k: int, z: Array, pr: Prior, nz: Noise, post: tuple
+    ) -> tuple[Any, StepOut]:
+        """The next state and the step's output from the posterior ``post`` = (x⁺, P⁺, the gain's S,
+        its fix flag), the prior and the noise step (what the filter reports beside them).
+        """
+        x, P, S, fixed = post
         flags = np.zeros(z.shape, dtype=np.int8) if nz.flags is None else nz.flags
         flag_fix(flags, nz.fixed | fixed)
         out = StepOut(
