@@ -411,8 +411,7 @@ def expanded_p(p: float, n: int) -> float:
     """The percentile p-value mapped through the expansion (p < 1 − level ⇔ 0 outside the CI)."""
     if n < 2 or p >= 1.0:
         return min(1.0, p)
-    z = ndtri(1.0 - p / 2.0)
-    return float(2.0 * stdtr(n - 1, -(z * np.sqrt((n - 1.0) / n))))
+    return _alpha(ndtri(1.0 - p / 2.0), n)
 
 
 def resample_counts(n: int, size: int, rng: np.random.Generator) -> Array:
