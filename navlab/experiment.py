@@ -34,8 +34,26 @@ MAX_RUNS = 20000  # a full run (per-epoch arrays of every run)
 MAX_SUMMARY_RUNS = 10_000_000  # a summary run (per-run statistics only)
 
 
-def _freeze(d: Mapping[str, Any] | None) -> dict[str, Any]:
-    return json.loads(json.dumps(dict(d or {}), sort_keys=True))
+def _freeze(d: Mapping[str, Any] | None, name: str) -> dict[str, Any]:
+    """A JSON copy of parameter group ``name`` (numpy numbers as Python numbers)."""
+    if not isinstance(d or {}, Mapping):
+        raise NavlabError(f"'{name}' must be a JSON object")
+
+    def item(v: Any) -> Any:
+        if isinstance(v, np.generic):
+            return v.item()
+        raise TypeError(f"{type(v).__name__} {v!r} is not one")
+
+    try:
+        return json.loads(json.dumps(dict(d or {}), sort_keys=True, default=item))
+    except (TypeError, ValueError) as exc:  # e.g. a key that is not a string
+        raise NavlabError(f"'{name}' must hold JSON values (numbers, strings, lists): {exc}") from None
+
+
+def _whole(v: Any) -> Any:
+    """A whole number given as 5.0 or a numpy integer → 5; anything else as it is (plan judges it)."""
+    number = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    return int(v) if number and abs(v) < 2**63 and int(v) == v else v
 
 
 @dataclass(frozen=True)
@@ -72,9 +90,29 @@ class ExperimentSpec:
     filter_params: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "filters", tuple(self.filters))
+        f = self.filters
+        if isinstance(f, str):
+            f = [s.strip() for s in f.split(",") if s.strip()]
+        if not isinstance(f, (list, tuple)) or not all(isinstance(s, str) for s in f):
+            raise NavlabError('\'filters\' must be a list of filter keys, e.g. ["kf", "chi2-kf"]')
+        object.__setattr__(self, "filters", tuple(f))
+        for name, eg, what in (
+            ("scenario", "cv2d", "scenarios"),
+            ("noise_schedule", "constant", "schedules"),
+            ("outliers", "mixture", "outliers"),
+        ):
+            if not isinstance(getattr(self, name), str):
+                raise NavlabError(
+                    f"'{name}' must be a key such as \"{eg}\" (python -m navlab list {what}), "
+                    f"got {getattr(self, name)!r}"
+                )
+        for name in ("runs", "seed", "epochs"):
+            object.__setattr__(self, name, _whole(getattr(self, name)))
         for name in ("noise_params", "outlier_params", "scenario_params", "filter_params"):
-            object.__setattr__(self, name, _freeze(getattr(self, name)))
+            object.__setattr__(self, name, _freeze(getattr(self, name), name))
+        for k, v in self.filter_params.items():
+            if not isinstance(v, Mapping):
+                raise NavlabError(f"'filter_params.{k}' must be a JSON object of parameters")
 
     def __hash__(self) -> int:
         return hash(self.to_json())
@@ -98,21 +136,9 @@ class ExperimentSpec:
             raise NavlabError(
                 f"unknown configuration key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}"
             )
-        d = dict(d)
-        if "filters" in d:
-            f = d["filters"]
-            if isinstance(f, str):
-                f = [s.strip() for s in f.split(",") if s.strip()]
-            if not isinstance(f, (list, tuple)) or not all(isinstance(s, str) for s in f):
-                raise NavlabError('\'filters\' must be a list of filter keys, e.g. ["kf", "chi2-kf"]')
-            d["filters"] = tuple(f)
         for name in ("noise_params", "outlier_params", "scenario_params", "filter_params"):
-            if name in d and not isinstance(d[name], Mapping):
+            if name in d and not isinstance(d[name], Mapping):  # null too (the constructor takes None)
                 raise NavlabError(f"'{name}' must be a JSON object")
-        if "filter_params" in d:
-            for k, v in d["filter_params"].items():
-                if not isinstance(v, Mapping):
-                    raise NavlabError(f"'filter_params.{k}' must be a JSON object of parameters")
         return cls(**d)
 
     @classmethod
@@ -242,6 +268,11 @@ def as_plan(spec: ExperimentSpec | Plan, max_runs: int = MAX_RUNS) -> Plan:
 
 def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
     """Validate every part of ``spec`` before any computation; NavlabError says what to change."""
+    if not isinstance(spec, ExperimentSpec):
+        raise NavlabError(
+            f"an experiment is an ExperimentSpec (ExperimentSpec.from_dict for a dict), "
+            f"got {type(spec).__name__}"
+        )
     big = isinstance(spec.runs, int) and not isinstance(spec.runs, bool) and spec.runs > MAX_RUNS
     if big and max_runs == MAX_RUNS and spec.runs <= MAX_SUMMARY_RUNS:
         raise NavlabError(

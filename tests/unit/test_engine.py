@@ -196,3 +196,43 @@ def test_scenario_filter_defaults_apply_and_the_spec_overrides_them(monkeypatch)
     spec = ExperimentSpec(filters=("chi2-kf",), runs=1, filter_params={"chi2-kf": {"c_gate": 2.0}})
     f = plan(spec).filters[0]
     assert f.params.per_channel and f.params.c_gate == 2.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "words"),
+    [
+        ({"filters": None}, "list of filter keys"),
+        ({"filters": [1]}, "list of filter keys"),
+        ({"outliers": ["mixture"]}, "'outliers' must be a key"),
+        ({"scenario": None}, "'scenario' must be a key"),
+        ({"filter_params": [1]}, "'filter_params' must be a JSON object"),
+        ({"filter_params": {"kf": None}}, "'filter_params.kf' must be a JSON object"),
+        ({"noise_params": {"factor": object()}}, "'noise_params' must hold JSON values"),
+    ],
+)
+def test_a_spec_of_the_wrong_types_is_refused_in_words(kwargs, words):
+    with pytest.raises(NavlabError, match=words):
+        ExperimentSpec(**kwargs)
+
+
+def test_whole_numbers_and_numpy_numbers_are_taken_as_python_numbers():
+    """runs=2.0, numpy integers and floats (a script's arrays) run as 2, 10, 2.0 would."""
+    spec = ExperimentSpec(
+        filters="kf, chi2-kf",
+        runs=2.0,
+        epochs=np.int32(10),
+        seed=np.int64(3),
+        noise_params={"factor": np.float32(2)},
+    )
+    assert (spec.filters, spec.runs, spec.epochs, spec.seed) == (("kf", "chi2-kf"), 2, 10, 3)
+    assert type(spec.runs) is int and spec.noise_params == {"factor": 2.0}
+    assert ExperimentSpec.from_json(spec.to_json()) == spec
+    assert run_experiment(spec).spec.runs == 2
+    with pytest.raises(NavlabError, match="runs"):  # a fraction is still refused
+        plan(ExperimentSpec(runs=2.5))
+
+
+@pytest.mark.parametrize("bad", [{"runs": 2}, None, "cv2d"])
+def test_run_experiment_of_something_else_than_a_spec_says_so(bad):
+    with pytest.raises(NavlabError, match="ExperimentSpec"):
+        run_experiment(bad)
