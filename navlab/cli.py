@@ -356,6 +356,8 @@ def _floats(text: str, what: str) -> list[float]:
     """'0,0.1,0.2' or 'LO:HI:N' (linear) or 'LO:HI:N:log' → values."""
     import numpy as np
 
+    from navlab.sweep import MAX_POINTS
+
     try:
         if ":" in text:
             parts = text.split(":")
@@ -365,8 +367,12 @@ def _floats(text: str, what: str) -> list[float]:
                 raise ValueError
             if log and lo <= 0:
                 raise NavlabError(f"{what} {text}: a log-spaced range needs a positive lower end")
+            if n > MAX_POINTS:  # refused before numpy allocates them
+                raise NavlabError(f"{what} {text}: {n} values; a sweep takes at most {MAX_POINTS} per axis")
             return list(np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))
         return [float(v) for v in text.split(",") if v.strip()]
+    except NavlabError:  # a ValueError too, but already in words
+        raise
     except ValueError:
         raise NavlabError(
             f"{what} takes comma-separated numbers (0,0.1,0.2) or LO:HI:N[:log], got {text!r}"

@@ -564,27 +564,51 @@ def run_filters(
     filter's wall time is summed over the epochs :func:`timed_from` names.
     """
     model = data.model
-    states = [f.init(model, data.x0, data.P0) for f in filters]
-    recs = [_Recorder(f, data) for f in filters]
-    K = data.K
-    first_timed = timed_from(K)
-    # no blanket np.errstate here: a filter handles its own expected edge cases locally, so a NaN
-    # or an overflow a filter produces unexpectedly warns (and fails the tests, which turn navlab's
-    # RuntimeWarnings into errors); a run that blows up is caught by the recorder's divergence rule
-    for k in range(1, K + 1):
-        zk = data.z[:, k]
-        side = data.side(k)
-        for i, f in enumerate(filters):
-            rec = recs[i]
-            t0 = time.perf_counter()
-            st = f.predict(model, states[i], k)
-            states[i], out = f.update(model, st, k, zk, side)
-            if k >= first_timed:
-                rec.runtime += time.perf_counter() - t0
-            rec.put(k, out)
-        if on_epoch is not None:
-            on_epoch(k, K)
+    i = k = 0
+    try:
+        states = []
+        for i, f in enumerate(filters):  # noqa: B007 - i names the failing filter
+            states.append(f.init(model, data.x0, data.P0))
+        recs = [_Recorder(f, data) for f in filters]
+        K = data.K
+        first_timed = timed_from(K)
+        # no blanket np.errstate here: a filter handles its own expected edge cases locally, so a
+        # NaN or an overflow a filter produces unexpectedly warns (and fails the tests, which turn
+        # navlab's RuntimeWarnings into errors); a run that blows up is caught by the recorder's
+        # divergence rule
+        for k in range(1, K + 1):
+            zk = data.z[:, k]
+            side = data.side(k)
+            for i, f in enumerate(filters):
+                rec = recs[i]
+                t0 = time.perf_counter()
+                st = f.predict(model, states[i], k)
+                states[i], out = f.update(model, st, k, zk, side)
+                if k >= first_timed:
+                    rec.runtime += time.perf_counter() - t0
+                rec.put(k, out)
+            if on_epoch is not None:
+                on_epoch(k, K)
+    except Exception as exc:
+        _plugin_failed(filters[i], k, exc)
+        raise
     return {f.key: r.result() for f, r in zip(filters, recs, strict=True)}
+
+
+def _plugin_failed(f: Filter, k: int, exc: Exception) -> None:
+    """A plugin filter's error (its author's to fix) as a NavlabError naming it; navlab's own
+    filters' errors stay internal errors.
+    """
+    from navlab.filters.base import FILTERS
+
+    dist = FILTERS.plugin_sources.get(f.key)
+    if dist is None or isinstance(exc, NavlabError):
+        return
+    where = "in init" if k == 0 else f"at epoch {k}"
+    raise NavlabError(
+        f"filter '{f.key}' (a plugin, from {dist}) failed {where}: {type(exc).__name__}: {exc}; "
+        f"check it with: python -m navlab check-filter {f.key}"
+    ) from exc
 
 
 @dataclass(eq=False)

@@ -370,3 +370,13 @@ def test_a_flag_overrides_the_configurations_value_of_the_same_parameter(tmp_pat
 def test_reproduce_names_seeds_times_runs_when_too_many(capsys):
     rc, _out, err = run_cli(capsys, "reproduce", "hakf", "--seeds", "1000000000", "-q")
     assert rc == 2 and "--seeds 1000000000 × --runs" in err and "use fewer seeds or runs" in err
+
+
+def test_a_sweep_range_of_a_billion_values_is_refused_before_it_is_made(capsys):
+    """0:0.3:1000000000 made the billion values first (23 GB, killed)."""
+    rc, _out, err = run_cli(
+        capsys, "sweep", "--param", "outliers.contamination", "--values", "0:0.3:1000000000"
+    )
+    assert rc == 2 and "1000000000 values; a sweep takes at most 15" in err
+    rc, _out, err = run_cli(capsys, "sweep", "--param", "noise.factor", "--values", "0:1:3:log")
+    assert rc == 2 and "positive lower end" in err  # was swallowed by the generic message

@@ -236,3 +236,25 @@ def test_whole_numbers_and_numpy_numbers_are_taken_as_python_numbers():
 def test_run_experiment_of_something_else_than_a_spec_says_so(bad):
     with pytest.raises(NavlabError, match="ExperimentSpec"):
         run_experiment(bad)
+
+
+def test_a_plugin_filter_that_raises_is_named_with_what_to_run(monkeypatch):
+    """A plugin's bug is its author's to fix: a NavlabError naming it and check-filter, not an
+    internal error; navlab's own filters' errors stay internal errors."""
+    from navlab.filters.base import FILTERS
+    from navlab.filters.kalman import KF
+
+    def broken(self, *_a):
+        raise ZeroDivisionError("oops")
+
+    monkeypatch.setattr(KF, "update", broken)
+    spec = ExperimentSpec(filters=("kf",), runs=2, epochs=5)
+    with pytest.raises(ZeroDivisionError):
+        run_experiment(spec)
+    monkeypatch.setitem(FILTERS.plugin_sources, "kf", "navlab-mine 0.1")
+    with pytest.raises(
+        NavlabError,
+        match=r"filter 'kf' \(a plugin, from navlab-mine 0.1\) failed at epoch 1: "
+        r"ZeroDivisionError: oops; check it with: python -m navlab check-filter kf",
+    ):
+        run_experiment(spec)
