@@ -729,6 +729,14 @@ def check_jobs(value: Any, name: str = "--jobs") -> int:
         jobs = 0
     if isinstance(value, bool) or jobs < 1 or str(jobs) != str(value).strip():
         raise NavlabError(f"{name} must be a whole number ≥ 1 (worker processes), got {value!r}")
+    from navlab.cluster import cpu_count
+
+    most = max(8, 4 * cpu_count())  # more cannot go faster; each worker holds navlab in memory
+    if jobs > most:
+        raise NavlabError(
+            f"{name} {jobs}: at most {most} worker processes on this machine ({cpu_count()} cores); "
+            "more cannot go faster"
+        )
     return jobs
 
 
