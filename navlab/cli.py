@@ -386,8 +386,10 @@ def _seeds(text: str | None, what: str) -> list[int] | None:
         out = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise NavlabError(f"{what} takes comma-separated whole numbers (e.g. 11,12), got {text!r}") from None
-    if not out or any(v < 0 for v in out):
-        raise NavlabError(f"{what} takes comma-separated non-negative whole numbers, got {text!r}")
+    from navlab.params import SEED_MAX
+
+    if not out or any(not 0 <= v <= SEED_MAX for v in out):
+        raise NavlabError(f"{what} takes comma-separated whole numbers in [0, {SEED_MAX}], got {text!r}")
     return out
 
 

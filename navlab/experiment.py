@@ -1007,4 +1007,11 @@ def load_results(path: str | os.PathLike):
         raise NavlabError(f"{path} is not a netCDF results file navlab wrote: {exc}") from None
     if "spec" not in out.attrs or "navlab_version" not in out.attrs:
         raise NavlabError(f"{path} is a netCDF file but not navlab results (no spec attribute)")
+    from navlab.io import parse_json
+
+    try:  # JSON only: a spec of another navlab version may have other keys
+        if not isinstance(parse_json(str(out.attrs["spec"]), "its spec attribute"), dict):
+            raise NavlabError("its spec attribute is not a JSON object")
+    except NavlabError as exc:
+        raise NavlabError(f"{path}: a damaged results file ({exc}); write it again") from None
     return out

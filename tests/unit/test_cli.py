@@ -380,3 +380,8 @@ def test_a_sweep_range_of_a_billion_values_is_refused_before_it_is_made(capsys):
     assert rc == 2 and "1000000000 values; a sweep takes at most 15" in err
     rc, _out, err = run_cli(capsys, "sweep", "--param", "noise.factor", "--values", "0:1:3:log")
     assert rc == 2 and "positive lower end" in err  # was swallowed by the generic message
+
+
+def test_tune_seeds_beyond_the_seed_range_are_named(capsys):
+    rc, _out, err = run_cli(capsys, "tune", "--train-seeds", "99999999999999999999", "-q")
+    assert rc == 2 and "--train-seeds takes comma-separated whole numbers in [0, " in err
