@@ -922,6 +922,12 @@ def read_pseudorange_csv(folder: str | os.PathLike) -> PseudorangeRecording:
                 if len(parts) > j and parts[j].strip().upper() in SYSTEM_LETTERS:
                     parts[j] = str(SYSTEM_LETTERS[parts[j].strip().upper()])
                     lines[i] = ",".join(parts)
+                elif len(parts) > j and parts[j].strip().isalpha():
+                    raise NavlabError(
+                        f"{f_pr}: line {i + 1}, column {j + 1} (system) is {parts[j].strip()[:10]!r}; give a "
+                        "RINEX letter (G, R, E, C, J, S) or a smartLoc code (1 GPS, 2 SBAS, 4 GLONASS, "
+                        "8 Galileo, 16 QZSS, 32 BeiDou)"
+                    )
     req = ("t_s", "sat_id", "system", "pseudorange_m", "sat_x_m", "sat_y_m", "sat_z_m")
     opt = ("var_m2", "elevation_deg", "cn0_dbhz")
     prd = _read_header_csv(f_pr, req, opt, _PR_RANGES, lines=lines)
