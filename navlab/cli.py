@@ -611,6 +611,8 @@ def _check_filter(a: argparse.Namespace) -> int:
         where = sorted({o.scenario for o in outs})
         what = outs[0].contract if len(outs) == 1 else f"{len(outs)} checks"
         print(f"skip  {what} [{', '.join(where)}]: {why}")
+    if not counts["pass"] and not counts["fail"]:  # not "passed": nothing was checked
+        raise NavlabError(f"{a.name}: nothing checked — all {counts['skip']} checks skipped (why: above)")
     verdict = "FAILED" if counts["fail"] else "passed"
     print(f"{a.name}: {verdict} — {counts['pass']} passed, {counts['fail']} failed, {counts['skip']} skipped")
     return 1 if counts["fail"] else 0

@@ -385,3 +385,10 @@ def test_a_sweep_range_of_a_billion_values_is_refused_before_it_is_made(capsys):
 def test_tune_seeds_beyond_the_seed_range_are_named(capsys):
     rc, _out, err = run_cli(capsys, "tune", "--train-seeds", "99999999999999999999", "-q")
     assert rc == 2 and "--train-seeds takes comma-separated whole numbers in [0, " in err
+
+
+def test_check_filter_that_checked_nothing_does_not_say_passed(capsys, monkeypatch, tmp_path):
+    """With the recording missing, 'kf: passed — 0 passed, 0 failed, 11 skipped' exited 0."""
+    monkeypatch.setenv("NAVLAB_DATA", str(tmp_path / "nowhere"))
+    rc, out, err = run_cli(capsys, "check-filter", "kf", "--scenario", "drive0708")
+    assert rc == 2 and "passed" not in out and "kf: nothing checked — all" in err and "not found under" in out
