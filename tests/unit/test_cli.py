@@ -392,3 +392,15 @@ def test_check_filter_that_checked_nothing_does_not_say_passed(capsys, monkeypat
     monkeypatch.setenv("NAVLAB_DATA", str(tmp_path / "nowhere"))
     rc, out, err = run_cli(capsys, "check-filter", "kf", "--scenario", "drive0708")
     assert rc == 2 and "passed" not in out and "kf: nothing checked — all" in err and "not found under" in out
+
+
+def test_an_unwritable_bench_folder_is_refused_before_the_bench(capsys, monkeypatch, tmp_path):
+    from navlab import bench as BN
+
+    monkeypatch.setattr(BN, "run", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran the bench")))
+    (tmp_path / "afile").write_text("x")
+    monkeypatch.setenv("NAVLAB_BENCH_DIR", str(tmp_path / "afile"))
+    rc, _out, err = run_cli(
+        capsys, "bench", "--suite", "tiny", "--filters", "kf", "--scheduler", "serial", "-q"
+    )
+    assert rc == 2 and "the bench folder" in err and "that is a file; give a folder" in err

@@ -236,6 +236,8 @@ def test_whole_numbers_and_numpy_numbers_are_taken_as_python_numbers():
 def test_run_experiment_of_something_else_than_a_spec_says_so(bad):
     with pytest.raises(NavlabError, match="ExperimentSpec"):
         run_experiment(bad)
+    with pytest.raises(NavlabError, match="must be JSON text"):  # from_json(None): AttributeError
+        ExperimentSpec.from_json(None if bad is None else bad.items() if isinstance(bad, dict) else 5)
 
 
 def test_a_plugin_filter_that_raises_is_named_with_what_to_run(monkeypatch):
