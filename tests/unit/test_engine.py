@@ -260,3 +260,26 @@ def test_a_plugin_filter_that_raises_is_named_with_what_to_run(monkeypatch):
         r"ZeroDivisionError: oops; check it with: python -m navlab check-filter kf",
     ):
         run_experiment(spec)
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        (
+            {"outliers": "isolated", "outlier_params": {"channels": [0.5]}},
+            r"outlier model 'isolated': channel\(s\) \[0.5\]",
+        ),
+        (
+            {"outliers": "isolated", "outlier_params": {"channels": [-0.5]}},
+            r"channel\(s\) \[-0.5\] do not exist",
+        ),
+        (
+            {"noise_schedule": "burst", "noise_params": {"channels": [0.5]}},
+            r"noise schedule 'burst': channel\(s\) \[0.5\]",
+        ),
+    ],
+)
+def test_a_fractional_channel_is_refused_not_taken_as_channel_0(change, words):
+    spec = ExperimentSpec(filters=("kf",), runs=2, epochs=10, **change)
+    with pytest.raises(NavlabError, match=words):
+        run_experiment(spec)
