@@ -97,9 +97,15 @@ def _write(text: str, out: str | None) -> None:
 
 def _check_outputs(a: argparse.Namespace) -> None:
     """Refuse an output path that cannot be written before the computation, not after it."""
+    seen: dict[Path, str] = {}
     for flag in ("out", "save_spec", "save_results"):
         if getattr(a, flag, None):
-            _writable(Path(getattr(a, flag)), f"--{flag.replace('_', '-')} {getattr(a, flag)}", folder=False)
+            what = f"--{flag.replace('_', '-')} {getattr(a, flag)}"
+            p = Path(getattr(a, flag)).expanduser().resolve()
+            if p in seen and (p.is_file() or not p.exists()):  # the second would overwrite the first
+                raise NavlabError(f"{seen[p]} and {what} name the same file; give each its own")
+            seen[p] = what
+            _writable(Path(getattr(a, flag)), what, folder=False)
     if getattr(a, "outdir", None):
         _writable(Path(a.outdir), f"--outdir {a.outdir}", folder=True)
 

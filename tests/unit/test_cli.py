@@ -324,6 +324,7 @@ def no_compute(monkeypatch):
         (["run", "--save-spec", "{tmp}/missing/s.json"], "--save-spec"),
         (["run", "--summary", "--save-results", "{tmp}/r.nc"], "which --summary drops"),
         (["run", "--compare-to", "nope"], "not one of the filters run"),
+        (["run", "--out", "{tmp}/r.nc", "--save-results", "{tmp}/r.nc"], "name the same file"),
         (["reproduce", "hakf", "--seeds", "1", "--runs", "2", "--outdir", "{tmp}/afile/x"], "not a folder"),
         (["tune", "--outdir", "{tmp}/afile"], "that is a file; give a folder"),
         (["sweep", "--param", "outliers.contamination", "--values", "0,0.1", "--out", "{tmp}/no/x"], "--out"),
