@@ -95,6 +95,36 @@ def _write(text: str, out: str | None) -> None:
         sys.stdout.write(text)
 
 
+def _check_outputs(a: argparse.Namespace) -> None:
+    """Refuse an output path that cannot be written before the computation, not after it."""
+    seen: dict[Path, str] = {}
+    for flag in ("out", "save_spec", "save_results"):
+        if getattr(a, flag, None):
+            what = f"--{flag.replace('_', '-')} {getattr(a, flag)}"
+            p = Path(getattr(a, flag)).expanduser().resolve()
+            if p in seen and (p.is_file() or not p.exists()):  # the second would overwrite the first
+                raise NavlabError(f"{seen[p]} and {what} name the same file; give each its own")
+            seen[p] = what
+            _writable(Path(getattr(a, flag)), what, folder=False)
+    if getattr(a, "outdir", None):
+        _writable(Path(a.outdir), f"--outdir {a.outdir}", folder=True)
+
+
+def _writable(p: Path, what: str, folder: bool) -> None:
+    """NavlabError unless file ``p`` can be written (or folder ``p`` made and written into)."""
+    if p.exists() and p.is_dir() != folder:
+        got, want = ("file", "folder") if folder else ("folder", "file name")
+        raise NavlabError(f"{what}: that is a {got}; give a {want}")
+    parent = p if folder else p.parent
+    while folder and not parent.exists() and parent != parent.parent:  # the run makes the missing folders
+        parent = parent.parent
+    if not parent.is_dir():
+        why = "is a file, not a folder; give" if parent.exists() else "does not exist; create it or give"
+        raise NavlabError(f"{what}: {parent} {why} another path")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise NavlabError(f"{what}: no permission to write there; give a path you can write to")
+
+
 def _spec_from_args(a: argparse.Namespace):
     from navlab.experiment import ExperimentSpec
 
@@ -116,6 +146,16 @@ def _spec_from_args(a: argparse.Namespace):
         "outlier_scale": a.outlier_scale,
     }
     base.update({k: v for k, v in overrides.items() if v is not None})
+    # the flags that are shortcuts for a parameter override the configuration's value of it
+    shortcut = {
+        "contamination": "outliers.contamination",
+        "outlier_scale": "outliers.scale",
+        "epochs": "scenario.epochs",
+    }
+    given = {shortcut[k]: k for k in shortcut if overrides[k] is not None}
+    for dotted in given:
+        group, name = dotted.split(".")
+        base.get({"outliers": "outlier_params", "scenario": "scenario_params"}[group], {}).pop(name, None)
     for item in a.set or []:
         if "=" not in item or "." not in item.split("=", 1)[0]:
             raise NavlabError(
@@ -124,6 +164,11 @@ def _spec_from_args(a: argparse.Namespace):
             )
         lhs, rhs = item.split("=", 1)
         group, name = lhs.split(".", 1)
+        if not group or not name:
+            raise NavlabError(f"--set {item}: name the group and the parameter, e.g. chi2-kf.alpha=0.05")
+        if lhs in given:
+            flag = "--" + given[lhs].replace("_", "-")
+            raise NavlabError(f"--set {item} and {flag} both set {lhs}; give it once")
         try:
             value = json.loads(rhs)
         except json.JSONDecodeError:
@@ -150,6 +195,14 @@ def _run(a: argparse.Namespace) -> int:
     from navlab.experiment import run_experiment
 
     spec = _spec_from_args(a)
+    if a.compare_to is not None and a.compare_to not in spec.filters:
+        raise NavlabError(
+            f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
+        )
+    if a.save_results and a.summary:
+        raise NavlabError(
+            "--save-results needs the per-epoch arrays, which --summary drops: run without --summary"
+        )
     progress = _progress(a.quiet)
     if progress is not None:
         progress.total = spec.runs
@@ -165,10 +218,6 @@ def _run(a: argparse.Namespace) -> int:
         res = run_experiment(
             spec, on_progress=progress, chunk_runs=chunk, budget=a.memory_budget, on_epoch=within
         )
-    if a.compare_to is not None and a.compare_to not in spec.filters:
-        raise NavlabError(
-            f"--compare-to {a.compare_to}: not one of the filters run ({', '.join(spec.filters)})"
-        )
     if a.format == "table":
         from navlab.tables import headline
 
@@ -182,12 +231,8 @@ def _run(a: argparse.Namespace) -> int:
 
         _emit(summary_rows(res, compare_to=a.compare_to), a.format, a.out)
     if a.save_results:
-        from navlab.experiment import Results, save_results
+        from navlab.experiment import save_results
 
-        if not isinstance(res, Results):
-            raise NavlabError(
-                "--save-results needs the per-epoch arrays, which --summary drops: run without --summary"
-            )
         save_results(res, a.save_results)
         print(f"wrote {a.save_results} (navlab.load_results reads it)", file=sys.stderr)
     if a.save_spec:
@@ -317,6 +362,8 @@ def _floats(text: str, what: str) -> list[float]:
     """'0,0.1,0.2' or 'LO:HI:N' (linear) or 'LO:HI:N:log' → values."""
     import numpy as np
 
+    from navlab.sweep import MAX_POINTS
+
     try:
         if ":" in text:
             parts = text.split(":")
@@ -326,8 +373,12 @@ def _floats(text: str, what: str) -> list[float]:
                 raise ValueError
             if log and lo <= 0:
                 raise NavlabError(f"{what} {text}: a log-spaced range needs a positive lower end")
+            if n > MAX_POINTS:  # refused before numpy allocates them
+                raise NavlabError(f"{what} {text}: {n} values; a sweep takes at most {MAX_POINTS} per axis")
             return list(np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))
         return [float(v) for v in text.split(",") if v.strip()]
+    except NavlabError:  # a ValueError too, but already in words
+        raise
     except ValueError:
         raise NavlabError(
             f"{what} takes comma-separated numbers (0,0.1,0.2) or LO:HI:N[:log], got {text!r}"
@@ -341,8 +392,10 @@ def _seeds(text: str | None, what: str) -> list[int] | None:
         out = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise NavlabError(f"{what} takes comma-separated whole numbers (e.g. 11,12), got {text!r}") from None
-    if not out or any(v < 0 for v in out):
-        raise NavlabError(f"{what} takes comma-separated non-negative whole numbers, got {text!r}")
+    from navlab.params import SEED_MAX
+
+    if not out or any(not 0 <= v <= SEED_MAX for v in out):
+        raise NavlabError(f"{what} takes comma-separated whole numbers in [0, {SEED_MAX}], got {text!r}")
     return out
 
 
@@ -462,6 +515,8 @@ def _bench(a: argparse.Namespace) -> int:
             a.out,
         )
         return 0
+    if not a.outdir:  # the default folder (--outdir is checked with the other outputs)
+        _writable(BN.default_dir(), f"the bench folder {BN.default_dir()} (NAVLAB_BENCH_DIR)", folder=True)
     store, ex = _engine(a)
     prog = _progress(a.quiet, "tasks", lambda: ex.now)
     b = BN.run(suite, filters=filters, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
@@ -562,6 +617,8 @@ def _check_filter(a: argparse.Namespace) -> int:
         where = sorted({o.scenario for o in outs})
         what = outs[0].contract if len(outs) == 1 else f"{len(outs)} checks"
         print(f"skip  {what} [{', '.join(where)}]: {why}")
+    if not counts["pass"] and not counts["fail"]:  # not "passed": nothing was checked
+        raise NavlabError(f"{a.name}: nothing checked — all {counts['skip']} checks skipped (why: above)")
     verdict = "FAILED" if counts["fail"] else "passed"
     print(f"{a.name}: {verdict} — {counts['pass']} passed, {counts['fail']} failed, {counts['skip']} skipped")
     return 1 if counts["fail"] else 0
@@ -744,6 +801,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if rest[:1] == ["app"]:  # everything after "app" is Streamlit's
             return _app(rest[1:])
         a = build_parser().parse_args(rest)  # --debug is taken before or after the subcommand
+        _check_outputs(a)
         if a.cmd == "list":
             _emit(_list(a.what), a.format, None)
             return 0

@@ -34,8 +34,26 @@ MAX_RUNS = 20000  # a full run (per-epoch arrays of every run)
 MAX_SUMMARY_RUNS = 10_000_000  # a summary run (per-run statistics only)
 
 
-def _freeze(d: Mapping[str, Any] | None) -> dict[str, Any]:
-    return json.loads(json.dumps(dict(d or {}), sort_keys=True))
+def _freeze(d: Mapping[str, Any] | None, name: str) -> dict[str, Any]:
+    """A JSON copy of parameter group ``name`` (numpy numbers as Python numbers)."""
+    if not isinstance(d or {}, Mapping):
+        raise NavlabError(f"'{name}' must be a JSON object")
+
+    def item(v: Any) -> Any:
+        if isinstance(v, np.generic):
+            return v.item()
+        raise TypeError(f"{type(v).__name__} {v!r} is not one")
+
+    try:
+        return json.loads(json.dumps(dict(d or {}), sort_keys=True, default=item))
+    except (TypeError, ValueError) as exc:  # e.g. a key that is not a string
+        raise NavlabError(f"'{name}' must hold JSON values (numbers, strings, lists): {exc}") from None
+
+
+def _whole(v: Any) -> Any:
+    """A whole number given as 5.0 or a numpy integer → 5; anything else as it is (plan judges it)."""
+    number = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+    return int(v) if number and abs(v) < 2**63 and int(v) == v else v
 
 
 @dataclass(frozen=True)
@@ -72,9 +90,29 @@ class ExperimentSpec:
     filter_params: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "filters", tuple(self.filters))
+        f = self.filters
+        if isinstance(f, str):
+            f = [s.strip() for s in f.split(",") if s.strip()]
+        if not isinstance(f, (list, tuple)) or not all(isinstance(s, str) for s in f):
+            raise NavlabError('\'filters\' must be a list of filter keys, e.g. ["kf", "chi2-kf"]')
+        object.__setattr__(self, "filters", tuple(f))
+        for name, eg, what in (
+            ("scenario", "cv2d", "scenarios"),
+            ("noise_schedule", "constant", "schedules"),
+            ("outliers", "mixture", "outliers"),
+        ):
+            if not isinstance(getattr(self, name), str):
+                raise NavlabError(
+                    f"'{name}' must be a key such as \"{eg}\" (python -m navlab list {what}), "
+                    f"got {getattr(self, name)!r}"
+                )
+        for name in ("runs", "seed", "epochs"):
+            object.__setattr__(self, name, _whole(getattr(self, name)))
         for name in ("noise_params", "outlier_params", "scenario_params", "filter_params"):
-            object.__setattr__(self, name, _freeze(getattr(self, name)))
+            object.__setattr__(self, name, _freeze(getattr(self, name), name))
+        for k, v in self.filter_params.items():
+            if not isinstance(v, Mapping):
+                raise NavlabError(f"'filter_params.{k}' must be a JSON object of parameters")
 
     def __hash__(self) -> int:
         return hash(self.to_json())
@@ -98,21 +136,9 @@ class ExperimentSpec:
             raise NavlabError(
                 f"unknown configuration key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}"
             )
-        d = dict(d)
-        if "filters" in d:
-            f = d["filters"]
-            if isinstance(f, str):
-                f = [s.strip() for s in f.split(",") if s.strip()]
-            if not isinstance(f, (list, tuple)) or not all(isinstance(s, str) for s in f):
-                raise NavlabError('\'filters\' must be a list of filter keys, e.g. ["kf", "chi2-kf"]')
-            d["filters"] = tuple(f)
         for name in ("noise_params", "outlier_params", "scenario_params", "filter_params"):
-            if name in d and not isinstance(d[name], Mapping):
+            if name in d and not isinstance(d[name], Mapping):  # null too (the constructor takes None)
                 raise NavlabError(f"'{name}' must be a JSON object")
-        if "filter_params" in d:
-            for k, v in d["filter_params"].items():
-                if not isinstance(v, Mapping):
-                    raise NavlabError(f"'filter_params.{k}' must be a JSON object of parameters")
         return cls(**d)
 
     @classmethod
@@ -242,6 +268,11 @@ def as_plan(spec: ExperimentSpec | Plan, max_runs: int = MAX_RUNS) -> Plan:
 
 def plan(spec: ExperimentSpec, max_runs: int = MAX_RUNS) -> Plan:
     """Validate every part of ``spec`` before any computation; NavlabError says what to change."""
+    if not isinstance(spec, ExperimentSpec):
+        raise NavlabError(
+            f"an experiment is an ExperimentSpec (ExperimentSpec.from_dict for a dict), "
+            f"got {type(spec).__name__}"
+        )
     big = isinstance(spec.runs, int) and not isinstance(spec.runs, bool) and spec.runs > MAX_RUNS
     if big and max_runs == MAX_RUNS and spec.runs <= MAX_SUMMARY_RUNS:
         raise NavlabError(
@@ -533,27 +564,51 @@ def run_filters(
     filter's wall time is summed over the epochs :func:`timed_from` names.
     """
     model = data.model
-    states = [f.init(model, data.x0, data.P0) for f in filters]
-    recs = [_Recorder(f, data) for f in filters]
-    K = data.K
-    first_timed = timed_from(K)
-    # no blanket np.errstate here: a filter handles its own expected edge cases locally, so a NaN
-    # or an overflow a filter produces unexpectedly warns (and fails the tests, which turn navlab's
-    # RuntimeWarnings into errors); a run that blows up is caught by the recorder's divergence rule
-    for k in range(1, K + 1):
-        zk = data.z[:, k]
-        side = data.side(k)
-        for i, f in enumerate(filters):
-            rec = recs[i]
-            t0 = time.perf_counter()
-            st = f.predict(model, states[i], k)
-            states[i], out = f.update(model, st, k, zk, side)
-            if k >= first_timed:
-                rec.runtime += time.perf_counter() - t0
-            rec.put(k, out)
-        if on_epoch is not None:
-            on_epoch(k, K)
+    i = k = 0
+    try:
+        states = []
+        for i, f in enumerate(filters):  # noqa: B007 - i names the failing filter
+            states.append(f.init(model, data.x0, data.P0))
+        recs = [_Recorder(f, data) for f in filters]
+        K = data.K
+        first_timed = timed_from(K)
+        # no blanket np.errstate here: a filter handles its own expected edge cases locally, so a
+        # NaN or an overflow a filter produces unexpectedly warns (and fails the tests, which turn
+        # navlab's RuntimeWarnings into errors); a run that blows up is caught by the recorder's
+        # divergence rule
+        for k in range(1, K + 1):
+            zk = data.z[:, k]
+            side = data.side(k)
+            for i, f in enumerate(filters):
+                rec = recs[i]
+                t0 = time.perf_counter()
+                st = f.predict(model, states[i], k)
+                states[i], out = f.update(model, st, k, zk, side)
+                if k >= first_timed:
+                    rec.runtime += time.perf_counter() - t0
+                rec.put(k, out)
+            if on_epoch is not None:
+                on_epoch(k, K)
+    except Exception as exc:
+        _plugin_failed(filters[i], k, exc)
+        raise
     return {f.key: r.result() for f, r in zip(filters, recs, strict=True)}
+
+
+def _plugin_failed(f: Filter, k: int, exc: Exception) -> None:
+    """A plugin filter's error (its author's to fix) as a NavlabError naming it; navlab's own
+    filters' errors stay internal errors.
+    """
+    from navlab.filters.base import FILTERS
+
+    dist = FILTERS.plugin_sources.get(f.key)
+    if dist is None or isinstance(exc, NavlabError):
+        return
+    where = "in init" if k == 0 else f"at epoch {k}"
+    raise NavlabError(
+        f"filter '{f.key}' (a plugin, from {dist}) failed {where}: {type(exc).__name__}: {exc}; "
+        f"check it with: python -m navlab check-filter {f.key}"
+    ) from exc
 
 
 @dataclass(eq=False)
@@ -952,4 +1007,11 @@ def load_results(path: str | os.PathLike):
         raise NavlabError(f"{path} is not a netCDF results file navlab wrote: {exc}") from None
     if "spec" not in out.attrs or "navlab_version" not in out.attrs:
         raise NavlabError(f"{path} is a netCDF file but not navlab results (no spec attribute)")
+    from navlab.io import parse_json
+
+    try:  # JSON only: a spec of another navlab version may have other keys
+        if not isinstance(parse_json(str(out.attrs["spec"]), "its spec attribute"), dict):
+            raise NavlabError("its spec attribute is not a JSON object")
+    except NavlabError as exc:
+        raise NavlabError(f"{path}: a damaged results file ({exc}); write it again") from None
     return out

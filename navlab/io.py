@@ -132,6 +132,8 @@ def parse_json(
     """JSON text (or bytes) -> Python value; NavlabError for too large, too deep or invalid JSON."""
     if isinstance(text, bytes):
         text = decode_text(text, name)
+    elif not isinstance(text, str):
+        raise NavlabError(f"{name} must be JSON text (str or bytes), got {type(text).__name__}")
     elif text.startswith("\ufeff"):
         text = text[1:]
     size = len(text.encode("utf-8", "surrogatepass"))

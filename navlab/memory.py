@@ -15,6 +15,7 @@ to change (:func:`check`). The app also bounds what all sessions hold at once
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import threading
@@ -70,7 +71,11 @@ def budget_bytes(budget: int | str | None = None) -> int:
         budget = os.environ.get(ENV) or None
     if budget is None:
         return int(SHARE * available_bytes())
-    return parse_bytes(budget) if isinstance(budget, str) else int(budget)
+    if isinstance(budget, str):
+        return parse_bytes(budget)
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not math.isfinite(budget):
+        raise NavlabError(f"a memory budget must be a number of bytes or a size such as 8GB, got {budget!r}")
+    return int(budget)
 
 
 def fmt_bytes(n: float) -> str:

@@ -215,7 +215,8 @@ def floor_text(res: Any, group: str, markdown: bool = True) -> str:
     if orc:
         txt += f"; the oracle (a genie, told them) is at {orc[0].value:.3g} × the floor"
     parts = [
-        f"{r.label} {r.value:.3g}×" + (f" [{r.ci_lo:.3g}, {r.ci_hi:.3g}]" if np.isfinite(r.ci_lo) else "")
+        (f"{r.label} {r.value:.3g}×" if np.isfinite(r.value) else f"{r.label} — (no RMSE: no run judged)")
+        + (f" [{r.ci_lo:.3g}, {r.ci_hi:.3g}]" if np.isfinite(r.ci_lo) else "")
         for r in gaps.itertuples()
         if not oracle(r.filter)
     ]

@@ -81,8 +81,9 @@ class Store:
             try:
                 self.root.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
+                why = "a file, not a folder" if self.root.is_file() else exc.strerror
                 raise NavlabError(
-                    f"cannot create the results store {self.root}: {exc.strerror}; choose another "
+                    f"cannot create the results store {self.root}: {why}; choose another "
                     f"folder with --store DIR or {ENV_DIR}=DIR ({ENV_DIR}=off: no store)"
                 ) from None
 
@@ -121,7 +122,7 @@ class Store:
             header = json.loads(str(arrays.pop("__header__")))
         except FileNotFoundError:
             return None
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError):
+        except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, json.JSONDecodeError):
             # a file cut short (disk full, a crash before the rename cannot leave one), written
             # by something else, or a folder in its place: recompute it
             self.discard(key)

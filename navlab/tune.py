@@ -48,7 +48,7 @@ from navlab import metrics as M
 from navlab import stats as S
 from navlab import tasks as T
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, filter_group, plan
+from navlab.experiment import MAX_RUNS, ExperimentSpec, filter_group, plan
 from navlab.filters import registry
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
@@ -59,6 +59,7 @@ REAL_SPLIT = ((0.0, 0.5), (0.5, 1.0))  # real recordings: tune on the first half
 BOUNDARY = 0.05  # a tuned value this close to an end of its range (search scale) is "on the boundary"
 MIN_RUNG_RUNS = 2  # the first rung scores every candidate on at least this many runs per seed
 DEFAULT_BUDGET = 16
+MAX_BUDGET = 4096  # candidates per filter (a Sobol design of 2¹²)
 DEFAULT_TRAIN_RUNS = 32
 TEST_SUFFIX = "@tuned"
 
@@ -275,10 +276,12 @@ class Schedule:
 
     @staticmethod
     def make(budget: int, train_runs: int) -> Schedule:
-        if budget < 1:
-            raise NavlabError("--budget must be at least 1 (the default alone)")
-        if train_runs < 1:
-            raise NavlabError("--train-runs must be at least 1")
+        if not 1 <= budget <= MAX_BUDGET:
+            raise NavlabError(
+                f"--budget must be between 1 (the default alone) and {MAX_BUDGET}, got {budget}"
+            )
+        if not 1 <= train_runs <= MAX_RUNS:
+            raise NavlabError(f"--train-runs must be between 1 and {MAX_RUNS}, got {train_runs}")
         rungs = max(1, math.ceil(math.log2(budget))) if budget > 1 else 1
         rungs = min(rungs, 1 + max(0, math.floor(math.log2(max(1, train_runs // MIN_RUNG_RUNS)))))
         configs, runs = [], []

@@ -644,6 +644,17 @@ def check_time_unit(t_imu: np.ndarray, t_gnss: np.ndarray, names: str) -> None:
                 f"apart and the GNSS fixes {dt_g:.4g} (in {unit}: an IMU at {per_s / dt_i:.4g} Hz, fixes at "
                 f"{per_s / dt_g:.4g} Hz); divide t_s by {per_s:.0e} in every file"
             )
+    for what, dt, (lo, hi), rate in (
+        ("IMU samples", dt_i, IMU_DT_S, "an IMU"),
+        ("GNSS fixes", dt_g, GNSS_DT_S, "fixes"),
+    ):
+        for unit, per_s in TIME_UNITS[1:]:  # one file in another unit than the other
+            if not lo <= dt <= hi and lo <= dt / per_s <= hi:
+                raise NavlabError(
+                    f"{names}: t_s must be seconds in every file, but the {what} are {dt:.4g} apart, "
+                    f"which looks like {unit} ({rate} at {per_s / dt:.4g} Hz); divide that file's t_s by "
+                    f"{per_s:.0e}"
+                )
 
 
 def load_generic(
@@ -922,6 +933,12 @@ def read_pseudorange_csv(folder: str | os.PathLike) -> PseudorangeRecording:
                 if len(parts) > j and parts[j].strip().upper() in SYSTEM_LETTERS:
                     parts[j] = str(SYSTEM_LETTERS[parts[j].strip().upper()])
                     lines[i] = ",".join(parts)
+                elif len(parts) > j and parts[j].strip().isalpha():
+                    raise NavlabError(
+                        f"{f_pr}: line {i + 1}, column {j + 1} (system) is {parts[j].strip()[:10]!r}; give a "
+                        "RINEX letter (G, R, E, C, J, S) or a smartLoc code (1 GPS, 2 SBAS, 4 GLONASS, "
+                        "8 Galileo, 16 QZSS, 32 BeiDou)"
+                    )
     req = ("t_s", "sat_id", "system", "pseudorange_m", "sat_x_m", "sat_y_m", "sat_z_m")
     opt = ("var_m2", "elevation_deg", "cn0_dbhz")
     prd = _read_header_csv(f_pr, req, opt, _PR_RANGES, lines=lines)

@@ -261,7 +261,7 @@ class Filter:
 
     def update(self, model: Model, state: Any, k: int, z: Array, side: SideInfo) -> tuple[Any, StepOut]:
         """Measurement update with z_k (B, m) (NaN = channel unavailable)."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} defines no update(model, state, k, z, side)")
 
 
 def _check_filter(cls: type[Filter]) -> None:

@@ -55,11 +55,11 @@ class OutlierModel:
         if not chans:
             sel[:] = True
             return sel
-        bad = [c for c in chans if not 0 <= int(c) < m]
+        bad = [c for c in chans if not 0 <= int(c) < m or int(c) != c]  # 0.5 was channel 0
         if bad:
             raise NavlabError(
                 f"outlier model '{self.key}': channel(s) {bad} do not exist; "
-                f"this scenario has channels 0 … {m - 1}"
+                f"this scenario has channels 0 … {m - 1} (whole numbers)"
             )
         sel[[int(c) for c in chans]] = True
         return sel

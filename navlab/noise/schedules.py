@@ -48,11 +48,11 @@ class Schedule:
         f = np.broadcast_to(self.factor(u[:, None], k[:, None], m), (K + 1, m)).copy()
         chans = getattr(self.params, "channels", ())
         if chans:
-            bad = [c for c in chans if not 0 <= int(c) < m]
+            bad = [c for c in chans if not 0 <= int(c) < m or int(c) != c]  # 0.5 was channel 0
             if bad:
                 raise NavlabError(
                     f"noise schedule '{self.key}': channel(s) {bad} do not exist; "
-                    f"this scenario has channels 0 … {m - 1}"
+                    f"this scenario has channels 0 … {m - 1} (whole numbers)"
                 )
             keep = np.ones(m, dtype=bool)
             keep[[int(c) for c in chans]] = False

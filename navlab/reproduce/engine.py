@@ -58,7 +58,7 @@ import pandas as pd
 from navlab import memory
 from navlab import stats as S
 from navlab.errors import NavlabError
-from navlab.experiment import ExperimentSpec, fixed_chunks, iter_chunks, plan, run_size
+from navlab.experiment import MAX_RUNS, ExperimentSpec, fixed_chunks, iter_chunks, plan, run_size
 from navlab.metrics import judge, sq_error
 from navlab.registry import Registry
 from navlab.store import Store, key_of
@@ -729,6 +729,14 @@ def check_jobs(value: Any, name: str = "--jobs") -> int:
         jobs = 0
     if isinstance(value, bool) or jobs < 1 or str(jobs) != str(value).strip():
         raise NavlabError(f"{name} must be a whole number ≥ 1 (worker processes), got {value!r}")
+    from navlab.cluster import cpu_count
+
+    most = max(8, 4 * cpu_count())  # more cannot go faster; each worker holds navlab in memory
+    if jobs > most:
+        raise NavlabError(
+            f"{name} {jobs}: at most {most} worker processes on this machine ({cpu_count()} cores); "
+            "more cannot go faster"
+        )
     return jobs
 
 
@@ -1161,6 +1169,11 @@ def iter_evaluate(
     for name, v, lo in (("runs", runs, 1), ("seeds", seeds, 1)):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             raise NavlabError(f"--{name} must be a whole number ≥ {lo}, got {v!r}")
+    if runs * seeds > MAX_RUNS:
+        raise NavlabError(
+            f"--seeds {seeds} × --runs {runs} = {runs * seeds} runs per experiment, more than {MAX_RUNS}; "
+            "use fewer seeds or runs"
+        )
     tasks = _plan(rep, runs, seeds, seed, stream)
     keyed = store is not None and store.root is not None and _registered(rep)
     blocks: dict[int, _Block] = {}

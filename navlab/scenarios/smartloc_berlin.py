@@ -583,6 +583,24 @@ def _used_pseudoranges(ep: PrEpochs, p: SmartlocParams) -> Array:
     used = np.isfinite(ep.rho)
     with np.errstate(invalid="ignore"):
         used &= (ep.el_deg >= p.elevation_mask_deg) & ~(ep.cn0 < p.cn0_mask_dbhz)
+    systems = len(set(ep.sys_idx[used[0]].tolist()))
+    need = 3 + max(systems, 1) - (p.height_aiding != "off")  # position, a clock per system − height
+    if used[0].sum() < need:
+        masks = p.elevation_mask_deg > 0 or p.cn0_mask_dbhz > 0
+        raise NavlabError(
+            f"{int(used[0].sum())} pseudorange(s) at the first epoch"
+            + (
+                f" pass the masks (elevation ≥ {p.elevation_mask_deg:g}°, C/N0 ≥ {p.cn0_mask_dbhz:g} dBHz)"
+                if masks
+                else ""
+            )
+            + f"; the first fix needs {need}: "
+            + (
+                "lower scenario.elevation_mask_deg or scenario.cn0_mask_dbhz"
+                if masks
+                else "start the recording later"
+            )
+        )
     return used
 
 

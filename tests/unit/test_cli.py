@@ -299,3 +299,109 @@ def test_a_run_off_a_terminal_prints_progress_lines_from_within_its_one_chunk(ca
     lines = [ln for ln in err.splitlines() if ln.startswith("navlab: ") and " runs after " in ln]
     assert len(lines) >= 10  # one chunk of 20 epochs
     assert lines[0].startswith("navlab: 0.2/4 runs after")  # 4 runs × 1/20 of the epochs
+
+
+@pytest.fixture
+def no_compute(monkeypatch):
+    """Computing is a failure of the test: the bad input must be refused before it."""
+
+    def refuse(*_a, **_k):
+        raise AssertionError("computed before refusing the bad input")
+
+    for name in ("run_experiment", "run_summary"):
+        monkeypatch.setattr(f"navlab.experiment.{name}", refuse)
+    monkeypatch.setattr("navlab.reproduce.engine.Reproduction.evaluate", refuse)
+    monkeypatch.setattr("navlab.tune.tune", refuse)
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["run", "--out", "{tmp}/missing/out.txt"], "missing does not exist; create it"),
+        (["run", "--out", "{tmp}/afile/out.txt"], "is a file, not a folder"),
+        (["run", "--out", "{tmp}"], "that is a folder; give a file name"),
+        (["run", "--save-results", "{tmp}/missing/r.nc"], "--save-results"),
+        (["run", "--save-spec", "{tmp}/missing/s.json"], "--save-spec"),
+        (["run", "--summary", "--save-results", "{tmp}/r.nc"], "which --summary drops"),
+        (["run", "--compare-to", "nope"], "not one of the filters run"),
+        (["run", "--out", "{tmp}/r.nc", "--save-results", "{tmp}/r.nc"], "name the same file"),
+        (["reproduce", "hakf", "--seeds", "1", "--runs", "2", "--outdir", "{tmp}/afile/x"], "not a folder"),
+        (["tune", "--outdir", "{tmp}/afile"], "that is a file; give a folder"),
+        (["sweep", "--param", "outliers.contamination", "--values", "0,0.1", "--out", "{tmp}/no/x"], "--out"),
+    ],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_computing(
+    tmp_path, capsys, no_compute, argv, words
+):
+    (tmp_path / "afile").write_text("x")
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    rc, _out, err = run_cli(capsys, *argv, "-q")
+    assert rc == 2, err
+    assert words in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--set", "outliers.contamination=0.1", "--contamination", "0.3"], "give it once"),
+        (["--set", "scenario.epochs=20", "--epochs", "10"], "give it once"),
+        (["--set", ".=3"], "name the group and the parameter"),
+        (["--set", "kf.=3"], "name the group and the parameter"),
+    ],
+)
+def test_contradictory_or_empty_settings_are_refused(capsys, argv, words):
+    rc, _out, err = run_cli(capsys, "run", "--runs", "2", *argv)
+    assert rc == 2 and words in err and err.count("\n") == 1
+
+
+def test_a_flag_overrides_the_configurations_value_of_the_same_parameter(tmp_path, capsys):
+    cfg = tmp_path / "spec.json"
+    cfg.write_text(json.dumps({"runs": 2.0, "epochs": 10, "outlier_params": {"contamination": 0.1}}))
+    saved = tmp_path / "saved.json"
+    rc, _out, err = run_cli(
+        capsys, "run", "--config", str(cfg), "--contamination", "0.3", "--save-spec", str(saved), "-q"
+    )
+    assert rc == 0, err  # runs 2.0 is 2 runs
+    spec = json.loads(saved.read_text())
+    assert (
+        spec["contamination"] == 0.3 and "contamination" not in spec["outlier_params"] and spec["runs"] == 2
+    )
+
+
+def test_reproduce_names_seeds_times_runs_when_too_many(capsys):
+    rc, _out, err = run_cli(capsys, "reproduce", "hakf", "--seeds", "1000000000", "-q")
+    assert rc == 2 and "--seeds 1000000000 × --runs" in err and "use fewer seeds or runs" in err
+
+
+def test_a_sweep_range_of_a_billion_values_is_refused_before_it_is_made(capsys):
+    """0:0.3:1000000000 made the billion values first (23 GB, killed)."""
+    rc, _out, err = run_cli(
+        capsys, "sweep", "--param", "outliers.contamination", "--values", "0:0.3:1000000000"
+    )
+    assert rc == 2 and "1000000000 values; a sweep takes at most 15" in err
+    rc, _out, err = run_cli(capsys, "sweep", "--param", "noise.factor", "--values", "0:1:3:log")
+    assert rc == 2 and "positive lower end" in err  # was swallowed by the generic message
+
+
+def test_tune_seeds_beyond_the_seed_range_are_named(capsys):
+    rc, _out, err = run_cli(capsys, "tune", "--train-seeds", "99999999999999999999", "-q")
+    assert rc == 2 and "--train-seeds takes comma-separated whole numbers in [0, " in err
+
+
+def test_check_filter_that_checked_nothing_does_not_say_passed(capsys, monkeypatch, tmp_path):
+    """With the recording missing, 'kf: passed — 0 passed, 0 failed, 11 skipped' exited 0."""
+    monkeypatch.setenv("NAVLAB_DATA", str(tmp_path / "nowhere"))
+    rc, out, err = run_cli(capsys, "check-filter", "kf", "--scenario", "drive0708")
+    assert rc == 2 and "passed" not in out and "kf: nothing checked — all" in err and "not found under" in out
+
+
+def test_an_unwritable_bench_folder_is_refused_before_the_bench(capsys, monkeypatch, tmp_path):
+    from navlab import bench as BN
+
+    monkeypatch.setattr(BN, "run", lambda *a, **k: (_ for _ in ()).throw(AssertionError("ran the bench")))
+    (tmp_path / "afile").write_text("x")
+    monkeypatch.setenv("NAVLAB_BENCH_DIR", str(tmp_path / "afile"))
+    rc, _out, err = run_cli(
+        capsys, "bench", "--suite", "tiny", "--filters", "kf", "--scheduler", "serial", "-q"
+    )
+    assert rc == 2 and "the bench folder" in err and "that is a file; give a folder" in err

@@ -226,6 +226,20 @@ def test_times_not_in_seconds_name_the_unit_they_seem_to_be_in(tmp_path, unit, p
     assert f"an IMU at 100 Hz, fixes at 1 Hz); divide t_s by {per_s:.0e}" in str(e.value)
 
 
+@pytest.mark.parametrize(("name", "what"), [("imu.csv", "IMU samples"), ("gnss.csv", "GNSS fixes")])
+def test_one_file_in_milliseconds_is_named(tmp_path, name, what):
+    """Only the IMU in ms was refused as 'only 1 IMU samples before the vehicle moves (at 4.0 s)'."""
+    _write_generic(tmp_path, n=600)
+    f = tmp_path / name
+    head, body = _rows(f)
+    body = [f"{float(r.split(',', 1)[0]) * 1e3:.0f},{r.split(',', 1)[1]}" for r in body]
+    f.write_text("\n".join(head + body) + "\n")
+    with pytest.raises(
+        NavlabError, match=rf"t_s must be seconds in every file, but the {what} are .* milliseconds"
+    ):
+        load_generic(tmp_path / "imu.csv", tmp_path / "gnss.csv")
+
+
 def test_a_truth_in_another_unit_is_named(tmp_path):
     _write_generic(tmp_path, n=600)
     (tmp_path / "truth.csv").write_text(

@@ -36,6 +36,9 @@ def test_budget_parsing_and_env(monkeypatch):
     assert memory.budget_bytes() == 3 * 2**30
     monkeypatch.delenv(memory.ENV)
     assert 0 < memory.budget_bytes() <= memory.available_bytes()
+    for bad in (float("nan"), float("inf"), [8], True):  # a script's budget that is no number of bytes
+        with pytest.raises(NavlabError, match="memory budget"):
+            memory.budget_bytes(bad)
 
 
 def test_estimate_matches_what_a_run_holds():

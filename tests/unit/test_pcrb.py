@@ -152,3 +152,20 @@ def test_the_error_chart_draws_the_floor_per_epoch_when_asked():
     P = pcrb.bound(spec).P
     want = np.sqrt(P[:, 0, 0] + P[:, 2, 2])
     assert np.allclose(line.y, want, rtol=1e-6)
+
+
+def test_a_filter_without_an_rmse_has_no_gap_number_not_nan(monkeypatch):
+    """A filter whose every run diverged printed 'Gap (RMSE / floor): … nan×'."""
+    from navlab.filters.kalman import KF
+    from navlab.pcrb import floor_text
+
+    update = KF.update
+
+    def nan_update(self, model, state, k, z, side):
+        st, out = update(self, model, state, k, z, side)
+        return st._replace(x=st.x * np.nan), out
+
+    monkeypatch.setattr(KF, "update", nan_update)
+    res = run_experiment(ExperimentSpec(filters=("kf", "chi2-kf"), runs=3, epochs=10))
+    text = floor_text(res, "pos", markdown=False)
+    assert "KF — (no RMSE: no run judged)" in text and "nan" not in text

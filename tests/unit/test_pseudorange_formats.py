@@ -106,6 +106,11 @@ def test_unknown_codes_and_unassignable_ids_are_refused(tmp_path):
     d = _slice(tmp_path, "No_System", edit=lambda p: " ".join(["range3", *p[1:7], "150", *p[9:]]))
     with pytest.raises(NavlabError, match=r"satellite id 150 .* cannot be assigned"):
         load_pseudoranges(d)
+    d = _convert(tmp_path / "csv")  # an unknown RINEX letter was "'X', not a number"
+    f = d / "pseudoranges.csv"
+    f.write_text(f.read_text().replace(",G,", ",X,", 1))
+    with pytest.raises(NavlabError, match=r"\(system\) is 'X'; give a RINEX letter \(G, R, E, C, J, S\)"):
+        load_pseudoranges(d)
 
 
 def test_no_odometry_no_truth_and_missing_optional_columns(tmp_path):

@@ -285,6 +285,12 @@ def test_jobs_must_be_a_whole_number(monkeypatch, capsys):
     assert default_jobs() >= 1
     rc = main(["reproduce", "vbekf", "--seeds", "1", "--runs", "2", "--jobs", "0"])
     assert rc == 2 and "--jobs" in capsys.readouterr().err
+    # hundreds of workers (one per block: 456 for nnmfukf --seeds 400) would each hold navlab
+    with pytest.raises(NavlabError, match="worker processes on this machine"):
+        rep.evaluate(runs=2, seeds=1, jobs=100_000)
+    monkeypatch.setenv("NAVLAB_JOBS", "100000")
+    with pytest.raises(NavlabError, match="NAVLAB_JOBS 100000: at most"):
+        default_jobs()
 
 
 def _numbers(o) -> np.ndarray:

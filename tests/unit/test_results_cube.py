@@ -68,3 +68,9 @@ def test_load_results_says_what_is_wrong(tmp_path):
     xr.Dataset({"a": ("x", np.arange(3.0))}).to_netcdf(other, engine="scipy")
     with pytest.raises(NavlabError, match="not navlab results"):
         navlab.load_results(other)
+    damaged = tmp_path / "damaged.nc"  # loaded, but json.loads(ds.attrs["spec"]) then raised
+    xr.Dataset({"a": ("x", np.arange(3.0))}, attrs={"spec": "{broken", "navlab_version": "0"}).to_netcdf(
+        damaged, engine="scipy"
+    )
+    with pytest.raises(NavlabError, match="a damaged results file"):
+        navlab.load_results(damaged)

@@ -247,3 +247,16 @@ def test_map_height_prior_is_a_gauss_markov_process_about_the_map_height():
     assert x[0, 2] == pytest.approx(u_ref * (1 - np.exp(-t / tau)), rel=1e-9)
     assert P[2, 2] == pytest.approx(sig_h**2 * (1 - np.exp(-2 * t / tau)), rel=1e-9)
     assert model.m == ep.rho.shape[1] + 1  # no height channel
+
+
+@needs_smartloc
+@pytest.mark.parametrize("mask", ["cn0_mask_dbhz=60", "elevation_mask_deg=80"])
+def test_masks_that_leave_no_first_fix_are_refused_in_words(capsys, mask):
+    """A C/N0 mask of 60 dBHz was an internal ZeroDivisionError; 80° gave filters at inf m."""
+    from navlab.cli import main
+
+    rc = main(
+        ["run", "--scenario", "smartloc-berlin", "--runs", "1", "--epochs", "5", "--set", f"scenario.{mask}"]
+    )
+    err = capsys.readouterr().err
+    assert rc == 2 and "pass the masks" in err and "lower scenario." in err

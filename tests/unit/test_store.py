@@ -52,6 +52,10 @@ def test_a_corrupt_file_is_missing_and_removed(tmp_path):
     p.write_bytes(p.read_bytes()[:100])  # cut short
     assert s.get(k) is None
     assert not p.exists()
+    s.put(k, {}, _arrays(0))
+    p.write_bytes(b"")  # empty (a disk that filled up): was 'internal error: EOFError'
+    assert s.get(k) is None
+    assert not p.exists()
 
 
 def test_size_bound_removes_the_least_recently_used(tmp_path):
@@ -78,6 +82,8 @@ def test_off_and_unwritable(tmp_path, monkeypatch):
     blocker.write_text("x")
     with pytest.raises(NavlabError, match="cannot create the results store"):
         ST.Store(blocker / "sub")
+    with pytest.raises(NavlabError, match="a file, not a folder"):  # was 'File exists'
+        ST.Store(blocker)
 
 
 def test_concurrent_writers_and_readers(tmp_path):

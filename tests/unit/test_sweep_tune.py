@@ -169,6 +169,11 @@ def test_setup_refuses_shared_seeds_and_bad_ranges():
         TU.setup(SMALL, ranges=["huber-kf.normalize=1:2"])
     with pytest.raises(NavlabError, match="direction"):
         TU.setup(SMALL, objective="anees")
+    # a billion candidates or training runs was 24 GB (killed) / 4.5 GB and growing after 2 min
+    with pytest.raises(NavlabError, match="--budget must be between 1"):
+        TU.setup(SMALL, budget=10**9)
+    with pytest.raises(NavlabError, match="--train-runs must be between 1"):
+        TU.setup(SMALL, train_runs=10**9)
 
 
 def _tiny_tune(**kw):
