@@ -435,7 +435,13 @@ def _sweep(a: argparse.Namespace) -> int:
     out = SW.run_sweep(sw, store=store, executor=ex, on_progress=prog, tick=prog and prog.tick)
     _ran(ex, a.quiet)
     df = out.rows
+    if a.metric and a.metric not in set(df.metric):  # the sweep is in the store: a re-run is quick
+        raise NavlabError(
+            f"--metric {a.metric}: not a metric of this sweep; e.g. {', '.join(dict.fromkeys(df.metric))}"
+        )
     if a.format not in ("table", "markdown", "latex"):
+        if a.metric:
+            df = df[df.metric == a.metric]
         _emit(df, a.format, a.out)
         return 0
     metric = a.metric or _headline_metric(spec)

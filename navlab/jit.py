@@ -34,7 +34,14 @@ import numpy as np
 __all__ = ["Kernel", "RunStep", "carray", "enabled", "numpy_paths"]
 
 
-_OFF = os.environ.get("NAVLAB_NUMBA", "").strip().lower() in ("0", "off", "false", "no")
+_SETTING = os.environ.get("NAVLAB_NUMBA", "").strip().lower()
+_OFF = _SETTING in ("0", "off", "false", "no")
+if _SETTING not in ("", "1", "on", "true", "yes") and not _OFF:
+    import warnings
+
+    warnings.warn(
+        f"NAVLAB_NUMBA={_SETTING!r} is neither 0/off nor 1/on: the compiled kernels stay on", stacklevel=1
+    )
 _numba: Any = None
 _tried = False
 _lock = threading.Lock()

@@ -113,6 +113,15 @@ def _python(code: str, *args: str, **env: str) -> subprocess.CompletedProcess:
     )
 
 
+def test_an_unknown_navlab_numba_value_is_named():
+    """NAVLAB_NUMBA=abc is neither off nor on: a warning says the kernels stay on (no silent guess)."""
+    out = _python("from navlab import jit; print(jit._OFF)", NAVLAB_NUMBA="abc")
+    assert out.returncode == 0 and out.stdout.strip() == "False"
+    assert "NAVLAB_NUMBA='abc' is neither 0/off nor 1/on" in out.stderr
+    quiet = _python("from navlab import jit; print(jit._OFF)", NAVLAB_NUMBA="off")
+    assert quiet.stdout.strip() == "True" and "NAVLAB_NUMBA" not in quiet.stderr
+
+
 @pytest.mark.slow
 def test_navlab_runs_without_numba():
     """With numba unimportable, navlab runs its numpy paths (a broken or missing install)."""

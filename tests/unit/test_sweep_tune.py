@@ -233,6 +233,12 @@ def test_cli_sweep_and_tune(tmp_path, capsys):
     r = [x for x in rows if x["metric"] == "rmse_pos"]
     assert {"param", "param_value", "filter", "metric", "value", "unit", "ci_lo", "ci_hi"} <= set(r[0])
     assert {x["param_value"] for x in r} == {1.0, 2.0}
+    # --metric keeps that metric's rows (from the store: no recomputation); an unknown one says so
+    sweep = ["sweep", *args, "--param", "huber-kf.gamma", "--values", "1,2"]
+    rc = main([*sweep, "--format", "json", "--metric", "rmse_pos"])
+    assert rc == 0 and {x["metric"] for x in json.loads(capsys.readouterr().out)} == {"rmse_pos"}
+    assert main([*sweep, "--metric", "nope"]) == 2
+    assert "--metric nope: not a metric of this sweep" in capsys.readouterr().err
     out = tmp_path / "out"
     rc = main(["tune", *args, "--budget", "3", "--train-runs", "4", "--format", "csv", "--outdir", str(out)])
     assert rc == 0
