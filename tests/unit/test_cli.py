@@ -390,8 +390,15 @@ def test_tune_seeds_beyond_the_seed_range_are_named(capsys):
 
 def test_check_filter_that_checked_nothing_does_not_say_passed(capsys, monkeypatch, tmp_path):
     """With the recording missing, 'kf: passed — 0 passed, 0 failed, 11 skipped' exited 0."""
+    from navlab import contracts
+
     monkeypatch.setenv("NAVLAB_DATA", str(tmp_path / "nowhere"))
+    # the contract batches are cached per process: another test may have loaded the recording
+    for cached in (contracts.scenario_data, contracts.cached_run):
+        cached.cache_clear()
     rc, out, err = run_cli(capsys, "check-filter", "kf", "--scenario", "drive0708")
+    for cached in (contracts.scenario_data, contracts.cached_run):
+        cached.cache_clear()  # the next test sees the recording again
     assert rc == 2 and "passed" not in out and "kf: nothing checked — all" in err and "not found under" in out
 
 
