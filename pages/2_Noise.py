@@ -15,7 +15,7 @@ frame(
     "Noise: R̂ inspection",
     "📈",
     "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
-    "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.",
+    "R̂: median over runs and a 10–90 % band; a strip below marks the outlier epochs, when there are any.",
     experiment=True,
 )
 

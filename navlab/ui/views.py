@@ -316,7 +316,7 @@ def outlier_summary(res: Results, ch: int) -> str:
     """One line on the outlier epochs of channel ``ch`` (for captions)."""
     frac = res.data.outlier_mask[:, :, ch].mean(axis=0)
     if not frac.any():
-        return "no outliers on this channel"
+        return f"no outliers on this channel (outlier model `{res.spec.outliers}`)"
     ep = F.outlier_epochs(res, ch)
     share = float(res.data.outlier_mask[:, 1:, ch].mean())
     s = f"{100 * share:.1f} % of measurements contaminated"
@@ -422,8 +422,10 @@ class NoiseView:
         state = "complete" if res.complete else "partial"
         self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · {res.elapsed_s:.2f} s compute")
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
+        # the outlier strip only where there are outliers to mark (else an empty panel)
+        strip = bool(res.data.outlier_mask[:, :, ch].any())
         fig = F.r_vs_rhat(
-            res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=True
+            res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=strip
         )
         rhat_chart(self.fig, res, ch, fig, key=f"{self.page}_rhat_{self._drawn}")
         self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
