@@ -108,7 +108,8 @@ if b1.button("Run sweep", type="primary", key="run_sweep"):
 config_download(spec, key="dl_cfg_sweep", container=b3)
 n_tasks = len({t.key for t in sw.all_tasks()})
 b4.caption(
-    f"{len(sw.points)} points × {plural(len(spec.filters), 'filter')} × {spec.runs} runs = {n_tasks} tasks, "
+    f"{len(sw.points)} points × {plural(len(spec.filters), 'filter')}, {spec.runs} runs each: "
+    f"{plural(n_tasks, 'task')}, "
     f"run {U.where_text()}; finished tasks are kept on the server, so a repeated or resumed sweep "
     "computes only what is missing"
 )
