@@ -230,6 +230,21 @@ def evidence_figure(o: Outcome) -> go.Figure | None:
     return fig
 
 
+_CURVE_WORDS = {"pos": "position", "vel": "velocity", "att": "attitude"}
+
+
+def curve_label(o: Outcome, name: str) -> str:
+    """A curve table's name in words: ``irakf_isolated_rmse_x_pos.csv`` → "isolated: RMSE of x
+    position" (the file keeps its name; a tab and a chart title read as words).
+    """
+    stem = name.removeprefix(f"{o.reproduction.key}_").removesuffix(".csv")
+    exp, sep, quantity = stem.rpartition("_rmse_")
+    if not sep:
+        return stem
+    what = " ".join(_CURVE_WORDS.get(w, w) for w in quantity.split("_"))
+    return f"{exp}: RMSE of {what}" if exp else f"RMSE of {what}"
+
+
 def curve_figure(o: Outcome, name: str) -> go.Figure:
     """One curve table (per-epoch RMSE of every filter), in the filters' colours and names."""
     df = o.curves[name]
@@ -258,7 +273,7 @@ def curve_figure(o: Outcome, name: str) -> go.Figure:
     )
     readable(fig)  # legend below the plot, axes pushing the margins
     fig.update_layout(
-        title=title_layout(name.removesuffix(".csv"), "per-epoch RMSE over the judged runs of all seeds")
+        title=title_layout(curve_label(o, name), "per-epoch RMSE over the judged runs of all seeds")
     )
     return fig
 

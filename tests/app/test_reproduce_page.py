@@ -125,6 +125,9 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     assert len(figs) == 3  # the number claim, the ranking's evidence, one curve tab
     names = {t["name"] for t in figs[2]["data"]}
     assert names == {"KF", "Oracle KF"}  # no paper names declared: the filters' labels
+    # the curve's tab and title in words, not the file name aaa-fake_exp_rmse_x.csv
+    assert [t.label for t in at.tabs] == ["exp: RMSE of x"]
+    assert "exp: RMSE of x" in figs[2]["layout"]["title"]["text"]
     bar = at.get("progress")[0].proto
     assert bar.value == 100 and bar.text.startswith(
         "12/12 runs"
