@@ -157,6 +157,33 @@ def test_settings_carry_from_compare_to_noise(page: Page):
     expect(page.get_by_role("combobox", name="Outlier model")).to_have_value(want, timeout=T)
 
 
+def test_browser_back_to_compare_shows_the_experiment_of_its_address(page: Page):
+    """Compare (a link's experiment) → Home → Sweep, then Back twice: Compare shows the experiment
+    its address holds. Streamlit drops the parameters of the page left and resets URL-bound widgets
+    on a history step, so Compare showed the defaults under an address holding runs=33&noise=ramp.
+    """
+    page.goto("/Compare?runs=33&noise=ramp")
+    settle(page)
+    links = page.locator('[data-testid="stSidebar"] [data-testid="stPageLink"]')
+    links.filter(has_text="Home").first.click()
+    expect(page.locator("h1").first).to_have_text(re.compile("^navlab"), timeout=T)
+    settle(page)
+    links.filter(has_text="Sweep").first.click()
+    expect(page.locator("h1").first).to_have_text("Sweep a parameter", timeout=T)
+    settle(page)
+    expect_value(page, "Monte Carlo runs", "33")  # the link carried it
+    page.go_back()
+    expect(page.locator("h1").first).to_have_text(re.compile("^navlab"), timeout=T)
+    settle(page)
+    page.go_back()
+    expect(page.locator("h1").first).to_have_text("Compare filters", timeout=T)
+    settle(page)
+    assert_no_exception(page)
+    expect_value(page, "Monte Carlo runs", "33")
+    expect(page.get_by_role("combobox", name="Noise schedule (true R(t))")).to_have_value("ramp", timeout=T)
+    assert "runs=33" in page.url and "noise=ramp" in page.url
+
+
 def _download(page: Page, label: str, nth: int = 0) -> Path:
     with page.expect_download(timeout=T) as d:
         page.get_by_role("button", name=label, exact=True).nth(nth).click()
