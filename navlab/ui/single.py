@@ -518,8 +518,10 @@ def render(res: Results, page: str, group: str) -> None:
     )
     rm = per_run_rmse(res, group)
     g = d.groups[group]
+    # the batch index only where it differs from the run's number (a resumed or filtered batch)
+    where = f" (batch index {run})" if int(d.runs[run]) != run else ""
     st.caption(
-        f"Run {int(d.runs[run])} (batch index {run}) · RMSE {g.label} in this run: "
+        f"Run {int(d.runs[run])}{where} · RMSE {g.label} in this run: "
         + ", ".join(
             f"{res.runs[k].label} {rm[k][run]:.3g} {g.unit}" for k in chosen if np.isfinite(rm[k][run])
         )
