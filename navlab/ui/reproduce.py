@@ -23,7 +23,7 @@ import streamlit as st
 
 from navlab import stats as S
 from navlab.reproduce import DEFAULT_SEEDS, REPRODUCTIONS, Outcome
-from navlab.reproduce.engine import TOLERANCE, iter_evaluate, workers
+from navlab.reproduce.engine import TOLERANCE, Margin, iter_evaluate, workers
 from navlab.reproduce.report import VERDICT_RULES, claims_table, counts, verdict_table
 from navlab.ui import sweep as U
 from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
@@ -278,6 +278,18 @@ def curve_figure(o: Outcome, name: str) -> go.Figure:
     return fig
 
 
+def margin_note(rep: Any) -> str | None:
+    """How a margin claim's numbers read ("IRAKF 27.43 % more accurate than RRAE" is listed as
+    −27.43 %, the paper's (a − b)/b), or None when the paper states no such margin.
+    """
+    if not any(isinstance(c, Margin) and not c.as_ratio for c in rep.claims):
+        return None
+    return (
+        'Margins ("A x % more accurate than B"): the paper and navlab columns give (A − B) / B, so '
+        "negative means A has the lower error."
+    )
+
+
 def show_verdicts(container: Any, o: Outcome) -> None:
     """The counts, the verdict table and the claims' charts of ``o`` (drawn into ``container``,
     e.g. an ``st.empty()`` that each provisional outcome replaces).
@@ -292,6 +304,8 @@ def show_verdicts(container: Any, o: Outcome) -> None:
         # needs no data-grid code in the browser (on a busy machine the grid's first load took
         # up to 7 s after the verdicts were sent)
         st.table(style_verdicts(o), hide_index=True, alt=f"verdicts of {o.reproduction.key}")
+        if note := margin_note(o.reproduction):
+            st.caption(note)
         for fig, alt, name in (
             (claims_figure(o), "navlab's value relative to the paper's for every number claim", "claims"),
             (evidence_figure(o), "the paired differences behind every ranking claim", "rankings"),
@@ -310,6 +324,7 @@ def show_claims(container: Any, rep: Any) -> None:
             "‡: a setting navlab chose where the paper is silent or with the judged scenario in view. "
             "Not testable: the paper gives too little to test, or the claim needs a reconstruction "
             "that fails; the reasons come with the verdicts."
+            + (f" {note}" if (note := margin_note(rep)) else "")
         )
 
 
