@@ -77,3 +77,18 @@ def test_noise_page_without_outliers_draws_no_empty_strip(open_page):
         c.value == "Outliers on this channel: no outliers on this channel (outlier model `none`)"
         for c in at.caption
     )
+
+
+def test_noise_page_progress_sits_under_run_not_below_the_charts(open_page):
+    """The progress bar (and Stop) came after the last chart, out of sight after pressing Run."""
+    at = open_page(PAGE, runs="3", seed="5", flt=["kf", "sage-husa"], **{"sc.cv2d.epochs": "40"})
+    at.button(key="run_noise").click().run()
+    assert_clean(at)
+
+    def walk(node):
+        yield node
+        for k in sorted(getattr(node, "children", {}) or {}):
+            yield from walk(node.children[k])
+
+    kinds = [n.type for n in walk(at.main)]
+    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart")
