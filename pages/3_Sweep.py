@@ -114,6 +114,7 @@ b4.caption(
     "computes only what is missing"
 )
 
+progress_box = st.container()  # the progress under Run sweep, not below the charts
 controls = st.container()
 lines_ph, heat_ph = st.empty(), st.empty()
 
@@ -126,7 +127,8 @@ elif U.requested(PAGE, sweep_id):
     def work(**kw):
         return U.run_sweep(sw, **kw)
 
-    out = U.run_job(PAGE, b2, work)
+    with progress_box:
+        out = U.run_job(PAGE, b2, work)
 else:  # what the store already holds of this sweep (nothing is computed)
     out = U.run_sweep(sw, store=U.app_store(), should_stop=U.stored_only)
     if out.done_points == 0:
