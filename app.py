@@ -12,6 +12,8 @@ frame(
     "time or is contaminated by outliers: batched Monte Carlo in numpy, results in the browser.",
 )
 
+home.demo()  # full width: in the narrow right column its R̂ panels and their titles overlapped
+
 left, right = st.columns([3, 2], gap="large")
 with left:
     st.markdown(
@@ -44,7 +46,6 @@ Every setting lives in the URL: copy it to share the exact run.
     )
     page_links()
 with right:
-    home.demo()
     sreg = scenario_registry()
     st.subheader("The filters, by family")
     home.filters_by_family()

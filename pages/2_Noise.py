@@ -15,7 +15,7 @@ frame(
     "Noise: R̂ inspection",
     "📈",
     "The true measurement noise R(t) of the schedule (black) against each filter's estimate "
-    "R̂: median over runs and a 10–90 % band; the strip below marks the outlier epochs.",
+    "R̂: median over runs and a 10–90 % band; a strip below marks the outlier epochs, when there are any.",
     experiment=True,
 )
 
@@ -32,8 +32,9 @@ c4.caption(
     f"outliers `{spec.outliers}`"
 )
 
+progress_box = st.container()  # the progress and Stop under Run, not below the last chart
 view = NoiseView(PAGE)
 if run_requested(PAGE, spec):
-    run_live(experiment, PAGE, view.render)
+    run_live(experiment, PAGE, view.render, progress_container=progress_box, stop_container=progress_box)
 else:
     show_stored(view, spec)

@@ -108,11 +108,13 @@ if b1.button("Run sweep", type="primary", key="run_sweep"):
 config_download(spec, key="dl_cfg_sweep", container=b3)
 n_tasks = len({t.key for t in sw.all_tasks()})
 b4.caption(
-    f"{len(sw.points)} points × {plural(len(spec.filters), 'filter')} × {spec.runs} runs = {n_tasks} tasks, "
+    f"{len(sw.points)} points × {plural(len(spec.filters), 'filter')}, {spec.runs} runs each: "
+    f"{plural(n_tasks, 'task')}, "
     f"run {U.where_text()}; finished tasks are kept on the server, so a repeated or resumed sweep "
     "computes only what is missing"
 )
 
+progress_box = st.container()  # the progress under Run sweep, not below the charts
 controls = st.container()
 lines_ph, heat_ph = st.empty(), st.empty()
 
@@ -125,7 +127,8 @@ elif U.requested(PAGE, sweep_id):
     def work(**kw):
         return U.run_sweep(sw, **kw)
 
-    out = U.run_job(PAGE, b2, work)
+    with progress_box:
+        out = U.run_job(PAGE, b2, work)
 else:  # what the store already holds of this sweep (nothing is computed)
     out = U.run_sweep(sw, store=U.app_store(), should_stop=U.stored_only)
     if out.done_points == 0:

@@ -120,7 +120,7 @@ if readings.open:  # a bootstrap per quantity and filter: computed when opened
 if out.curves:
     st.subheader("Curves")
     names = list(out.curves)
-    tabs = st.tabs([n.removeprefix(f"{key}_").removesuffix(".csv") for n in names])
+    tabs = st.tabs([ui.curve_label(out, n) for n in names])
     for tab, name in zip(tabs, names, strict=True):
         with tab:
             chart(st, ui.curve_figure(out, name), f"Curves {name}", name=name)

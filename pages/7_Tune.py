@@ -149,15 +149,15 @@ if r is not None:
         spec_to_state(res.tuned_spec())
         st.session_state[GOTO_KEY] = True
 
-    d1, d2, d3, d4 = st.columns([2, 1, 1, 1])
-    d1.button(
+    row = st.container(horizontal=True)  # each button as wide as its label (none cut to "JS…")
+    row.button(
         "Open Compare with the tuned parameters",
         key="tn_compare",
         on_click=open_compare,
         help="the same experiment on the test seed, every filter with its tuned parameters",
     )
-    csv_download(r.rows, "Tuning results (CSV)", "navlab-tune.csv", "dl_tune", container=d2)
-    d3.download_button(
+    csv_download(r.rows, "Tuning results (CSV)", "navlab-tune.csv", "dl_tune", container=row)
+    row.download_button(
         "Tuned configuration (JSON)",
         r.tuned_spec().to_json(indent=1),
         file_name="navlab-tuned.json",
@@ -172,7 +172,7 @@ if r is not None:
         "application/x-tex",
         "the table above for a paper: booktabs, values with their 95 % intervals, a caption naming "
         "the seeds, runs and interval method (needs \\usepackage{booktabs})",
-        container=d4,
+        container=row,
     )
     st.markdown("##### Objective landscapes (training seeds, first rung: every candidate on the same runs)")
     trials = TU.trials_frame(r)

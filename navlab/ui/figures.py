@@ -1185,6 +1185,7 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
     m = data.z.shape[2]
     colors = filter_colors(list(res.runs))
     traces: list = []
+    dashed = False
     for key, fr in res.runs.items():
         if stat not in fr.stats:
             continue
@@ -1198,6 +1199,7 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
         add_line(traces, data.t, y, _legend_name(fr), colors[key], key)
         thr = fr.stats.get(f"{stat}_threshold")
         if thr is not None:
+            dashed = True
             t_y = nan_quantiles(_per_epoch(np.asarray(thr, dtype=float), channel, m)[ok], (0.5,))[0]
             add_line(
                 traces,
@@ -1217,5 +1219,6 @@ def internals_vs_time(res: Results, stat: str, channel: int = 0, log_y: bool = F
         STAT_AXIS.get(stat, f"{stat} (as the filter reports it)"),
         log_y,
         height=340,
-        subtitle="median over runs (0/1 indicators: share of runs)<br>dashed: the filter's threshold",
+        subtitle="median over runs (0/1 indicators: share of runs)"
+        + ("<br>dashed: the filter's threshold" if dashed else ""),
     )

@@ -23,7 +23,7 @@ import streamlit as st
 
 from navlab import stats as S
 from navlab.reproduce import DEFAULT_SEEDS, REPRODUCTIONS, Outcome
-from navlab.reproduce.engine import TOLERANCE, iter_evaluate, workers
+from navlab.reproduce.engine import TOLERANCE, Margin, iter_evaluate, workers
 from navlab.reproduce.report import VERDICT_RULES, claims_table, counts, verdict_table
 from navlab.ui import sweep as U
 from navlab.ui.colors import PALETTE, TRUTH_COLOR, filter_colors
@@ -230,6 +230,21 @@ def evidence_figure(o: Outcome) -> go.Figure | None:
     return fig
 
 
+_CURVE_WORDS = {"pos": "position", "vel": "velocity", "att": "attitude"}
+
+
+def curve_label(o: Outcome, name: str) -> str:
+    """A curve table's name in words: ``irakf_isolated_rmse_x_pos.csv`` → "isolated: RMSE of x
+    position" (the file keeps its name; a tab and a chart title read as words).
+    """
+    stem = name.removeprefix(f"{o.reproduction.key}_").removesuffix(".csv")
+    exp, sep, quantity = stem.rpartition("_rmse_")
+    if not sep:
+        return stem
+    what = " ".join(_CURVE_WORDS.get(w, w) for w in quantity.split("_"))
+    return f"{exp}: RMSE of {what}" if exp else f"RMSE of {what}"
+
+
 def curve_figure(o: Outcome, name: str) -> go.Figure:
     """One curve table (per-epoch RMSE of every filter), in the filters' colours and names."""
     df = o.curves[name]
@@ -258,9 +273,21 @@ def curve_figure(o: Outcome, name: str) -> go.Figure:
     )
     readable(fig)  # legend below the plot, axes pushing the margins
     fig.update_layout(
-        title=title_layout(name.removesuffix(".csv"), "per-epoch RMSE over the judged runs of all seeds")
+        title=title_layout(curve_label(o, name), "per-epoch RMSE over the judged runs of all seeds")
     )
     return fig
+
+
+def margin_note(rep: Any) -> str | None:
+    """How a margin claim's numbers read ("IRAKF 27.43 % more accurate than RRAE" is listed as
+    −27.43 %, the paper's (a − b)/b), or None when the paper states no such margin.
+    """
+    if not any(isinstance(c, Margin) and not c.as_ratio for c in rep.claims):
+        return None
+    return (
+        'Margins ("A x % more accurate than B"): the paper and navlab columns give (A − B) / B, so '
+        "negative means A has the lower error."
+    )
 
 
 def show_verdicts(container: Any, o: Outcome) -> None:
@@ -277,6 +304,8 @@ def show_verdicts(container: Any, o: Outcome) -> None:
         # needs no data-grid code in the browser (on a busy machine the grid's first load took
         # up to 7 s after the verdicts were sent)
         st.table(style_verdicts(o), hide_index=True, alt=f"verdicts of {o.reproduction.key}")
+        if note := margin_note(o.reproduction):
+            st.caption(note)
         for fig, alt, name in (
             (claims_figure(o), "navlab's value relative to the paper's for every number claim", "claims"),
             (evidence_figure(o), "the paired differences behind every ranking claim", "rankings"),
@@ -295,6 +324,7 @@ def show_claims(container: Any, rep: Any) -> None:
             "‡: a setting navlab chose where the paper is silent or with the judged scenario in view. "
             "Not testable: the paper gives too little to test, or the claim needs a reconstruction "
             "that fails; the reasons come with the verdicts."
+            + (f" {note}" if (note := margin_note(rep)) else "")
         )
 
 

@@ -250,6 +250,13 @@ def _names(d, state: int, channel: int) -> tuple[str, str, str]:
     return sname, cname, cunit
 
 
+def _state_unit(d, state: int) -> str:
+    """The unit of state ``state`` as plotted (its metric group's, when that group shows it
+    unscaled; "" when no group names it).
+    """
+    return next((g.unit for g in d.groups.values() if state in g.idx and g.scale == 1.0 and g.unit), "")
+
+
 def _three_panels(d, state: int, channel: int, mch: int | None, relative: bool) -> go.Figure:
     """The empty figure: estimate (1), weight (2) and R (3) over a shared time axis, with titles."""
     sname, cname, _ = _names(d, state, channel)
@@ -272,7 +279,8 @@ def _label_axes(fig: go.Figure, d, state: int, channel: int, log_r: bool, relati
     """Axis titles of the three panels (R on a log axis with ``log_r``)."""
     sname, _, cunit = _names(d, state, channel)
     unit = f" ({cunit})" if cunit else ""
-    fig.update_yaxes(title_text=f"{sname} − truth" if relative else sname, row=1, col=1)
+    sunit = f" ({_state_unit(d, state)})" if _state_unit(d, state) else ""
+    fig.update_yaxes(title_text=(f"{sname} − truth" if relative else sname) + sunit, row=1, col=1)
     fig.update_yaxes(title_text="weight", range=[-0.08, 1.12], row=2, col=1)
     fig.update_yaxes(
         title_text=f"R{unit[:-1]}²)" if cunit else "R", type="log" if log_r else "linear", row=3, col=1
@@ -510,8 +518,10 @@ def render(res: Results, page: str, group: str) -> None:
     )
     rm = per_run_rmse(res, group)
     g = d.groups[group]
+    # the batch index only where it differs from the run's number (a resumed or filtered batch)
+    where = f" (batch index {run})" if int(d.runs[run]) != run else ""
     st.caption(
-        f"Run {int(d.runs[run])} (batch index {run}) · RMSE {g.label} in this run: "
+        f"Run {int(d.runs[run])}{where} · RMSE {g.label} in this run: "
         + ", ".join(
             f"{res.runs[k].label} {rm[k][run]:.3g} {g.unit}" for k in chosen if np.isfinite(rm[k][run])
         )

@@ -88,9 +88,9 @@ def figure_downloads(fig: Any, name: str, key: str) -> None:
     from navlab.ui import export
 
     base = f"navlab-{_slug(name)}"
-    c1, c2, _ = st.columns([1, 1, 6])
-    for c, fmt, mime in ((c1, "svg", "image/svg+xml"), (c2, "png", "image/png")):
-        c.download_button(
+    row = st.container(horizontal=True, gap="medium")  # sized to their labels: no "P…" in a narrow column
+    for fmt, mime in (("svg", "image/svg+xml"), ("png", "image/png")):
+        row.download_button(
             f"{fmt.upper()}",
             (lambda f=fmt: export.render(fig, f)),
             file_name=f"{base}.{fmt}",
@@ -316,7 +316,7 @@ def outlier_summary(res: Results, ch: int) -> str:
     """One line on the outlier epochs of channel ``ch`` (for captions)."""
     frac = res.data.outlier_mask[:, :, ch].mean(axis=0)
     if not frac.any():
-        return "no outliers on this channel"
+        return f"no outliers on this channel (outlier model `{res.spec.outliers}`)"
     ep = F.outlier_epochs(res, ch)
     share = float(res.data.outlier_mask[:, 1:, ch].mean())
     s = f"{100 * share:.1f} % of measurements contaminated"
@@ -422,8 +422,10 @@ class NoiseView:
         state = "complete" if res.complete else "partial"
         self.status.caption(f"{res.done_runs}/{res.spec.runs} runs ({state}) · {res.elapsed_s:.2f} s compute")
         ch = self.channel if self.channel is not None and self.channel < res.data.z.shape[2] else 0
+        # the outlier strip only where there are outliers to mark (else an empty panel)
+        strip = bool(res.data.outlier_mask[:, :, ch].any())
         fig = F.r_vs_rhat(
-            res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=True
+            res, ch, log_y=self.log_r, as_std=self.as_std, show_used=self.show_used, outlier_strip=strip
         )
         rhat_chart(self.fig, res, ch, fig, key=f"{self.page}_rhat_{self._drawn}")
         self.outliers.caption("Outliers on this channel: " + outlier_summary(res, ch))
@@ -498,24 +500,24 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
 
     spec = res.spec
     figs = default_figures(group, view.channel or 0)
-    cols = st.columns([13, 20, 13, 16, 17, 12])  # about the labels' lengths: none is cut
+    row = st.container(horizontal=True)  # each button as wide as its label: none is cut
     csv_download(
         lambda: tables.summary_rows(res, compare_to=view.ref),
         "Metrics (CSV)",
         "navlab-metrics.csv",
         f"dl_metrics_{page}",
-        container=cols[0],
+        container=row,
     )
     csv_download(
         lambda: F.rmse_curves(res),
         "RMSE per epoch (CSV)",
         "navlab-rmse-per-epoch.csv",
         f"dl_curves_{page}",
-        container=cols[1],
+        container=row,
     )
-    for col, fmt, label, name, mime in (
-        (cols[2], "latex", "Table (LaTeX)", "navlab-table.tex", "application/x-tex"),
-        (cols[3], "markdown", "Table (Markdown)", "navlab-table.md", "text/markdown"),
+    for fmt, label, name, mime in (
+        ("latex", "Table (LaTeX)", "navlab-table.tex", "application/x-tex"),
+        ("markdown", "Table (Markdown)", "navlab-table.md", "text/markdown"),
     ):
         text_download(
             lambda fmt=fmt: tables.run_table(res, fmt, compare_to=view.ref),
@@ -526,11 +528,10 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
             "the headline table for a paper: each value with its 95 % interval, the best in bold only "
             "where the paired test backs it, a caption naming the runs, seeds and interval method"
             + (" (LaTeX: needs \\usepackage{booktabs})" if fmt == "latex" else ""),
-            container=col,
+            container=row,
         )
-    for col, make, label, name, key, mime, what in (
+    for make, label, name, key, mime, what in (
         (
-            cols[4],
             notebook,
             "Notebook (.ipynb)",
             "navlab-run.ipynb",
@@ -539,7 +540,6 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
             "a Jupyter notebook that re-runs this experiment with navlab and redraws these figures",
         ),
         (
-            cols[5],
             script,
             "Script (.py)",
             "navlab-run.py",
@@ -549,5 +549,5 @@ def run_downloads(res: Results, view: CompareView, group: str, page: str) -> Non
         ),
     ):
         text_download(
-            lambda make=make: make(spec, figs), label, name, f"dl_{key}_{page}", mime, what, container=col
+            lambda make=make: make(spec, figs), label, name, f"dl_{key}_{page}", mime, what, container=row
         )

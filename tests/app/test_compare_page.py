@@ -168,6 +168,8 @@ def test_single_run_view_shows_one_run_with_a_player(open_page):
     at.number_input(key="compare_one_run").set_value(2).run()
     assert_clean(at)
     assert plotly_figs(at)[-1]["layout"]["title"]["text"].startswith("Monte Carlo run 2,")
+    # run 2 is batch index 2: no "(batch index 2)" repeating the number
+    assert any(c.value.startswith("Run 2 · RMSE position in this run: ") for c in at.caption)
     at.multiselect(key="compare_one_flt").set_value(["kf"]).run()
     names = {t.get("name", "") for t in plotly_figs(at)[-1]["data"]}
     assert "KF" in names and "Oracle KF" not in names

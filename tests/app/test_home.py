@@ -48,3 +48,11 @@ def test_worker_processes_do_not_run_the_page_again(open_page):
     open_page("pages/2_Noise.py")  # Streamlit leaves the page's module as __main__
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         assert pool.submit(main_rerun_in_child).result(timeout=120) is None
+
+
+def test_home_demo_spans_the_page_above_the_two_columns(open_page):
+    """In the narrow right column the demo's R̂ small multiples overlapped their titles and cut
+    the link to Compare: the demo now comes first, at full width."""
+    at = open_page()
+    assert [s.value for s in at.subheader][:2] == ["See it in seconds", "Where to start"]
+    assert all("home_demo" not in [b.key for b in c.button] for c in at.columns)

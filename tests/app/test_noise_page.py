@@ -63,3 +63,32 @@ def test_noise_page_internals_show_fading_with_threshold(open_page):
     names = [t.get("name", "") for t in plotly_figs(at)[1]["data"]]
     assert any("MFUKF" in n or "mfukf" in n for n in names)
     assert "mfukf: threshold" in names
+
+
+def test_noise_page_without_outliers_draws_no_empty_strip(open_page):
+    """A run without outliers has no outlier strip under the R̂ panels (it was an empty panel),
+    and the caption names the outlier model instead of repeating itself."""
+    at = open_page(PAGE, runs="3", flt=["kf", "sage-husa"], **{"sc.cv2d.epochs": "40"})
+    at.button(key="run_noise").click().run()
+    assert_clean(at)
+    fig = plotly_figs(at)[0]
+    assert not any(t["type"] == "bar" for t in fig["data"])
+    assert any(
+        c.value == "Outliers on this channel: no outliers on this channel (outlier model `none`)"
+        for c in at.caption
+    )
+
+
+def test_noise_page_progress_sits_under_run_not_below_the_charts(open_page):
+    """The progress bar (and Stop) came after the last chart, out of sight after pressing Run."""
+    at = open_page(PAGE, runs="3", seed="5", flt=["kf", "sage-husa"], **{"sc.cv2d.epochs": "40"})
+    at.button(key="run_noise").click().run()
+    assert_clean(at)
+
+    def walk(node):
+        yield node
+        for k in sorted(getattr(node, "children", {}) or {}):
+            yield from walk(node.children[k])
+
+    kinds = [n.type for n in walk(at.main)]
+    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart")

@@ -106,6 +106,8 @@ def test_opens_on_the_fastest_paper_and_says_what_the_seeds_mean(open_page):
     assert len(claims) == len(REPRODUCTIONS["irakf"].claims) and n_untested
     assert (claims["verdict"] == "not testable").sum() == n_untested  # known before any run
     assert set(claims["verdict"]) == {"not judged yet", "not testable"}
+    # "IRAKF 27.43 % more accurate than RRAE" is listed as -27.43 %: the sign is explained
+    assert "(A − B) / B, so negative means A has the lower error" in captions
 
 
 def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake, monkeypatch):
@@ -125,6 +127,9 @@ def test_small_reproduction_streams_the_verdicts_and_keeps_them(open_page, fake,
     assert len(figs) == 3  # the number claim, the ranking's evidence, one curve tab
     names = {t["name"] for t in figs[2]["data"]}
     assert names == {"KF", "Oracle KF"}  # no paper names declared: the filters' labels
+    # the curve's tab and title in words, not the file name aaa-fake_exp_rmse_x.csv
+    assert [t.label for t in at.tabs] == ["exp: RMSE of x"]
+    assert "exp: RMSE of x" in figs[2]["layout"]["title"]["text"]
     bar = at.get("progress")[0].proto
     assert bar.value == 100 and bar.text.startswith(
         "12/12 runs"
@@ -195,3 +200,8 @@ def test_a_registered_reproduction_small_run(open_page):
     claims = at.table[0].value["claim"].tolist()
     assert "EKF/VB-EKF RMSE ratio 1.75 ‡" in claims  # ‡: τ_P = 10 was chosen on this scenario
     R._CACHE.clear()
+
+
+def test_the_margin_note_only_where_the_paper_states_a_margin():
+    assert R.margin_note(FAKE) is None  # a number, a ranking, an untested claim
+    assert R.margin_note(REPRODUCTIONS["irakf"]).startswith("Margins (")

@@ -53,3 +53,25 @@ def test_two_d_sweep_heat_map_and_the_store_shows_it_again(open_page):
     assert_clean(again)
     assert len(plotly_figs(again)) == 1
     assert any("from the store" in c.value for c in again.caption)
+
+
+def test_sweep_caption_counts_tasks_not_a_wrong_product(open_page):
+    """The plan line read '3 points × 2 filters × 4 runs = 6 tasks' (3 × 2 × 4 is not 6): a task is
+    one point and one filter, with all the runs."""
+    at = open_page(PAGE, runs="4", flt=["kf", "chi2-kf"], out="mixture", swn="3", **{"sc.cv2d.epochs": "30"})
+    assert_clean(at)
+    assert any(c.value.startswith("3 points × 2 filters, 4 runs each: 6 tasks, run ") for c in at.caption)
+
+
+def test_sweep_progress_sits_under_run_not_below_the_charts(open_page):
+    at = open_page(PAGE, runs="3", seed="9", flt=["kf"], swn="2", **{"sc.cv2d.epochs": "20"})
+    at.button(key="run_sweep").click().run()
+    assert_clean(at)
+
+    def walk(node):
+        yield node
+        for k in sorted(getattr(node, "children", {}) or {}):
+            yield from walk(node.children[k])
+
+    kinds = [n.type for n in walk(at.main)]
+    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart")

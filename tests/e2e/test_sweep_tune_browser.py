@@ -76,6 +76,14 @@ def test_tune_then_open_compare_with_the_tuned_parameters(page: Page):
     _settle(page)
     _clean(page)
     expect(page.locator(CHART)).to_have_count(1, timeout=T)  # the Huber KF's landscape
+    # every button shows its whole label (in narrow columns they read "P…", "Tuned configuration (JS…")
+    cut = page.evaluate(
+        """() => Array.from(document.querySelectorAll('[data-testid="stMain"] button'))
+        .filter(b => b.offsetWidth > 0)
+        .filter(b => Array.from(b.querySelectorAll('*')).some(e => e.scrollWidth > e.clientWidth + 1))
+        .map(b => b.innerText)"""
+    )
+    assert cut == [], cut
     _button(page, "Open Compare with the tuned parameters").click()
     expect(page.locator("h1").first).to_have_text(re.compile("Compare filters"), timeout=T)
     _settle(page)

@@ -157,6 +157,52 @@ def test_settings_carry_from_compare_to_noise(page: Page):
     expect(page.get_by_role("combobox", name="Outlier model")).to_have_value(want, timeout=T)
 
 
+def _address_matches_the_widgets(page: Page) -> None:
+    """The experiment widgets show what the address holds (its value, else the page default);
+    polled, as the page may still be writing the address."""
+    from urllib.parse import parse_qs, urlparse
+
+    from navlab.ui.widgets import default_spec
+
+    d = default_spec()
+    runs = page.get_by_label("Monte Carlo runs", exact=True)
+    noise = page.get_by_role("combobox", name="Noise schedule (true R(t))")
+    seen = None
+    for _ in range(60):
+        q = parse_qs(urlparse(page.url).query)
+        want = (q.get("runs", [str(d.runs)])[-1], q.get("noise", [d.noise_schedule])[-1])
+        seen = (page.url, want, (runs.input_value(), noise.input_value()))
+        if seen[1] == seen[2]:
+            return
+        page.wait_for_timeout(500)
+    raise AssertionError(f"the address and the widgets disagree: {seen}")
+
+
+def test_browser_back_to_compare_shows_the_experiment_of_its_address(page: Page):
+    """Compare (a link's experiment) → Sweep by the page menu, then Back until Compare: every run
+    page reached by Back shows the experiment its address holds. Streamlit drops the parameters
+    of the page left and resets URL-bound widgets on a history step, so Compare showed the
+    defaults under an address holding runs=33&noise=ramp. (Which addresses Back passes through
+    is Streamlit's: a page change can add an address without parameters.)
+    """
+    page.goto("/Compare?runs=33&noise=ramp")
+    settle(page)
+    page.locator('[data-testid="stSidebar"] [data-testid="stPageLink"]').filter(
+        has_text="Sweep"
+    ).first.click()
+    expect(page.locator("h1").first).to_have_text("Sweep a parameter", timeout=T)
+    settle(page)
+    expect_value(page, "Monte Carlo runs", "33")  # the link carried it
+    for _ in range(4):  # Streamlit may push an extra address of the page on the way
+        page.go_back()
+        settle(page)
+        assert_no_exception(page)
+        _address_matches_the_widgets(page)
+        if page.locator("h1").first.inner_text() == "Compare filters":
+            break
+    expect(page.locator("h1").first).to_have_text("Compare filters", timeout=T)
+
+
 def _download(page: Page, label: str, nth: int = 0) -> Path:
     with page.expect_download(timeout=T) as d:
         page.get_by_role("button", name=label, exact=True).nth(nth).click()

@@ -302,3 +302,14 @@ def test_diverged_stub_keeps_the_layout(small):
     r = dataclasses.replace(small, runs={**small.runs, "chi2-kf": bad})
     fig = F.r_vs_rhat(r, 0)
     assert _d(fig)["yaxis"]["type"] == "log" and fig.data[-1].name == "true R(t) (schedule)"
+
+
+def test_the_internals_subtitle_names_a_dashed_threshold_only_when_one_is_drawn():
+    """'dashed: the filter's threshold' stood under a VB α chart that has no threshold line."""
+    res = run_experiment(ExperimentSpec(runs=3, epochs=20, filters=("vb-akf", "mfukf")))
+    alpha = F.internals_vs_time(res, "alpha")
+    assert not any(t.line.dash == "dash" for t in alpha.data)
+    assert "dashed" not in alpha.layout.title.text
+    gamma = F.internals_vs_time(res, "gamma")
+    assert any(t.line.dash == "dash" for t in gamma.data)
+    assert "dashed: the filter's threshold" in gamma.layout.title.text

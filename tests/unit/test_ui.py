@@ -326,3 +326,16 @@ def test_closed_sessions_past_their_reconnect_window_are_reaped(monkeypatch):
 
     init = inspect.getsource(WebsocketSessionManager.__init__)
     assert "self._session_storage" in init and "self._storage_lock" in init
+
+
+def test_the_single_run_estimate_axis_names_the_state_unit():
+    """The single-run chart's top axis read 'x − truth' with no unit; a state of a metric group
+    shown unscaled takes its unit (cv2d: x is a position, vx a velocity)."""
+    from navlab.ui import single
+
+    r = run_experiment(ExperimentSpec(runs=1, epochs=10, filters=("kf",)))
+    fig = single.single_run_figure(r, 0, ["kf"], 0, 0, frames=False)
+    assert fig.layout.yaxis.title.text == "x − truth (m)"
+    vel = next(i for i in range(len(r.data.state_names)) if i in r.data.groups["vel"].idx)
+    fig = single.single_run_figure(r, 0, ["kf"], vel, 0, frames=False)
+    assert fig.layout.yaxis.title.text == f"{r.data.state_names[vel]} − truth (m/s)"
