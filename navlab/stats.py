@@ -41,6 +41,7 @@ T. C. Hesterberg, "What teachers should know about the bootstrap", The American 
 from __future__ import annotations
 
 import functools
+import math
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -669,7 +670,12 @@ def format_p(p: float, at_floor: bool = False) -> str:
         return f"p < {np.ceil(p / mag - 1e-9) * mag:.2g}"
     if p < 1e-4:
         return "p < 0.0001"
-    return f"p = {p:.2g}" if p < 0.01 else f"p = {p:.2f}"
+    text = f"{p:.2g}" if p < 0.01 else f"{p:.2f}"
+    for digits in (3, 4, 5):  # never a rounding onto the verdicts' α: 0.0496 is not "p = 0.05"
+        if not math.isclose(float(text), ALPHA) or math.isclose(p, ALPHA):
+            break
+        text = f"{p:.{digits}g}"
+    return f"p = {text}"
 
 
 def sig3(x: float) -> str:

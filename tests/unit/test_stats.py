@@ -234,6 +234,15 @@ def test_holm_keeps_the_bound_of_a_floored_p():
     assert S.format_p(adj["a"], bound["a"]) == "p < 0.003"
 
 
+def test_a_p_value_is_never_rounded_onto_alpha():
+    """Two decimals put 0.0496 ("better") and 0.0504 ("indistinguishable") both at "p = 0.05"."""
+    assert round(S.ALPHA, 12) == 0.05
+    assert S.format_p(0.0496) == "p = 0.0496" and S.format_p(0.0504) == "p = 0.0504"
+    assert S.format_p(0.04999) == "p = 0.04999" and S.format_p(0.05) == "p = 0.05"
+    assert S.format_p(0.123) == "p = 0.12" and S.format_p(0.0123) == "p = 0.01"
+    assert S.format_p(0.00123) == "p = 0.0012"
+
+
 def test_a_lost_run_is_a_loss_for_its_filter_whatever_the_share():
     """Issue 25, item 3: the lost runs are scored as the worst per-run value of the pair (the
     composite strategy), so leaving out the worst runs of A can never make A look better."""
