@@ -17,7 +17,9 @@ The rules are those of the statistics spec (STATISTICS.md §6):
   ``budget − 1`` points plus the filter's default, then successive halving: all candidates on
   the first rung's runs, the better half on twice as many, … until two remain on the full
   training runs; the best of those is the tuned value. Each rung adds runs to the previous
-  rung's (run r always draws from its own seed), so only the new runs are computed.
+  rung's (run r always draws from its own seed), so only the new runs are computed. Where
+  halving dropped the default early, it is scored on the full training runs as well (after the
+  choice, which it does not enter), so that the report's "default → tuned" compares the same runs.
 * **Objective.** A metric to minimise (default ``rmse_pos``; the scenario's headline error) or
   its consistency-aware variant ``consistent_<metric>`` = metric × max(1, ANEES / hi, lo / ANEES)
   with [lo, hi] the χ² 95 % band of the ANEES over the runs (ANIS where there is no truth): a
@@ -301,7 +303,8 @@ class Schedule:
         rungs = ", ".join(f"{c} × {r} runs" for c, r in zip(self.configs, self.runs, strict=True))
         return (
             f"budget {self.budget} candidates per filter (the default + {self.budget - 1} Sobol points), "
-            f"successive halving: {rungs} ({self.evaluations} objective evaluations per filter)"
+            f"successive halving: {rungs} ({self.evaluations} objective evaluations per filter; the "
+            f"default is also scored on the last rung's {self.runs[-1]} runs, to compare it with the tuned)"
         )
 
 
@@ -544,6 +547,7 @@ def count_tasks(st: Setup) -> int:
             for j, c in enumerate(st.schedule.configs):
                 lo = st.schedule.runs[j - 1] if j else 0
                 n += c * len(st.train_seeds) * len(T.blocks(lo, st.schedule.runs[j]))
+            n += len(st.train_seeds) * len(T.blocks(0, st.schedule.runs[-1]))  # the default's (report)
         n += 2 * len(st.test_seeds) * len(T.blocks(0, st.test_runs))
     return n
 
@@ -590,19 +594,21 @@ def tune(
             else:
                 alive[k] = order[:1]
     tuned = {k: dict(cands[k][alive[k][0]]) for k in cands}
-    train_obj = {}
-    for k in cands:
-        best = alive[k][0]
-        # the default (candidate 0) on the last rung it reached
-        d0 = next(
-            (
-                t.objective
-                for t in sorted(trials, key=lambda t: -t.rung)
-                if t.filter == k and t.candidate == 0
-            ),
-            math.nan,
-        )
-        train_obj[k] = (d0, last[k][best])
+    # the default (candidate 0) on the last rung's runs as well, wherever halving dropped it
+    # earlier: the report's "default → tuned" on the training seeds compares the same runs (not 4
+    # against 16); the bench (no report) judges on the test seeds alone and skips it (NaN)
+    J = len(st.schedule.configs) - 1
+    dropped = [k for k in cands if 0 not in last[k]] if report else []
+    todo = [t for k in dropped for j in range(J + 1) for t in _train_tasks(st, k, cands[k][0], j)]
+    run.run([t for t in todo if t.key not in run.results])  # the runs it was not scored on yet
+    for k in dropped:
+        try:
+            s0, note = _score(st, k, [run.results[t.key] for t in _cand_tasks(st, k, cands[k][0], J)]), ""
+        except NavlabError as exc:
+            s0, note = math.inf, str(exc)
+        trials.append(Trial(k, 0, J, st.schedule.runs[J], cands[k][0], s0, note))
+        last[k][0] = s0
+    train_obj = {k: (last[k].get(0, math.nan), last[k][alive[k][0]]) for k in cands}
     failed = sorted(k for k, v in train_obj.items() if math.isinf(v[1]))
     for k in failed:  # nothing to choose from: keep the default, and say so
         tuned[k] = dict(cands[k][0])

@@ -207,6 +207,23 @@ def test_tune_is_deterministic_and_reports_every_part():
     assert "tuned − default" in text and "training seeds 6" in text
 
 
+def test_default_and_tuned_are_compared_on_the_same_training_runs():
+    """Halving may drop the default on the first rung (2 runs); its "default → tuned" training
+    objective is then scored on the last rung's runs too, as the tuned value's is.
+    """
+    r = _tiny_tune()
+    J = len(r.setup.schedule.runs) - 1
+    for k in ("huber-kf", "chi2-kf"):
+        d0, tuned = r.train_objective[k]
+        last = {t.candidate: t for t in r.trials if t.filter == k and t.rung == J}
+        assert 0 in last and last[0].objective == d0 and last[0].runs == r.setup.schedule.runs[J]
+        assert tuned in {t.objective for t in last.values()}  # scored on the same rung
+    # the same score as a tuning whose only candidate is the default (no halving)
+    spec = SMALL.replace(filters=("huber-kf",), runs=12)
+    alone = TU.tune(TU.setup(spec, budget=1, train_runs=8))
+    assert alone.train_objective["huber-kf"][0] == r.train_objective["huber-kf"][0]
+
+
 def test_tuned_huber_gamma_lands_inside_an_independent_bracket():
     """The bracket: a fine γ grid on other seeds with many runs; every γ whose RMSE is within
     5 % of the grid's best, widened by one grid step each side. The tuner sees none of it.
