@@ -39,6 +39,18 @@ def plotly_figs(at: AppTest) -> list[dict]:
     return [json.loads(el.proto.spec) for el in at.get("plotly_chart")]
 
 
+def assert_progress_above_charts(at: AppTest) -> None:
+    """The run's progress bar comes before the first chart in the main area (in sight after Run)."""
+
+    def walk(node):
+        yield node
+        for k in sorted(getattr(node, "children", {}) or {}):
+            yield from walk(node.children[k])
+
+    kinds = [n.type for n in walk(at.main)]
+    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart"), kinds
+
+
 def assert_clean(at: AppTest) -> None:
     """No exception element and no error message on the page."""
     assert not at.exception, [e.value for e in at.exception]

@@ -1,4 +1,4 @@
-from apphelpers import assert_clean, plotly_figs
+from apphelpers import assert_clean, assert_progress_above_charts, plotly_figs
 
 from navlab.ui.views import noise_preset
 
@@ -84,11 +84,4 @@ def test_noise_page_progress_sits_under_run_not_below_the_charts(open_page):
     at = open_page(PAGE, runs="3", seed="5", flt=["kf", "sage-husa"], **{"sc.cv2d.epochs": "40"})
     at.button(key="run_noise").click().run()
     assert_clean(at)
-
-    def walk(node):
-        yield node
-        for k in sorted(getattr(node, "children", {}) or {}):
-            yield from walk(node.children[k])
-
-    kinds = [n.type for n in walk(at.main)]
-    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart")
+    assert_progress_above_charts(at)

@@ -1,4 +1,4 @@
-from apphelpers import assert_clean, plotly_figs
+from apphelpers import assert_clean, assert_progress_above_charts, plotly_figs
 
 PAGE = "pages/3_Sweep.py"
 
@@ -67,11 +67,4 @@ def test_sweep_progress_sits_under_run_not_below_the_charts(open_page):
     at = open_page(PAGE, runs="3", seed="9", flt=["kf"], swn="2", **{"sc.cv2d.epochs": "20"})
     at.button(key="run_sweep").click().run()
     assert_clean(at)
-
-    def walk(node):
-        yield node
-        for k in sorted(getattr(node, "children", {}) or {}):
-            yield from walk(node.children[k])
-
-    kinds = [n.type for n in walk(at.main)]
-    assert "progress" in kinds and kinds.index("progress") < kinds.index("plotly_chart")
+    assert_progress_above_charts(at)
