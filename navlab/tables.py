@@ -161,6 +161,21 @@ class Table:
         return body + "\n" + "\n".join(f"  {n}" for n in self.notes) + "\n"
 
 
+def _zero_variance(res: Results, key: str) -> str:
+    """Why a filter's NEES is undefined where its P is singular: the states it holds at variance 0
+    (e.g. a bias modelled with σ = 0); "" when none is.
+    """
+    Pd = getattr(res.runs.get(key), "P_diag", None)  # a summary run keeps no per-epoch arrays
+    if Pd is None:
+        return ""
+    Pd = Pd[:, 1:]
+    zero = np.flatnonzero((Pd == 0).any(axis=tuple(range(Pd.ndim - 1))))
+    if not zero.size:
+        return ""
+    names = ", ".join(res.data.state_names[i] for i in zero)
+    return f": its P holds {names} at variance 0 (singular), where the NEES is undefined"
+
+
 def _headline_groups(res: Results, groups: list[str]) -> list[str]:
     """The scenario's headline error groups among ``groups`` (all of ``groups`` if it names none)."""
     try:
@@ -404,7 +419,8 @@ def footnotes(
     skipped = t[t.metric.str.endswith("_skipped") & (t.value > 0)]
     for r in skipped.itertuples():
         what = r.metric.replace("_skipped", "").upper().replace("RHAT", "R̂ ratio")
-        out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden).")
+        why = _zero_variance(res, r.filter) if what == "NEES" else ""
+        out.append(f"{r.label}: {int(r.value)} non-finite {what} entries skipped (counted, not hidden){why}.")
     explained = set()
     if explanations and sm.arrays:  # the known failure mechanisms (need the per-epoch arrays)
         from navlab.diagnostics import FLAG_KINDS, explain

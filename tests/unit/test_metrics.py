@@ -115,6 +115,18 @@ def test_skipped_entries_are_counted():
     assert value(df, "vb-akf", "rhat_skipped").value == 1
 
 
+def test_a_nees_undefined_by_a_zero_variance_state_says_so():
+    """A bias modelled with σ = 0 leaves P singular: every NEES is skipped, and the note names
+    the states at variance 0 (it said only "non-finite NEES entries skipped").
+    """
+    spec = ExperimentSpec(scenario="gps-ins-rtk", filters=("kf",), runs=3, epochs=20)
+    res = run_experiment(spec.replace(scenario_params={"accel_bias_ug": 0}))
+    assert value(summarize(res), "kf", "nees_skipped").value == 3 * 20
+    notes = tables.headline(res).text()
+    assert "its P holds ∇_F, ∇_R, ∇_D at variance 0 (singular), where the NEES is undefined" in notes
+    assert "variance 0" not in tables.headline(run_experiment(spec)).text()
+
+
 def test_rhat_error_is_against_the_variance_actually_drawn_on_clean_epochs():
     spec = ExperimentSpec(
         filters=("kf", "oracle-kf", "vb-akf"), runs=30, epochs=60, outliers="mixture", contamination=0.2
