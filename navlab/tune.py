@@ -331,9 +331,9 @@ class Setup:
 
     def describe(self) -> list[str]:
         out = [
-            f"Objective: {self.objective.name} (lower is better), scored on training seeds "
-            f"{', '.join(map(str, self.train_seeds))}; reported on test seeds "
-            f"{', '.join(map(str, self.test_seeds))} × {self.test_runs} runs.",
+            f"Objective: {self.objective.name} (lower is better), scored on "
+            f"{_seeds('training', self.train_seeds)}; "
+            f"reported on {_seeds('test', self.test_seeds)} × {self.test_runs} runs.",
             "Search: " + self.schedule.text() + "; the same for every filter with a tunable parameter.",
         ]
         if self.real:
@@ -637,6 +637,11 @@ def tune(
 # --------------------------------------------------------------------------- report
 
 
+def _seeds(kind: str, seeds: Sequence[int]) -> str:
+    """'training seed 2' / 'training seeds 2, 3'."""
+    return f"{kind} seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}"
+
+
 def boundary(d: Dim, v: float) -> str:
     """'lo' / 'hi' when v lies within BOUNDARY of an end of the range (search scale), else ''."""
     u = d.unit(v)
@@ -839,8 +844,8 @@ def caption(r: TuneResult) -> str:
 
     st = r.setup
     return (
-        f"objective {st.objective.name} scored on training seeds {', '.join(map(str, st.train_seeds))}, "
-        f"reported on test seeds {', '.join(map(str, st.test_seeds))} x {st.test_runs} runs "
+        f"objective {st.objective.name} scored on {_seeds('training', st.train_seeds)}, "
+        f"reported on {_seeds('test', st.test_seeds)} x {st.test_runs} runs "
         f"({r.test.data.B} Monte Carlo runs). " + tables.interval_note(r.test.data.B)
     )
 

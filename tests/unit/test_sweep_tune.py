@@ -204,7 +204,7 @@ def test_tune_is_deterministic_and_reports_every_part():
     got = m[(m["filter"] == "huber-kf") & (m.variant == "default")].value.iloc[0]
     assert got == pytest.approx(want, rel=1e-9)
     text = TU.report(r1).text()
-    assert "tuned − default" in text and "training seeds 6" in text
+    assert "tuned − default" in text and "training seed 6" in text
 
 
 def test_default_and_tuned_are_compared_on_the_same_training_runs():
