@@ -10,7 +10,7 @@ from navlab.params import SEED_MAX
 from navlab.scenarios.base import get_scenario_class
 from navlab.stats import MIN_RUNS
 from navlab.ui import realdata as R
-from navlab.ui.frame import frame, plural
+from navlab.ui.frame import frame, plural, warm_run_once
 from navlab.ui.runner import result_store, show_error
 from navlab.ui.uploads import session_uploads, sweep
 from navlab.ui.views import chart
@@ -25,6 +25,7 @@ frame(
 )
 
 sweep()  # upload folders idle for an hour are removed (navlab.ui.uploads)
+warm_run_once(R.warm_spec().to_json())  # the drive's kernels compile while the page is read
 problems = R.link_problems({k: st.query_params.get_all(k) for k in st.query_params})
 
 with st.sidebar:  # every setting is bound to the URL: a shared link reproduces the run

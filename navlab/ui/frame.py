@@ -63,6 +63,24 @@ def _warm_once() -> threading.Thread:
     return t
 
 
+@st.cache_resource(show_spinner=False)
+def warm_run_once(spec_json: str) -> threading.Thread:
+    """Start a tiny run of ``spec_json`` (an ExperimentSpec) in the background, once per server
+    process: a page whose runs need kernels the Compare page's filters do not (Real data: the INS
+    model, IRAKF, …) compiles them on a fresh install while it is read, not after Run.
+    """
+
+    def run() -> None:
+        with contextlib.suppress(Exception):  # best effort (a missing recording: nothing to warm)
+            from navlab.experiment import ExperimentSpec, run_experiment
+
+            run_experiment(ExperimentSpec.from_json(spec_json))
+
+    t = threading.Thread(target=run, name="navlab-warm-page", daemon=True)
+    t.start()
+    return t
+
+
 def presenting() -> bool:
     """Whether this page is shown in presentation mode (``?present=1``)."""
     with contextlib.suppress(Exception):  # no script run (a test calling a view directly)

@@ -42,6 +42,16 @@ RECORDINGS = {
     "upload": "Upload your own drive (generic CSV)",
     "upload-pr": "Upload your own pseudoranges (generic CSV)",
 }
+
+
+def warm_spec() -> ExperimentSpec:
+    """A tiny run of the page's default experiment (the drive, its default filters): what the
+    page warms in the background at its first view.
+    """
+    scen = get_scenario_class("drive0708")
+    return ExperimentSpec(scenario="drive0708", filters=scen.default_filters, runs=1, epochs=20)
+
+
 #: The page's uploads and the scenario each one runs.
 UPLOADS = {"upload": "own-drive", "upload-pr": "own-pseudoranges"}
 _OWN_FILES = (
