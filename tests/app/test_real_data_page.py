@@ -26,6 +26,21 @@ def test_renders_without_running(open_page):
     assert any("BSD-3-Clause" in i.value for i in at.info)  # source and licence shown
 
 
+def test_the_first_view_warms_the_default_drive_run(open_page):
+    """The page's background warm is a tiny run of what its Run button runs by default."""
+    from navlab.experiment import plan
+    from navlab.ui import realdata as R
+    from navlab.ui.frame import warm_run_once
+
+    at = open_page(PAGE)
+    spec = R.warm_spec()
+    assert spec.scenario == at.selectbox(key="rd_rec").value == "drive0708"
+    assert list(spec.filters) == at.multiselect(key="rd_flt_drive0708").value and spec.runs == 1
+    assert warm_run_once(spec.to_json()).name == "navlab-warm-page"  # started once per process
+    if (ROOT / RTKX_DIR).is_dir():
+        plan(spec)  # a valid experiment (a NavlabError otherwise)
+
+
 @needs_data
 @pytest.mark.slow
 def test_short_drive_segment_runs(open_page):
