@@ -538,9 +538,10 @@ def _filter_rms(res: Results, idx: list[int], ref: Array) -> dict[str, float]:
     return errs
 
 
-def _raw_fixes(d: Any, fixes: Array) -> tuple[float, str, str, Array | None]:
-    """The raw GNSS fixes' 3-D RMS, its basis, its label and the truth it is judged against
-    (None: no truth, the fixes' stated σ stands in).
+def _raw_fixes(d: Any, fixes: Array) -> tuple[float, str, str, Array | None, str]:
+    """The raw GNSS fixes' 3-D RMS, its basis, its label, the truth it is judged against (None: no
+    truth, the fixes' stated σ stands in) and what is said after the figure (the outlying fixes
+    left out of it).
     """
     W = d.window
     p_ant = d.extras.get("p_true_antenna")
@@ -548,7 +549,7 @@ def _raw_fixes(d: Any, fixes: Array) -> tuple[float, str, str, Array | None]:
         sig = np.asarray(d.extras.get("fix_sigma_m"), float)
         raw = float(np.sqrt(np.nanmean(np.sum(sig[W] ** 2, axis=-1))))
         basis = "against the GNSS fixes themselves (no truth): the raw figure is the GNSS's stated σ"
-        return raw, basis, "the raw GNSS fixes", None
+        return raw, basis, "the raw GNSS fixes", None, ""
     e_raw = fixes - p_ant[None]
     # outlying fixes (flagged before the run, or injected) are left out of the raw figure: with
     # them in it, a filter worse than the clean fixes could still look better than "raw"
@@ -557,10 +558,8 @@ def _raw_fixes(d: Any, fixes: Array) -> tuple[float, str, str, Array | None]:
         bad |= np.asarray(d.outlier_mask)[..., :3].any(axis=-1)
     raw = _pos_rms(np.where(bad[..., None], np.nan, e_raw)[:, W])
     n_bad = int(bad[:, W].sum())
-    label = "the raw GNSS fixes"
-    if n_bad:
-        label += f" without their {n_bad} outlying ones (all: {_pos_rms(e_raw[:, W]):.3g} m)"
-    return raw, "against the truth", label, d.x_true
+    aside = f" ({n_bad} outlying fixes left out; {_pos_rms(e_raw[:, W]):.3g} m with them)" if n_bad else ""
+    return raw, "against the truth", "the raw GNSS fixes", d.x_true, aside
 
 
 def trust_check(res: Results) -> list[Finding]:
@@ -571,7 +570,7 @@ def trust_check(res: Results) -> list[Finding]:
     idx = list(d.groups["pos"].idx)
     fixes = d.model.fixes(d.z) if hasattr(d.model, "fixes") else None  # the aiding as fed
     if fixes is not None:
-        raw, basis, raw_label, truth = _raw_fixes(d, fixes)
+        raw, basis, raw_label, truth, aside = _raw_fixes(d, fixes)
         errs = _filter_rms(res, idx, fixes if truth is None else truth[..., idx])
         causes = _DRIVE_CAUSES
         if d.extras.get("start") == "moving":
@@ -584,6 +583,7 @@ def trust_check(res: Results) -> list[Finding]:
         truth = d.x_true[..., idx]
         raw = _pos_rms((res.runs["wls"].x[..., idx] - truth)[:, d.window])
         basis, raw_label, causes = "against the truth", "the per-epoch least-squares fix (wls)", _PR_CAUSES
+        aside = ""
         errs = _filter_rms(res, idx, truth)
     else:
         return []
@@ -594,7 +594,7 @@ def trust_check(res: Results) -> list[Finding]:
     out = [
         Finding(
             "note",
-            f"3-D position RMS {basis}: {raw_label} {raw:.3g} m; best filter {lab} {errs[best]:.3g} m",
+            f"3-D position RMS {basis}: {raw_label} {raw:.3g} m{aside}; best filter {lab} {errs[best]:.3g} m",
         )
     ]
     if not errs[best] <= max(TRUST_FACTOR * raw, raw + TRUST_MARGIN_M):

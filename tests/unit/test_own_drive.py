@@ -230,6 +230,16 @@ def test_an_in_motion_start_skips_a_first_fix_the_outlier_check_flags(tmp_path, 
     assert not res.runs["chi2-kf"].diverged.any() and _metric(res, "chi2-kf", "rmse_pos") < 3.0
 
 
+@needs_rtkx
+def test_the_raw_figure_says_after_it_which_fixes_it_leaves_out():
+    """ "the raw GNSS fixes without their 34 outlying ones (all: 19.4 m) 5.17 m" read out of order."""
+    spec = ExperimentSpec(scenario="drive0708", filters=("kf",), runs=1, epochs=60, contamination=0.2)
+    note = next(f for f in trust_check(run_experiment(spec)) if f.level == "note").text
+    assert re.search(
+        r"the raw GNSS fixes [\d.]+ m \(\d+ outlying fixes left out; [\d.]+ m with them\); best ", note
+    )
+
+
 def _offset_finding(res):
     return next(f for f in res.data.extras["findings"] if "GNSS time offset" in f.text)
 
