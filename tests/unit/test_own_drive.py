@@ -232,7 +232,7 @@ def test_an_in_motion_start_skips_a_first_fix_the_outlier_check_flags(tmp_path, 
 
 @needs_rtkx
 def test_the_raw_figure_says_after_it_which_fixes_it_leaves_out():
-    """ "the raw GNSS fixes without their 34 outlying ones (all: 19.4 m) 5.17 m" read out of order."""
+    """The note read "the raw GNSS fixes without their 34 outlying ones (all: 19.4 m) 5.17 m"."""
     spec = ExperimentSpec(scenario="drive0708", filters=("kf",), runs=1, epochs=60, contamination=0.2)
     note = next(f for f in trust_check(run_experiment(spec)) if f.level == "note").text
     assert re.search(
