@@ -375,7 +375,8 @@ def _floats(text: str, what: str) -> list[float]:
                 raise NavlabError(f"{what} {text}: a log-spaced range needs a positive lower end")
             if n > MAX_POINTS:  # refused before numpy allocates them
                 raise NavlabError(f"{what} {text}: {n} values; a sweep takes at most {MAX_POINTS} per axis")
-            return list(np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))
+            # 12 significant digits: 0.05, not linspace's 0.049999999999999996, in every table
+            return [float(f"{v:.12g}") for v in (np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))]
         return [float(v) for v in text.split(",") if v.strip()]
     except NavlabError:  # a ValueError too, but already in words
         raise
@@ -707,7 +708,10 @@ def _add_sweep_command(sub: Any) -> None:
     ps.add_argument("--values", help="its values: V1,V2,… or LO:HI:N[:log]")
     ps.add_argument("--param2", metavar="GROUP.NAME", help="a second parameter (2-D sweep)")
     ps.add_argument("--values2", help="the second parameter's values")
-    ps.add_argument("--metric", help="metric of the table output (default: the headline RMSE)")
+    ps.add_argument(
+        "--metric",
+        help="the metric to report: the table's (default: the headline RMSE); json/csv keep its rows only",
+    )
     _engine_options(ps)
 
 

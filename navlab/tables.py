@@ -357,11 +357,12 @@ def _verdict_column(
     verdicts = {r["filter"]: verdict_cell(r, ref_label, short=True) for r in c.to_dict("records")}
     # beside the metric it judges, so the verdict is on screen with it
     cells.insert(1, col, ["reference" if k == compare_to else verdicts.get(k, "") for k in res.runs])
+    others = len(res.runs) - 1  # one comparison: Holm's correction is the p-value itself
+    holm = "p < 0.05" if others == 1 else f"Holm-corrected p < 0.05 across the {others} other filters"
     notes = [
         f"{col}: {metric_name(first, data)} paired over the same runs, Δ = filter − {ref_label} "
-        f"with its 95 % interval; better/worse when Holm-corrected p < 0.05 across the "
-        f"{len(res.runs) - 1} other filters, else indistinguishable at this run count; "
-        f"p < …: below the bootstrap's resolution (no resample on the other side of 0)",
+        f"with its 95 % interval; better/worse when {holm}, else indistinguishable at this run "
+        "count; p < …: below the bootstrap's resolution (no resample on the other side of 0)",
         f"Lost runs: {M.LOSS_RULE}.",
     ]
     help_ = (

@@ -412,3 +412,16 @@ def test_an_unwritable_bench_folder_is_refused_before_the_bench(capsys, monkeypa
         capsys, "bench", "--suite", "tiny", "--filters", "kf", "--scheduler", "serial", "-q"
     )
     assert rc == 2 and "the bench folder" in err and "that is a file; give a folder" in err
+
+
+def test_sweep_ranges_are_the_values_a_user_types():
+    """0:0.3:7 gave linspace's 0.049999999999999996 and 0.09999999999999999 in every table."""
+    from navlab.cli import _floats
+
+    assert _floats("0:0.3:7", "--values") == [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3]
+    assert _floats("0.1:1000:5:log", "--values") == [0.1, 1.0, 10.0, 100.0, 1000.0]
+
+
+def test_compare_to_with_one_other_filter_says_p_not_holm_across_one(capsys):
+    rc, out, _err = run_cli(capsys, "run", "--filters", "kf,huber-kf", "--compare-to", "kf", "--runs", "12")
+    assert rc == 0 and "better/worse when p < 0.05, else" in out and "across the 1 other" not in out
