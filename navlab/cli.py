@@ -360,9 +360,7 @@ def _app(args: Sequence[str]) -> int:
 
 def _floats(text: str, what: str) -> list[float]:
     """'0,0.1,0.2' or 'LO:HI:N' (linear) or 'LO:HI:N:log' → values."""
-    import numpy as np
-
-    from navlab.sweep import MAX_POINTS
+    from navlab import sweep as SW
 
     try:
         if ":" in text:
@@ -373,10 +371,10 @@ def _floats(text: str, what: str) -> list[float]:
                 raise ValueError
             if log and lo <= 0:
                 raise NavlabError(f"{what} {text}: a log-spaced range needs a positive lower end")
-            if n > MAX_POINTS:  # refused before numpy allocates them
-                raise NavlabError(f"{what} {text}: {n} values; a sweep takes at most {MAX_POINTS} per axis")
-            # 12 significant digits: 0.05, not linspace's 0.049999999999999996, in every table
-            return [float(f"{v:.12g}") for v in (np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n))]
+            if n > SW.MAX_POINTS:  # refused before numpy allocates them
+                most = SW.MAX_POINTS
+                raise NavlabError(f"{what} {text}: {n} values; a sweep takes at most {most} per axis")
+            return list(SW.spaced(lo, hi, n, log))
         return [float(v) for v in text.split(",") if v.strip()]
     except NavlabError:  # a ValueError too, but already in words
         raise

@@ -129,6 +129,14 @@ def default_range(s: Sweepable) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def spaced(lo: float, hi: float, n: int, log: bool) -> np.ndarray:
+    """``n`` values from lo to hi, linearly or log-spaced, at 12 significant digits: the values a
+    user would type (0.05, not linspace's 0.049999999999999996, in every table and link).
+    """
+    v = np.geomspace(lo, hi, n) if log else np.linspace(lo, hi, n)
+    return np.array([float(f"{x:.12g}") for x in v])
+
+
 def grid(s: Sweepable, lo: float, hi: float, n: int, log: bool) -> np.ndarray:
     """``n`` values from lo to hi (log-spaced if ``log``), inside the admissible range."""
     if not 2 <= n <= MAX_POINTS:
@@ -137,12 +145,9 @@ def grid(s: Sweepable, lo: float, hi: float, n: int, log: bool) -> np.ndarray:
         raise NavlabError("the sweep's upper end must be larger than its lower end")
     if (s.lo is not None and lo < s.lo) or (s.hi is not None and hi > s.hi):
         raise NavlabError(f"'{s.name}' must stay within [{s.lo}, {s.hi}]")
-    if log:
-        if lo <= 0:
-            raise NavlabError("a log-spaced sweep needs a positive lower end")
-        v = np.geomspace(lo, hi, n)
-    else:
-        v = np.linspace(lo, hi, n)
+    if log and lo <= 0:
+        raise NavlabError("a log-spaced sweep needs a positive lower end")
+    v = spaced(lo, hi, n, log)
     if s.integer:
         v = np.unique(np.round(v).astype(int)).astype(float)
     return v
