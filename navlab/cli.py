@@ -282,8 +282,10 @@ class _Progress:
             return
         self.last = now
         where = f" · {self.where()}" if self.where is not None else ""
+        done, total = self.done, self.total  # within a chunk a fraction of the runs: said as a share
+        count = f"{done}/{total}" if done == int(done) else f"{100 * done / total:.0f} % of {total}"
         print(
-            f"navlab: {self.done}/{self.total} {self.what} after {now - self.t0:.0f} s{where}",
+            f"navlab: {count} {self.what} after {now - self.t0:.0f} s{where}",
             file=sys.stderr,
             flush=True,
         )

@@ -298,7 +298,8 @@ def test_a_run_off_a_terminal_prints_progress_lines_from_within_its_one_chunk(ca
     assert rc == 0
     lines = [ln for ln in err.splitlines() if ln.startswith("navlab: ") and " runs after " in ln]
     assert len(lines) >= 10  # one chunk of 20 epochs
-    assert lines[0].startswith("navlab: 0.2/4 runs after")  # 4 runs × 1/20 of the epochs
+    assert lines[0].startswith("navlab: 5 % of 4 runs after")  # 1/20 of the epochs ("0.2/4 runs" read oddly)
+    assert lines[-1].startswith("navlab: 4/4 runs after")
 
 
 @pytest.fixture
