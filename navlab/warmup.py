@@ -77,6 +77,10 @@ def _warm_ins_model() -> None:
 
 
 if __name__ == "__main__":  # python -m navlab.warmup: compile (or load) every kernel, print the times
+    import argparse
+
+    doc = warm.__doc__.splitlines()[0]
+    argparse.ArgumentParser(prog="python -m navlab.warmup", description=doc).parse_args()  # --help: no warming
     took = warm()
     if not took:
         print("numba not available (or NAVLAB_NUMBA=0): navlab uses its numpy paths")
