@@ -80,7 +80,7 @@ if __name__ == "__main__":  # python -m navlab.warmup: compile (or load) every k
     import argparse
 
     doc = warm.__doc__.splitlines()[0]
-    argparse.ArgumentParser(prog="python -m navlab.warmup", description=doc).parse_args()  # --help: no warming
+    argparse.ArgumentParser(prog="python -m navlab.warmup", description=doc).parse_args()  # --help: no warm
     took = warm()
     if not took:
         print("numba not available (or NAVLAB_NUMBA=0): navlab uses its numpy paths")
