@@ -303,8 +303,8 @@ class Schedule:
         rungs = ", ".join(f"{c} × {r} runs" for c, r in zip(self.configs, self.runs, strict=True))
         return (
             f"budget {self.budget} candidates per filter (the default + {self.budget - 1} Sobol points), "
-            f"successive halving: {rungs} ({self.evaluations} objective evaluations per filter; the "
-            f"default is also scored on the last rung's {self.runs[-1]} runs, to compare it with the tuned)"
+            f"successive halving: {rungs} ({self.evaluations} objective evaluations per filter; for the "
+            f"report the default is also scored on the last rung's {self.runs[-1]} runs, beside the tuned)"
         )
 
 
