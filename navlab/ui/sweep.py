@@ -106,7 +106,8 @@ def run_job(
         return where if ex is None else ex.now
 
     bar = st.progress(0.0, text=f"starting ({place()})…")
-    stop_container.button(
+    stop_slot = stop_container.empty()  # emptied when the job ends: nothing left to stop
+    stop_slot.button(
         "Stop",
         key=f"_stop_{page}",
         on_click=cancel,
@@ -134,4 +135,5 @@ def run_job(
         show_error(exc)
         return None
     finally:
+        stop_slot.empty()
         cancel(page)

@@ -68,3 +68,4 @@ def test_sweep_progress_sits_under_run_not_below_the_charts(open_page):
     at.button(key="run_sweep").click().run()
     assert_clean(at)
     assert_progress_above_charts(at)
+    assert not [b for b in at.button if b.label == "Stop"]  # the sweep ended: nothing to stop
