@@ -51,7 +51,7 @@ from navlab import stats as S
 from navlab import tune as TU
 from navlab.errors import NavlabError
 from navlab.experiment import ExperimentSpec, plan
-from navlab.filters import registry
+from navlab.filters import is_oracle, registry
 from navlab.tables import Table, best_filter, cell, text_table, verdict_cell
 
 SUITE_VERSION = "1"
@@ -180,7 +180,7 @@ def setups(suite: Suite, filters: Sequence[str] | None = None) -> list[TU.Setup]
         keys, _ = applicable(p.spec, filters)
         if not keys:
             raise NavlabError(f"no chosen filter runs on problem {p.name}")
-        if all(registry()[k].family == "oracle" for k in keys):
+        if all(is_oracle(k) for k in keys):
             raise NavlabError(
                 "--filters: choose at least one filter that is not an oracle (the oracle is the "
                 "genie shown beside the ranking, never ranked)"
@@ -330,7 +330,7 @@ def problem_table(pr: ProblemResult) -> pd.DataFrame:
         )
         if fl is not None and fl[0] > 0:
             row.update(gap=e.value / fl[0], gap_lo=row["ci_lo"] / fl[2], gap_hi=row["ci_hi"] / fl[1])
-        if reg[k].family == "oracle":  # the genie: shown, never ranked
+        if is_oracle(k):  # the genie: shown, never ranked
             row.update(label=reg[k].label, verdict="genie (told the outliers and the true R): not ranked")
         elif k == cand:
             row.update(verdict="best" if best else "lowest (not significantly)")

@@ -39,7 +39,7 @@ import pandas as pd
 
 from navlab import metrics as M
 from navlab.experiment import ExperimentSpec, plan
-from navlab.filters import registry
+from navlab.filters import is_oracle
 from navlab.linalg import Array
 from navlab.noise import OutlierModel
 from navlab.scenarios.base import get_scenario_class
@@ -209,16 +209,14 @@ def floor_text(res: Any, group: str, markdown: bool = True) -> str:
     if np.isfinite(fl["ci_lo"]):
         txt += f" [{fl['ci_lo']:.4g}, {fl['ci_hi']:.4g}]"
     gaps = df[df.metric == f"gap_{group}"]
-    reg = registry()
-    oracle = lambda k: k in reg and reg[k].family == "oracle"  # noqa: E731
-    orc = [r for r in gaps.itertuples() if oracle(r.filter)]
+    orc = [r for r in gaps.itertuples() if is_oracle(r.filter)]
     if orc:
         txt += f"; the oracle (a genie, told them) is at {orc[0].value:.3g} × the floor"
     parts = [
         (f"{r.label} {r.value:.3g}×" if np.isfinite(r.value) else f"{r.label} — (no RMSE: no run judged)")
         + (f" [{r.ci_lo:.3g}, {r.ci_hi:.3g}]" if np.isfinite(r.ci_lo) else "")
         for r in gaps.itertuples()
-        if not oracle(r.filter)
+        if not is_oracle(r.filter)
     ]
     if parts:
         txt += ". Gap (RMSE / floor): " + ", ".join(parts)

@@ -17,7 +17,7 @@ import pandas as pd
 
 from navlab import metrics as M
 from navlab import stats as S
-from navlab.filters import registry
+from navlab.filters import is_oracle
 from navlab.scenarios.base import scenario_registry
 
 if TYPE_CHECKING:
@@ -227,9 +227,8 @@ def best_candidates(res: Results, metric: str) -> list[str]:
     outlier (codes 1–5) in the analysis window (one that never flags "wins" false alarms by
     doing nothing).
     """
-    reg = registry()
     sm = M.summary(res)
-    keys = [k for k in res.runs if not (k in reg and reg[k].family == "oracle")]
+    keys = [k for k in res.runs if not is_oracle(k)]
     if metric in FLAG_METRICS:
         flagged = lambda k: float(np.sum(sm.stats[k].sums["detected"] + sm.stats[k].sums["false_alarm"]))  # noqa: E731
         keys = [k for k in keys if flagged(k) > 0]

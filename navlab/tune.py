@@ -51,7 +51,7 @@ from navlab import stats as S
 from navlab import tasks as T
 from navlab.errors import NavlabError
 from navlab.experiment import MAX_RUNS, ExperimentSpec, filter_group, plan
-from navlab.filters import registry
+from navlab.filters import is_oracle, registry
 from navlab.params import describe
 from navlab.scenarios import scenario_registry
 from navlab.stats import holm_bounds
@@ -717,8 +717,7 @@ def diff_rows(r: TuneResult, metrics: list[str]) -> pd.DataFrame:
 
 def contenders(r: TuneResult) -> list[str]:
     """The filters the tuned comparison ranks: all but the oracles (the accuracy floor)."""
-    reg = registry()
-    return [k for k in r.setup.spec.filters if reg[k].family != "oracle"]
+    return [k for k in r.setup.spec.filters if not is_oracle(k)]
 
 
 def tuned_only(r: TuneResult) -> Any:
@@ -900,7 +899,7 @@ def report(r: TuneResult) -> Any:
         else:
             row["tuned − default (paired, test)"] = "tuned = default"
         if len(vs):
-            if registry()[k].family == "oracle":
+            if is_oracle(k):
                 row["tuned, against the best tuned"] = "(the accuracy floor: not ranked)"
             elif k == cand:
                 row["tuned, against the best tuned"] = "best" if best else "lowest (not significantly)"

@@ -283,6 +283,14 @@ def registry() -> dict[str, type[Filter]]:
     return dict(FILTERS)
 
 
+def is_oracle(key: str) -> bool:
+    """Whether ``key`` is a registered filter of the oracle family (told the truth: shown as the
+    genie reference, never ranked); False for a key no filter is registered under.
+    """
+    cls = FILTERS.get(key)
+    return cls is not None and cls.family == "oracle"
+
+
 def get_filter_class(key: str) -> type[Filter]:
     """The filter class registered as ``key``; NavlabError naming the known keys otherwise."""
     return FILTERS.lookup(key)

@@ -30,7 +30,7 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from navlab import pcrb
-from navlab.filters import registry
+from navlab.filters import is_oracle
 from navlab.metrics import (
     average_over_runs,
     chi2_band,
@@ -605,7 +605,6 @@ def _rhat_grid(
     outlier_strip = strip_top is not None
     strip_ax = str(n_panels + 1) if outlier_strip else ""
     colors = filter_colors(list(res.runs))
-    reg = registry()
     # the grid, top to bottom: panel rows, then the strip; fractions of the plot height
     gap = 0.06 if multi else 0.1
     bottom = (strip_top or 0.0) + (gap if outlier_strip else 0.0)
@@ -638,8 +637,7 @@ def _rhat_grid(
         layout[f"yaxis{_axis_suffix(i)}"] = ya
         if multi:
             fr = res.runs[shown[i]]  # an oracle's estimate is drawn under the truth: say so
-            oracle = fr.key in reg and reg[fr.key].family == "oracle"
-            note = f"{sym}̂ = the true {sym}(t)" if oracle else ""
+            note = f"{sym}̂ = the true {sym}(t)" if is_oracle(fr.key) else ""
             title = _panel_title(fr.label, colors[shown[i]], x0, y1, note)
             layout.setdefault("annotations", []).append(title)
 
