@@ -599,11 +599,11 @@ def tune(
     # against 16); the bench (no report) judges on the test seeds alone and skips it (NaN)
     J = len(st.schedule.configs) - 1
     dropped = [k for k in cands if 0 not in last[k]] if report else []
-    todo = [t for k in dropped for j in range(J + 1) for t in _train_tasks(st, k, cands[k][0], j)]
-    run.run([t for t in todo if t.key not in run.results])  # the runs it was not scored on yet
+    tasks = {k: _cand_tasks(st, k, cands[k][0], J) for k in dropped}
+    run.run([t for ts in tasks.values() for t in ts if t.key not in run.results])  # runs not scored yet
     for k in dropped:
         try:
-            s0, note = _score(st, k, [run.results[t.key] for t in _cand_tasks(st, k, cands[k][0], J)]), ""
+            s0, note = _score(st, k, [run.results[t.key] for t in tasks[k]]), ""
         except NavlabError as exc:
             s0, note = math.inf, str(exc)
         trials.append(Trial(k, 0, J, st.schedule.runs[J], cands[k][0], s0, note))

@@ -279,7 +279,8 @@ def _label_axes(fig: go.Figure, d, state: int, channel: int, log_r: bool, relati
     """Axis titles of the three panels (R on a log axis with ``log_r``)."""
     sname, _, cunit = _names(d, state, channel)
     unit = f" ({cunit})" if cunit else ""
-    sunit = f" ({_state_unit(d, state)})" if _state_unit(d, state) else ""
+    su = _state_unit(d, state)
+    sunit = f" ({su})" if su else ""
     fig.update_yaxes(title_text=(f"{sname} − truth" if relative else sname) + sunit, row=1, col=1)
     fig.update_yaxes(title_text="weight", range=[-0.08, 1.12], row=2, col=1)
     fig.update_yaxes(
